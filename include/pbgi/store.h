@@ -1,0 +1,172 @@
+// pbgi::PageStore: fixed-size pages in one LMDB environment (DESIGN.md, "Store").
+//
+// A store has three named sections: `meta` (one meta record, committed last), `nodes` and
+// `points` (key: page number, value: one fixed-size page). A PageWriter appends pages in
+// page-number order with MDB_APPEND, commits them in bounded batches, and makes the store visible
+// only when Finish() commits the meta record. A PageStore opens a finished store read-only; many
+// threads (MDB_NOTLS, one ReadTxn each) and many processes may read it at once.
+//
+// Thread safety: a PageStore is safe to share between threads. A ReadTxn and a PageWriter belong
+// to one thread at a time.
+//
+// Caveats (read these, as you would LMDB's):
+// - A PageView points into the memory map and is valid only until its ReadTxn is reset, renewed
+//   or destroyed. Copy what you need to keep.
+// - A long-lived read transaction pins the snapshot; on an immutable store that costs nothing,
+//   but keep one ReadTxn per thread and Reset() it between bursts of work.
+// - The map size grows while writing (the writer doubles it when LMDB reports MDB_MAP_FULL); a
+//   reader maps the file as it is. Map size is virtual address space, not resident memory.
+// - Verification of page checksums is on by default; turn it off only to measure.
+#ifndef PBGI_STORE_H_
+#define PBGI_STORE_H_
+
+#include <cstdint>
+#include <map>
+#include <memory>
+#include <string>
+
+#include "absl/status/status.h"
+#include "absl/status/statusor.h"
+#include "absl/types/span.h"
+#include "pbgi/surfel.h"
+
+namespace pbgi {
+
+inline constexpr uint64_t kStoreMagic = 0x3130424447425050ull;  // "PPBGDB01" little-endian
+inline constexpr uint32_t kStoreFormatVersion = 1;
+
+// The efficient page sizes are k*4096 - 16: LMDB stores a large value in a run of 4 KiB overflow
+// pages behind a 16-byte page header.
+inline constexpr uint32_t EfficientPageSize(uint32_t pages_4k) { return pages_4k * 4096u - 16u; }
+inline constexpr uint32_t kDefaultPageSize = EfficientPageSize(16);  // 65520 bytes
+
+enum class Section : uint8_t { kNodes = 1, kPoints = 2 };
+const char* SectionName(Section s);
+
+// Kind of a page, stored in its header.
+enum class PageKind : uint16_t { kNode = 1, kPoint = 2 };
+
+// Every page starts with this header. The checksum is CRC-32C of the page bytes after the
+// checksum field (bytes [4, page_size)).
+struct PageHeader {
+  uint32_t checksum;
+  uint16_t kind;          // PageKind
+  uint16_t format;        // kStoreFormatVersion
+  uint32_t record_count;  // records in this page
+  uint32_t payload_bytes; // bytes used after the header
+  uint64_t page_no;       // the page's own number (key), to catch misplaced pages
+  uint64_t reserved;
+};
+static_assert(sizeof(PageHeader) == 32);
+
+// What the meta record holds. Written last, by PageWriter::Finish().
+struct StoreMeta {
+  uint64_t magic = kStoreMagic;
+  uint32_t version = kStoreFormatVersion;
+  uint32_t page_size = kDefaultPageSize;
+  Channels channels = Channels::kRadiance;
+  uint32_t sh_order = 2;
+  uint32_t leaf_size = 16;
+  Bounds bounds;                 // of all surfel positions
+  uint64_t point_count = 0;
+  uint64_t node_count = 0;
+  uint64_t node_pages = 0;
+  uint64_t point_pages = 0;
+  uint64_t root = 0;             // NodeRef of the root node (see store/page_format.h)
+  uint32_t max_depth = 0;
+  std::string layout = "coherent";
+  // Free-form build statistics (name -> value as text): timings, peak memory, ...
+  std::map<std::string, std::string> stats;
+};
+
+struct StoreOptions {
+  uint32_t page_size = kDefaultPageSize;  // bytes per page, header included
+  uint64_t initial_map_size = uint64_t{64} << 20;
+  uint64_t max_map_size = uint64_t{1} << 42;  // the writer grows the map up to this
+  uint64_t batch_bytes = uint64_t{64} << 20;  // commit the write transaction every this many bytes
+  bool verify_checksums = true;               // readers check every page they return
+};
+
+// A zero-copy view of one page, valid until the ReadTxn that produced it is reset or destroyed.
+struct PageView {
+  const PageHeader* header = nullptr;
+  absl::Span<const uint8_t> payload;  // header->payload_bytes bytes after the header
+};
+
+class PageStore;
+
+// One read transaction (one per thread). Move-only.
+class ReadTxn {
+ public:
+  ReadTxn(ReadTxn&&) noexcept;
+  ReadTxn& operator=(ReadTxn&&) noexcept;
+  ReadTxn(const ReadTxn&) = delete;
+  ReadTxn& operator=(const ReadTxn&) = delete;
+  ~ReadTxn();
+
+  // Reads one page. NotFound if absent; DataLoss naming the page if its checksum, kind or number
+  // is wrong.
+  absl::StatusOr<PageView> Get(Section section, uint64_t page_no);
+  // Releases the snapshot (views become invalid) but keeps the handle for Renew().
+  void Reset();
+  absl::Status Renew();
+
+ private:
+  friend class PageStore;
+  struct Impl;
+  explicit ReadTxn(std::unique_ptr<Impl> impl);
+  std::unique_ptr<Impl> impl_;
+};
+
+// A finished store opened read-only. Safe to share between threads.
+class PageStore {
+ public:
+  // Opens the store at `path` (a directory). Refuses a missing, garbage, truncated, incomplete
+  // or foreign-version store with a message that names the path and what is wrong.
+  static absl::StatusOr<std::unique_ptr<PageStore>> Open(const std::string& path,
+                                                         const StoreOptions& options = {});
+  ~PageStore();
+
+  const StoreMeta& meta() const;
+  const std::string& path() const;
+  absl::StatusOr<ReadTxn> BeginRead() const;
+  // Bytes of the data file on disk.
+  uint64_t FileBytes() const;
+
+ private:
+  struct Impl;
+  explicit PageStore(std::unique_ptr<Impl> impl);
+  std::unique_ptr<Impl> impl_;
+};
+
+// Writes a new store. One thread. Pages of each section must be appended with increasing page
+// numbers. The store is invisible to Open() until Finish() succeeds; a writer destroyed without
+// Finish() leaves a store that Open() refuses as incomplete.
+class PageWriter {
+ public:
+  // Creates (or replaces) the store at `path`.
+  static absl::StatusOr<std::unique_ptr<PageWriter>> Create(const std::string& path,
+                                                            const StoreOptions& options = {});
+  ~PageWriter();
+
+  uint32_t page_size() const;
+  uint32_t payload_capacity() const { return page_size() - sizeof(PageHeader); }
+
+  // Appends one page; `payload` must fit in payload_capacity(). The header (with checksum) is
+  // filled in here.
+  absl::Status Append(Section section, uint64_t page_no, PageKind kind, uint32_t record_count,
+                      absl::Span<const uint8_t> payload);
+  // Commits all pages and then the meta record, in that order.
+  absl::Status Finish(const StoreMeta& meta);
+  // Bytes written so far (pages, headers included).
+  uint64_t bytes_written() const;
+
+ private:
+  struct Impl;
+  explicit PageWriter(std::unique_ptr<Impl> impl);
+  std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace pbgi
+
+#endif  // PBGI_STORE_H_

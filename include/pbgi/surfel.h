@@ -1,0 +1,139 @@
+// Surfels, bounds, channels, surfel streams and the gathered elements (clusters and surfels)
+// that the query layer produces and the rasterizer consumes. Plain data, no dependencies on
+// any module's library.
+#ifndef PBGI_SURFEL_H_
+#define PBGI_SURFEL_H_
+
+#include <algorithm>
+#include <array>
+#include <cstddef>
+#include <cstdint>
+#include <limits>
+#include <vector>
+
+#include "absl/status/statusor.h"
+#include "absl/types/span.h"
+#include "glm/vec3.hpp"
+#include "glm/geometric.hpp"
+
+namespace pbgi {
+
+// A surfel is a disk: position, unit normal, radius, and (with the radiance channel) the
+// diffusely reflected radiance the renderer baked into it (direct light * albedo + emission).
+struct Surfel {
+  glm::vec3 position{0.0f};
+  glm::vec3 normal{0.0f, 0.0f, 1.0f};
+  float radius = 0.0f;
+  glm::vec3 radiance{0.0f};
+
+  float Area() const { return 3.14159265358979f * radius * radius; }
+};
+
+// What a database stores besides geometry. kOcclusion stores no radiance anywhere.
+enum class Channels : uint32_t {
+  kOcclusion = 0,  // position, normal, radius: ambient occlusion only
+  kRadiance = 1,   // adds RGB radiance per surfel and power SH per node
+};
+
+inline bool HasRadiance(Channels c) { return c == Channels::kRadiance; }
+
+// Axis-aligned box. An empty box has lo > hi.
+struct Bounds {
+  glm::vec3 lo{std::numeric_limits<float>::max()};
+  glm::vec3 hi{std::numeric_limits<float>::lowest()};
+
+  bool Empty() const { return lo.x > hi.x || lo.y > hi.y || lo.z > hi.z; }
+  void Extend(const glm::vec3& p) {
+    lo = glm::min(lo, p);
+    hi = glm::max(hi, p);
+  }
+  void Extend(const Bounds& b) {
+    lo = glm::min(lo, b.lo);
+    hi = glm::max(hi, b.hi);
+  }
+  bool Contains(const glm::vec3& p) const {
+    return p.x >= lo.x && p.y >= lo.y && p.z >= lo.z && p.x <= hi.x && p.y <= hi.y &&
+           p.z <= hi.z;
+  }
+  glm::vec3 Center() const { return 0.5f * (lo + hi); }
+  glm::vec3 Extent() const { return hi - lo; }
+};
+
+// A stream of surfels from any source: a PLY file, a procedural scene, a renderer's own arrays.
+// The builder pulls from it in batches and never holds the whole stream. Not thread-safe.
+class SurfelSource {
+ public:
+  virtual ~SurfelSource() = default;
+  // Fills up to out.size() surfels; returns how many were written, 0 at the end of the stream.
+  virtual absl::StatusOr<size_t> Next(absl::Span<Surfel> out) = 0;
+  // Restarts the stream from its first surfel (the builder may need a bounds pass first).
+  virtual absl::Status Rewind() = 0;
+  // Bounds of all positions when known in advance (e.g. from a file header), else empty.
+  virtual Bounds KnownBounds() const { return Bounds{}; }
+  // Number of surfels when known in advance, else -1.
+  virtual int64_t KnownCount() const { return -1; }
+  // Whether the surfels carry meaningful radiance.
+  virtual bool HasRadiance() const { return true; }
+};
+
+// A SurfelSource over a caller-owned vector (tests, embedding renderers with points in memory).
+class VectorSurfelSource final : public SurfelSource {
+ public:
+  explicit VectorSurfelSource(absl::Span<const Surfel> surfels, bool has_radiance = true)
+      : surfels_(surfels), has_radiance_(has_radiance) {}
+  absl::StatusOr<size_t> Next(absl::Span<Surfel> out) override {
+    size_t n = std::min(out.size(), surfels_.size() - pos_);
+    for (size_t i = 0; i < n; ++i) out[i] = surfels_[pos_ + i];
+    pos_ += n;
+    return n;
+  }
+  absl::Status Rewind() override {
+    pos_ = 0;
+    return absl::OkStatus();
+  }
+  int64_t KnownCount() const override { return static_cast<int64_t>(surfels_.size()); }
+  bool HasRadiance() const override { return has_radiance_; }
+
+ private:
+  absl::Span<const Surfel> surfels_;
+  size_t pos_ = 0;
+  bool has_radiance_;
+};
+
+// Order-2 spherical harmonics: 9 real coefficients (see sh.h for the basis).
+using Sh9 = std::array<float, 9>;
+
+// An octree node standing in for all the surfels below it.
+struct Cluster {
+  Bounds bounds;
+  float area = 0.0f;          // total surfel area
+  Sh9 sh_area{};              // projected area A(w) = sum A_i max(0, n_i.w)
+  std::array<Sh9, 3> sh_power{};  // emitted power per colour P(w) = sum A_i L_i max(0, n_i.w);
+                                  // zero when the database has no radiance channel
+  uint32_t depth = 0;         // depth in the octree (root = 0)
+  // The surfels below this node are the contiguous range [first_point, first_point+point_count)
+  // of global point indices (rank in Morton order): the test harness checks cuts with it.
+  uint64_t first_point = 0;
+  uint64_t point_count = 0;
+};
+
+// What Gather() returns for one receiver: every surfel in front of the receiver is represented
+// exactly once, either by itself (surfels) or by one ancestor node (clusters).
+// The caller owns it and reuses it across queries: Clear() keeps the capacity.
+struct Gathered {
+  std::vector<Cluster> clusters;
+  std::vector<Surfel> surfels;
+  // Global point index (rank in Morton order) of each surfel, parallel to `surfels`.
+  std::vector<uint64_t> surfel_ids;
+
+  void Clear() {
+    clusters.clear();
+    surfels.clear();
+    surfel_ids.clear();
+  }
+  size_t size() const { return clusters.size() + surfels.size(); }
+};
+
+}  // namespace pbgi
+
+#endif  // PBGI_SURFEL_H_
