@@ -1,0 +1,120 @@
+// pbgi: build, inspect, query and shade Coherent PBGI databases from a terminal.
+#include <unistd.h>
+
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <fstream>
+#include <map>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "absl/strings/numbers.h"
+#include "absl/strings/str_format.h"
+#include "tools/command.h"
+
+namespace pbgi::tools {
+namespace {
+
+struct Entry {
+  std::string name;
+  std::string help;
+  CommandSetup setup;
+};
+
+std::vector<Entry>& Registry() {
+  static auto* registry = new std::vector<Entry>();
+  return *registry;
+}
+
+}  // namespace
+
+bool RegisterCommand(const char* name, const char* help, CommandSetup setup) {
+  Registry().push_back({name, help, std::move(setup)});
+  return true;
+}
+
+absl::StatusOr<uint64_t> ParseBytes(const std::string& text) {
+  std::string s = text;
+  while (!s.empty() && (s.back() == 'B' || s.back() == 'b' || s.back() == 'i')) s.pop_back();
+  double mult = 1;
+  if (!s.empty()) {
+    switch (s.back()) {
+      case 'k': case 'K': mult = 1024.0; break;
+      case 'm': case 'M': mult = 1024.0 * 1024; break;
+      case 'g': case 'G': mult = 1024.0 * 1024 * 1024; break;
+      case 't': case 'T': mult = 1024.0 * 1024 * 1024 * 1024; break;
+      default: break;
+    }
+    if (mult != 1) s.pop_back();
+  }
+  double v = 0;
+  if (s.empty() || !absl::SimpleAtod(s, &v) || !(v >= 0) || !std::isfinite(v)) {
+    return absl::InvalidArgumentError(
+        absl::StrFormat("'%s' is not a size (examples: 4096, 512M, 1G)", text));
+  }
+  return static_cast<uint64_t>(v * mult);
+}
+
+CLI::Validator BytesValidator() {
+  return CLI::Validator(
+      [](std::string& s) -> std::string {
+        auto r = ParseBytes(s);
+        return r.ok() ? std::string() : std::string(r.status().message());
+      },
+      "SIZE");
+}
+
+std::string FormatBytes(uint64_t bytes) {
+  const char* units[] = {"B", "KiB", "MiB", "GiB", "TiB"};
+  double v = static_cast<double>(bytes);
+  int u = 0;
+  while (v >= 1024.0 && u < 4) {
+    v /= 1024.0;
+    ++u;
+  }
+  return u == 0 ? absl::StrFormat("%d B", bytes) : absl::StrFormat("%.1f %s", v, units[u]);
+}
+
+uint64_t PeakRssBytes() {
+  std::ifstream in("/proc/self/status");
+  std::string line;
+  while (std::getline(in, line)) {
+    if (line.rfind("VmHWM:", 0) == 0) {
+      uint64_t kb = std::strtoull(line.c_str() + 6, nullptr, 10);
+      return kb * 1024;
+    }
+  }
+  return 0;
+}
+
+bool StderrIsTerminal() { return isatty(STDERR_FILENO) != 0; }
+
+}  // namespace pbgi::tools
+
+int main(int argc, char** argv) {
+  using pbgi::tools::Registry;
+  CLI::App app{"pbgi: coherent out-of-core point-based global illumination"};
+  app.require_subcommand(1);
+  app.set_version_flag("--version", "pbgi 0.1.0");
+  std::map<CLI::App*, std::function<absl::Status()>> runners;
+  std::map<CLI::App*, std::string> names;
+  for (auto& e : Registry()) {
+    CLI::App* sub = app.add_subcommand(e.name, e.help);
+    runners[sub] = e.setup(sub);
+    names[sub] = e.name;
+  }
+  CLI11_PARSE(app, argc, argv);
+  for (auto& [sub, run] : runners) {
+    if (sub->parsed()) {
+      absl::Status s = run();
+      if (!s.ok()) {
+        std::fprintf(stderr, "pbgi %s: %s\n", names[sub].c_str(), std::string(s.message()).c_str());
+        return 1;
+      }
+      return 0;
+    }
+  }
+  return 2;
+}
