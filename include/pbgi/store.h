@@ -17,6 +17,11 @@
 // - The map size grows while writing (the writer doubles it when LMDB reports MDB_MAP_FULL); a
 //   reader maps the file as it is. Map size is virtual address space, not resident memory.
 // - Verification of page checksums is on by default; turn it off only to measure.
+// - A PageStore must outlive every ReadTxn it began.
+// - One PageWriter per store directory at a time. Readers of the previous store keep reading
+//   it undisturbed while a new one is built and swapped in (the file is replaced by rename).
+// - A finished store is opened without LMDB's lock file (MDB_NOLOCK): it is never written
+//   again, so readers need no coordination, and read-only media work.
 #ifndef PBGI_STORE_H_
 #define PBGI_STORE_H_
 
@@ -80,11 +85,20 @@ struct StoreMeta {
 };
 
 struct StoreOptions {
-  uint32_t page_size = kDefaultPageSize;  // bytes per page, header included
+  uint32_t page_size = kDefaultPageSize;  // bytes per page, header included; a multiple of 8
   uint64_t initial_map_size = uint64_t{64} << 20;
   uint64_t max_map_size = uint64_t{1} << 42;  // the writer grows the map up to this
   uint64_t batch_bytes = uint64_t{64} << 20;  // commit the write transaction every this many bytes
   bool verify_checksums = true;               // readers check every page they return
+  // Writer: Finish() flushes the pages to disk before and after the meta record (fsync), so a
+  // finished store survives a power cut. Off for scratch stores and benchmarks: the store is
+  // still complete-or-refused after a process crash, only not after a system crash.
+  bool sync = true;
+  // Readers: let the kernel read ahead around page faults (off: MDB_NORDAHEAD). Measured on a
+  // cold cache (docs/store.md): off faults a multi-KiB page in 4 KiB reads and is ~10x slower
+  // even in random page order, so it is on by default; turn it off only for pages of 4 KiB
+  // read at random from a store much larger than RAM.
+  bool read_ahead = true;
 };
 
 // A zero-copy view of one page, valid until the ReadTxn that produced it is reset or destroyed.
@@ -94,6 +108,27 @@ struct PageView {
 };
 
 class PageStore;
+
+// What CheckAllPages() found: per-section counts, and the first inconsistency it can name.
+struct StoreCheckReport {
+  struct SectionCounts {
+    uint64_t pages = 0;
+    uint64_t records = 0;        // sum of the pages' record counts
+    uint64_t payload_bytes = 0;  // sum of the pages' payload sizes
+    uint64_t first_page_no = 0;  // valid when pages > 0
+    uint64_t last_page_no = 0;
+  };
+  SectionCounts nodes;
+  SectionCounts points;
+  uint64_t bad_pages = 0;   // pages that failed their own check (checksum, kind, number, size)
+  absl::Status first_error;  // OK when the store is consistent; else the first problem found
+  bool ok() const { return first_error.ok(); }
+};
+
+// Reads every page of both sections (checksums are always verified here, whatever the store's
+// options) and compares the page and record counts with the meta record. Returns an error only
+// when the check itself cannot run; inconsistencies go into the report.
+absl::StatusOr<StoreCheckReport> CheckAllPages(const PageStore& store);
 
 // One read transaction (one per thread). Move-only.
 class ReadTxn {
@@ -132,8 +167,11 @@ class PageStore {
   absl::StatusOr<ReadTxn> BeginRead() const;
   // Bytes of the data file on disk.
   uint64_t FileBytes() const;
+  const StoreOptions& options() const;
 
  private:
+  friend absl::StatusOr<StoreCheckReport> CheckAllPages(const PageStore& store);
+  friend class ReadTxn;
   struct Impl;
   explicit PageStore(std::unique_ptr<Impl> impl);
   std::unique_ptr<Impl> impl_;
@@ -142,6 +180,16 @@ class PageStore {
 // Writes a new store. One thread. Pages of each section must be appended with increasing page
 // numbers. The store is invisible to Open() until Finish() succeeds; a writer destroyed without
 // Finish() leaves a store that Open() refuses as incomplete.
+//
+// On disk: the writer builds `path`/data.mdb.tmp and Finish() renames it to `path`/data.mdb, so a
+// build that dies (even by SIGKILL) leaves the previous complete store, if there was one, intact;
+// without one, Open() reports the leftover data.mdb.tmp as an incomplete build. A writer
+// destroyed without Finish() removes its data.mdb.tmp. Finish() records the writer's page size and the
+// page counts that were actually written in the meta record (nonzero node_pages / point_pages
+// that disagree with them are an InvalidArgument error).
+//
+// Errors: a map that cannot grow past StoreOptions::max_map_size, a full disk or a file size
+// limit are ResourceExhausted; after any error the writer refuses further Append() calls.
 class PageWriter {
  public:
   // Creates (or replaces) the store at `path`.

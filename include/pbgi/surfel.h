@@ -100,6 +100,12 @@ class VectorSurfelSource final : public SurfelSource {
   bool has_radiance_;
 };
 
+// A shading point: position and normal (shared by the query layer, the scene tracer and shading).
+struct Receiver {
+  glm::vec3 position{0.0f};
+  glm::vec3 normal{0.0f, 0.0f, 1.0f};
+};
+
 // Order-2 spherical harmonics: 9 real coefficients (see sh.h for the basis).
 using Sh9 = std::array<float, 9>;
 

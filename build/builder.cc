@@ -1,0 +1,251 @@
+#include "build/builder.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <fstream>
+#include <string>
+#include <vector>
+
+#include "absl/strings/str_format.h"
+#include "build/external_sort.h"
+#include "build/morton.h"
+#include "build/node_packer.h"
+#include "build/octree_builder.h"
+#include "build/sort_record.h"
+#include "pbgi/status.h"
+#include "store/page_format.h"
+
+namespace pbgi {
+
+const char* LayoutName(Layout layout) {
+  switch (layout) {
+    case Layout::kCoherent:
+      return "coherent";
+    case Layout::kPostOrder:
+      return "postorder";
+    case Layout::kBreadthFirst:
+      return "breadth-first";
+    case Layout::kShuffled:
+      return "shuffled";
+  }
+  return "unknown";
+}
+
+absl::StatusOr<Layout> ParseLayout(const std::string& name) {
+  for (Layout l :
+       {Layout::kCoherent, Layout::kPostOrder, Layout::kBreadthFirst, Layout::kShuffled}) {
+    if (name == LayoutName(l)) return l;
+  }
+  return absl::InvalidArgumentError(
+      absl::StrFormat("unknown layout '%s' (coherent, postorder, breadth-first, shuffled)", name));
+}
+
+namespace internal {
+namespace {
+
+constexpr size_t kBatch = 8192;
+constexpr uint64_t kProgressEvery = uint64_t{1} << 18;
+constexpr uint64_t kMinRunRecords = 256;
+constexpr uint64_t kMiB = uint64_t{1} << 20;
+
+using Clock = std::chrono::steady_clock;
+double Since(Clock::time_point t) {
+  return std::chrono::duration<double>(Clock::now() - t).count();
+}
+
+absl::Status CheckCancel(const BuildOptions& o) {
+  if (o.cancel != nullptr && o.cancel->load(std::memory_order_relaxed)) {
+    return absl::CancelledError("the build was interrupted");
+  }
+  return absl::OkStatus();
+}
+
+void Report(const BuildOptions& o, const char* pass, uint64_t done, int64_t total) {
+  if (o.progress) o.progress(BuildProgress{pass, done, total});
+}
+
+absl::Status CheckOptions(const BuildOptions& o, uint32_t page_size) {
+  if (o.leaf_size == 0) return absl::InvalidArgumentError("leaf size must be at least 1");
+  if (page_size < sizeof(PageHeader) + 8 * NodeRecordSize(o.channels)) {
+    return absl::InvalidArgumentError(absl::StrFormat(
+        "page size %d is too small: a page must hold a sibling group of 8 node records (%d "
+        "bytes)",
+        page_size, sizeof(PageHeader) + 8 * NodeRecordSize(o.channels)));
+  }
+  if (NodesPerPage(page_size, o.channels) > 0xffff) {
+    return absl::InvalidArgumentError(absl::StrFormat(
+        "page size %d is too large: node refs address at most 65535 records per page", page_size));
+  }
+  return absl::OkStatus();
+}
+
+}  // namespace
+
+uint64_t PeakRss() {
+  std::ifstream in("/proc/self/status");
+  std::string line;
+  while (std::getline(in, line)) {
+    if (line.rfind("VmHWM:", 0) == 0) return std::strtoull(line.c_str() + 6, nullptr, 10) * 1024;
+  }
+  return 0;
+}
+
+MemoryPlan PlanMemory(const BuildOptions& o, int64_t known_count) {
+  MemoryPlan p;
+  const uint64_t m = o.memory_bytes;
+  p.batch_bytes = std::clamp<uint64_t>(m / 16, kMiB, 64 * kMiB);
+  // Node packer pending sets, page buffers, the look-ahead window, the PLY reader, LMDB's own
+  // allocations and the process's baseline (code, libraries).
+  const uint64_t fixed = 24 * kMiB + 4 * uint64_t{o.page_size};
+  const uint64_t sort_bytes = m > p.batch_bytes + fixed ? m - p.batch_bytes - fixed : 0;
+  p.run_capacity = std::max<uint64_t>(kMinRunRecords, sort_bytes / kSortBytesPerRecord);
+  if (known_count >= 0) {
+    p.run_capacity =
+        std::min<uint64_t>(p.run_capacity, std::max<uint64_t>(1, uint64_t(known_count)));
+  }
+  p.merge_bytes = std::max<uint64_t>(64 << 10, sort_bytes);
+  return p;
+}
+
+absl::StatusOr<BuildStats> BuildToSink(SurfelSource& source, PageSink& sink,
+                                       const BuildOptions& options, const std::string& tmp_dir,
+                                       StoreMeta* meta) {
+  const auto t_start = Clock::now();
+  PBGI_RETURN_IF_ERROR(CheckOptions(options, sink.page_size()));
+  const bool radiance = HasRadiance(options.channels);
+  const int64_t known = source.KnownCount();
+  BuildStats stats;
+  std::vector<Surfel> batch(kBatch);
+
+  // Reads the whole source once, calling f(index, surfel) for every valid surfel.
+  auto for_each_valid = [&](const char* pass, auto&& f) -> absl::Status {
+    PBGI_RETURN_IF_ERROR(source.Rewind());
+    uint64_t index = 0, skipped = 0, next_report = kProgressEvery;
+    for (;;) {
+      PBGI_ASSIGN_OR_RETURN(size_t n, source.Next(absl::MakeSpan(batch)));
+      if (n == 0) break;
+      PBGI_RETURN_IF_ERROR(CheckCancel(options));
+      for (size_t i = 0; i < n; ++i, ++index) {
+        const Surfel& s = batch[i];
+        if (const char* why = InvalidSurfelReason(s, radiance)) {
+          if (!options.skip_invalid) {
+            return absl::InvalidArgumentError(absl::StrFormat(
+                "input surfel %d (counting from 0): %s (use skip_invalid / --skip-invalid to "
+                "drop such surfels)",
+                index, why));
+          }
+          ++skipped;
+          continue;
+        }
+        PBGI_RETURN_IF_ERROR(f(s));
+      }
+      if (index >= next_report) {
+        Report(options, pass, index, known);
+        next_report = index + kProgressEvery;
+      }
+    }
+    stats.skipped = skipped;
+    return absl::OkStatus();
+  };
+
+  // Pass 1: bounds, unless the source knows them.
+  Bounds bounds = source.KnownBounds();
+  auto t = Clock::now();
+  if (bounds.Empty()) {
+    PBGI_RETURN_IF_ERROR(for_each_valid("bounds", [&](const Surfel& s) {
+      bounds.Extend(s.position);
+      return absl::OkStatus();
+    }));
+    stats.seconds_bounds = Since(t);
+  }
+
+  // Pass 2: keys and sorted runs.
+  t = Clock::now();
+  const MemoryPlan plan = PlanMemory(options, known);
+  stats.run_capacity = plan.run_capacity;
+  ExternalSorter sorter(ExternalSorter::Options{tmp_dir, plan.run_capacity, plan.merge_bytes});
+  const MortonQuantizer quant(bounds);
+  PBGI_RETURN_IF_ERROR(for_each_valid("sort", [&](const Surfel& in) {
+    Surfel s = in;
+    s.normal = glm::vec3(glm::normalize(glm::dvec3(s.normal)));
+    if (!radiance) s.radiance = glm::vec3(0.0f);
+    return sorter.Add(MakeSortRecord(quant.Key(s.position), s));
+  }));
+  PBGI_RETURN_IF_ERROR(sorter.FinishInput());
+  stats.seconds_sort = Since(t);
+  stats.runs_spilled = sorter.runs_spilled();
+  stats.merge_passes = sorter.merge_passes();
+  stats.spill_bytes = sorter.spill_bytes();
+  if (sorter.records() == 0) {
+    return absl::InvalidArgumentError(
+        stats.skipped > 0
+            ? absl::StrFormat("the input has no valid surfels (%d invalid ones skipped)",
+                              stats.skipped)
+            : std::string("the input has no surfels"));
+  }
+
+  // Pass 3: merge, octree, pages.
+  t = Clock::now();
+  NodePacker packer(options.layout, options.channels, &sink, options.shuffle_seed);
+  PointPageWriter points(options.channels, &sink);
+  OctreeBuilder octree(options.leaf_size, options.channels, &points, &packer);
+  std::vector<SortRecord> recs(4096);
+  uint64_t done = 0, next_report = kProgressEvery;
+  for (;;) {
+    PBGI_ASSIGN_OR_RETURN(size_t n, sorter.Next(absl::MakeSpan(recs)));
+    if (n == 0) break;
+    PBGI_RETURN_IF_ERROR(CheckCancel(options));
+    for (size_t i = 0; i < n; ++i) PBGI_RETURN_IF_ERROR(octree.Add(recs[i]));
+    done += n;
+    if (done >= next_report) {
+      Report(options, "merge+octree", done, static_cast<int64_t>(sorter.records()));
+      next_report = done + kProgressEvery;
+    }
+  }
+  PBGI_ASSIGN_OR_RETURN(NodeRef root, octree.Finish());
+  stats.seconds_merge = Since(t);
+
+  const OctreeStats& os = octree.stats();
+  stats.points = points.points();
+  stats.nodes = os.nodes;
+  stats.leaves = os.leaves;
+  stats.max_depth = os.max_depth;
+  stats.max_leaf_points = os.max_leaf_points;
+  stats.node_pages = packer.pages();
+  stats.point_pages = points.pages();
+  stats.node_page_fill = packer.pages() == 0 ? 0
+                                             : double(packer.records_written()) /
+                                                   (double(packer.pages()) * packer.capacity());
+  stats.seconds_total = Since(t_start);
+
+  *meta = StoreMeta{};
+  meta->page_size = sink.page_size();
+  meta->channels = options.channels;
+  meta->sh_order = 2;
+  meta->leaf_size = options.leaf_size;
+  meta->bounds = os.bounds;
+  meta->point_count = stats.points;
+  meta->node_count = stats.nodes;
+  meta->node_pages = stats.node_pages;
+  meta->point_pages = stats.point_pages;
+  meta->root = root;
+  meta->max_depth = stats.max_depth;
+  meta->layout = LayoutName(options.layout);
+  auto& m = meta->stats;
+  m["points"] = absl::StrFormat("%d", stats.points);
+  m["skipped"] = absl::StrFormat("%d", stats.skipped);
+  m["leaves"] = absl::StrFormat("%d", stats.leaves);
+  m["max_leaf_points"] = absl::StrFormat("%d", stats.max_leaf_points);
+  m["node_page_fill"] = absl::StrFormat("%.4f", stats.node_page_fill);
+  m["seconds_bounds"] = absl::StrFormat("%.3f", stats.seconds_bounds);
+  m["seconds_sort"] = absl::StrFormat("%.3f", stats.seconds_sort);
+  m["seconds_merge"] = absl::StrFormat("%.3f", stats.seconds_merge);
+  m["runs_spilled"] = absl::StrFormat("%d", stats.runs_spilled);
+  m["merge_passes"] = absl::StrFormat("%d", stats.merge_passes);
+  m["memory_bytes"] = absl::StrFormat("%d", options.memory_bytes);
+  return stats;
+}
+
+}  // namespace internal
+}  // namespace pbgi

@@ -1,0 +1,40 @@
+// The builder's pipeline over any PageSink (BuildDatabase runs it over a PageWriter; unit tests
+// over a MemoryPageSink), and the tree checker over any PageGetter.
+#ifndef PBGI_BUILD_BUILDER_H_
+#define PBGI_BUILD_BUILDER_H_
+
+#include <cstdint>
+#include <string>
+
+#include "absl/status/status.h"
+#include "absl/status/statusor.h"
+#include "build/page_sink.h"
+#include "pbgi/build.h"
+#include "pbgi/store.h"
+#include "pbgi/surfel.h"
+
+namespace pbgi::internal {
+
+// How the memory budget is split (see BuildOptions::memory_bytes).
+struct MemoryPlan {
+  uint64_t run_capacity = 0;  // records per sorted run
+  uint64_t merge_bytes = 0;   // merge read buffers
+  uint64_t batch_bytes = 0;   // LMDB write batch (StoreOptions::batch_bytes)
+};
+MemoryPlan PlanMemory(const BuildOptions& options, int64_t known_count);
+
+// Runs bounds, sort and the octree pass; pages go to `sink`, and `meta` receives everything
+// Finish() needs. `tmp_dir` is where sort runs go.
+absl::StatusOr<BuildStats> BuildToSink(SurfelSource& source, PageSink& sink,
+                                       const BuildOptions& options, const std::string& tmp_dir,
+                                       StoreMeta* meta);
+
+// VerifyTree over any page source (see pbgi/build.h).
+absl::Status VerifyTreePages(const StoreMeta& meta, PageGetter& pages);
+
+// VmHWM of this process in bytes (0 if unknown).
+uint64_t PeakRss();
+
+}  // namespace pbgi::internal
+
+#endif  // PBGI_BUILD_BUILDER_H_

@@ -1,0 +1,75 @@
+// Morton (Z-order) keys: 21 bits per axis interleaved into 63 bits (Morton 1966). Z-order is the
+// depth-first order of the octree whose cell at depth d is the key prefix of 3*d bits.
+#ifndef PBGI_BUILD_MORTON_H_
+#define PBGI_BUILD_MORTON_H_
+
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+
+#include "glm/vec3.hpp"
+#include "pbgi/surfel.h"
+
+namespace pbgi::internal {
+
+inline constexpr int kMortonBitsPerAxis = 21;
+inline constexpr uint32_t kMaxOctreeDepth = 21;  // a depth-21 cell holds one key
+
+// Spreads the low 21 bits of v so that bit i lands at bit 3*i.
+inline uint64_t SpreadBits3(uint32_t v) {
+  uint64_t x = v & 0x1fffffu;
+  x = (x | x << 32) & 0x1f00000000ffffull;
+  x = (x | x << 16) & 0x1f0000ff0000ffull;
+  x = (x | x << 8) & 0x100f00f00f00f00full;
+  x = (x | x << 4) & 0x10c30c30c30c30c3ull;
+  x = (x | x << 2) & 0x1249249249249249ull;
+  return x;
+}
+
+inline uint64_t MortonEncode(uint32_t x, uint32_t y, uint32_t z) {
+  return SpreadBits3(x) | (SpreadBits3(y) << 1) | (SpreadBits3(z) << 2);
+}
+
+// The key prefix identifying the depth-d cell that contains `key`.
+inline uint64_t KeyPrefix(uint64_t key, uint32_t depth) {
+  return depth == 0 ? 0 : key >> (3 * (kMaxOctreeDepth - depth));
+}
+
+// Maps positions to keys inside a cube around the bounds, padded so that rounding never pushes
+// a point out; points on the upper boundary land in the last cell (clamped), never outside.
+class MortonQuantizer {
+ public:
+  explicit MortonQuantizer(const Bounds& b) {
+    glm::dvec3 lo(b.lo), hi(b.hi);
+    glm::dvec3 center = 0.5 * (lo + hi);
+    double half = 0.5 * std::max({hi.x - lo.x, hi.y - lo.y, hi.z - lo.z});
+    // Pad relative to both the size and the magnitude of the coordinates (a cloud far from
+    // the origin has a float spacing much larger than its own extent allows for).
+    double mag = std::max({std::abs(center.x), std::abs(center.y), std::abs(center.z)});
+    half = half * (1.0 + 1e-6) + mag * 1e-7 + 1e-30;
+    if (!(half > 0) || !std::isfinite(half)) half = 1.0;
+    origin_ = center - glm::dvec3(half);
+    scale_ = double(1u << kMortonBitsPerAxis) / (2.0 * half);
+  }
+
+  uint64_t Key(const glm::vec3& p) const {
+    return MortonEncode(Quantize(p.x, origin_.x), Quantize(p.y, origin_.y),
+                        Quantize(p.z, origin_.z));
+  }
+
+ private:
+  uint32_t Quantize(float v, double origin) const {
+    double q = (double(v) - origin) * scale_;
+    constexpr double kMax = double((1u << kMortonBitsPerAxis) - 1);
+    if (!(q > 0)) return 0;
+    if (q >= kMax) return (1u << kMortonBitsPerAxis) - 1;
+    return static_cast<uint32_t>(q);
+  }
+
+  glm::dvec3 origin_;
+  double scale_;
+};
+
+}  // namespace pbgi::internal
+
+#endif  // PBGI_BUILD_MORTON_H_

@@ -1,0 +1,213 @@
+#include "build/octree_builder.h"
+
+#include <algorithm>
+#include <cstring>
+#include <utility>
+
+#include "absl/strings/str_format.h"
+#include "build/morton.h"
+#include "pbgi/sh.h"
+#include "pbgi/status.h"
+
+namespace pbgi::internal {
+
+PointPageWriter::PointPageWriter(Channels channels, PageSink* sink)
+    : channels_(channels),
+      sink_(sink),
+      record_size_(PointRecordSize(channels)),
+      per_page_(PointsPerPage(sink->page_size(), channels)) {
+  buf_.resize(size_t{per_page_} * record_size_);
+}
+
+absl::Status PointPageWriter::Add(const SortRecord& r) {
+  uint8_t* dst = buf_.data() + size_t{count_} * record_size_;
+  // SortRecord after its key is laid out exactly like PointRecordRadiance, whose first 28 bytes
+  // are PointRecordOcclusion.
+  static_assert(sizeof(PointRecordRadiance) == sizeof(SortRecord) - sizeof(uint64_t));
+  std::memcpy(dst, &r.position[0], record_size_);
+  ++points_;
+  if (++count_ == per_page_) return Flush();
+  return absl::OkStatus();
+}
+
+absl::Status PointPageWriter::Flush() {
+  if (count_ == 0) return absl::OkStatus();
+  absl::Status s =
+      sink_->Append(Section::kPoints, next_page_, PageKind::kPoint, count_,
+                    absl::Span<const uint8_t>(buf_.data(), size_t{count_} * record_size_));
+  ++next_page_;
+  count_ = 0;
+  return s;
+}
+
+void NodeAggregate::AddPoint(const SortRecord& r, bool radiance) {
+  bounds.Extend(glm::vec3(r.position[0], r.position[1], r.position[2]));
+  const double a = sh::kPi * double(r.radius) * double(r.radius);
+  area += a;
+  auto c = sh::ProjectClampedCosine<double>(r.normal[0], r.normal[1], r.normal[2], a);
+  for (int k = 0; k < 9; ++k) sh_area[k] += c[k];
+  if (radiance) {
+    for (int ch = 0; ch < 3; ++ch) {
+      const double l = r.radiance[ch];
+      for (int k = 0; k < 9; ++k) sh_power[ch][k] += c[k] * l;
+    }
+  }
+}
+
+void NodeAggregate::Add(const NodeAggregate& o) {
+  bounds.Extend(o.bounds);
+  area += o.area;
+  for (int k = 0; k < 9; ++k) sh_area[k] += o.sh_area[k];
+  for (int ch = 0; ch < 3; ++ch) {
+    for (int k = 0; k < 9; ++k) sh_power[ch][k] += o.sh_power[ch][k];
+  }
+}
+
+OctreeBuilder::OctreeBuilder(uint32_t leaf_size, Channels channels, PointPageWriter* points,
+                             NodePacker* packer)
+    : leaf_size_(std::max<uint32_t>(leaf_size, 1)),
+      channels_(channels),
+      points_(points),
+      packer_(packer),
+      window_(leaf_size_ + 1) {
+  stack_.reserve(kMaxOctreeDepth + 1);
+}
+
+absl::Status OctreeBuilder::Add(const SortRecord& r) {
+  if (any_ && r.key < last_key_) {
+    return absl::InternalError(absl::StrFormat("octree pass: point %d arrived out of Morton order",
+                                               next_point_ + window_size_));
+  }
+  any_ = true;
+  last_key_ = r.key;
+  const size_t cap = window_.size();
+  window_[(window_head_ + window_size_) % cap] = r;
+  if (++window_size_ == cap) {
+    // The oldest point is i, the newest i + leaf_size.
+    PBGI_RETURN_IF_ERROR(Process(window_[window_head_], true, r.key));
+    window_head_ = (window_head_ + 1) % cap;
+    --window_size_;
+  }
+  return absl::OkStatus();
+}
+
+PendingNode OctreeBuilder::MakeRecord(const OpenNode& n, bool leaf) const {
+  PendingNode p;
+  NodeRecordCommon& c = p.rec.common;
+  for (int k = 0; k < 3; ++k) {
+    c.lo[k] = n.agg.bounds.lo[k];
+    c.hi[k] = n.agg.bounds.hi[k];
+  }
+  c.flags = leaf ? kNodeFlagLeaf : 0;
+  c.child_count = 0;
+  c.children = kNoNodeRef;
+  c.first_point = n.first_point;
+  c.point_count = n.count;
+  c.area = static_cast<float>(n.agg.area);
+  c.depth = n.depth;
+  for (int k = 0; k < 9; ++k) c.sh_area[k] = static_cast<float>(n.agg.sh_area[k]);
+  c.pad = 0;
+  if (HasRadiance(channels_)) {
+    for (int ch = 0; ch < 3; ++ch) {
+      for (int k = 0; k < 9; ++k) {
+        p.rec.sh_power[ch][k] = static_cast<float>(n.agg.sh_power[ch][k]);
+      }
+    }
+  }
+  p.rec.pad = 0;
+  return p;
+}
+
+absl::Status OctreeBuilder::Deliver(ClosedNode closed, const NodeAggregate& agg, uint64_t count) {
+  if (stack_.empty()) {
+    if (have_root_) return absl::InternalError("octree pass: a second root closed");
+    root_ = std::move(closed);
+    have_root_ = true;
+    return absl::OkStatus();
+  }
+  OpenNode& parent = stack_.back();
+  if (parent.children.size() == 8) {
+    return absl::InternalError(
+        absl::StrFormat("octree pass: node at depth %d got a ninth child", parent.depth));
+  }
+  parent.children.push_back(std::move(closed));
+  parent.agg.Add(agg);
+  parent.count += count;
+  return absl::OkStatus();
+}
+
+absl::Status OctreeBuilder::CloseLeaf() {
+  leaf_open_ = false;
+  ++stats_.nodes;
+  ++stats_.leaves;
+  stats_.max_depth = std::max(stats_.max_depth, leaf_.depth);
+  stats_.max_leaf_points = std::max(stats_.max_leaf_points, leaf_.count);
+  ClosedNode c;
+  c.node = MakeRecord(leaf_, true);
+  return Deliver(std::move(c), leaf_.agg, leaf_.count);
+}
+
+absl::Status OctreeBuilder::CloseTop() {
+  OpenNode n = std::move(stack_.back());
+  stack_.pop_back();
+  ++stats_.nodes;
+  ClosedNode c;
+  c.node = MakeRecord(n, false);
+  PBGI_RETURN_IF_ERROR(packer_->CloseInterior(absl::MakeSpan(n.children), &c));
+  return Deliver(std::move(c), n.agg, n.count);
+}
+
+absl::Status OctreeBuilder::Process(const SortRecord& r, bool have_ahead, uint64_t ahead_key) {
+  if (leaf_open_) {
+    if (KeyPrefix(r.key, leaf_.depth) == leaf_.prefix) {
+      ++leaf_.count;
+      leaf_.agg.AddPoint(r, HasRadiance(channels_));
+      ++next_point_;
+      return points_->Add(r);
+    }
+    PBGI_RETURN_IF_ERROR(CloseLeaf());
+  }
+  while (!stack_.empty() && KeyPrefix(r.key, stack_.back().depth) != stack_.back().prefix) {
+    PBGI_RETURN_IF_ERROR(CloseTop());
+  }
+  if (stack_.empty() && have_root_) {
+    return absl::InternalError("octree pass: a point arrived after the root closed");
+  }
+  // Point r is the first point of every node below the stack top that contains it.
+  for (uint32_t d = stack_.empty() ? 0 : stack_.back().depth + 1;; ++d) {
+    OpenNode n;
+    n.depth = d;
+    n.prefix = KeyPrefix(r.key, d);
+    n.first_point = next_point_;
+    const bool interior = d < kMaxOctreeDepth && have_ahead && KeyPrefix(ahead_key, d) == n.prefix;
+    if (!interior) {
+      leaf_ = std::move(n);
+      leaf_open_ = true;
+      break;
+    }
+    stack_.push_back(std::move(n));
+  }
+  ++leaf_.count;
+  leaf_.agg.AddPoint(r, HasRadiance(channels_));
+  ++next_point_;
+  return points_->Add(r);
+}
+
+absl::StatusOr<NodeRef> OctreeBuilder::Finish() {
+  const size_t cap = window_.size();
+  while (window_size_ > 0) {
+    PBGI_RETURN_IF_ERROR(Process(window_[window_head_], false, 0));
+    window_head_ = (window_head_ + 1) % cap;
+    --window_size_;
+  }
+  if (leaf_open_) PBGI_RETURN_IF_ERROR(CloseLeaf());
+  while (!stack_.empty()) PBGI_RETURN_IF_ERROR(CloseTop());
+  if (!have_root_) return absl::InvalidArgumentError("octree pass: no points");
+  const NodeRecordCommon& rc = root_.node.rec.common;
+  stats_.bounds.lo = glm::vec3(rc.lo[0], rc.lo[1], rc.lo[2]);
+  stats_.bounds.hi = glm::vec3(rc.hi[0], rc.hi[1], rc.hi[2]);
+  PBGI_RETURN_IF_ERROR(points_->Flush());
+  return packer_->Finish(std::move(root_));
+}
+
+}  // namespace pbgi::internal

@@ -1,0 +1,114 @@
+// Builds the octree in one streaming pass over points sorted by Morton key (DESIGN.md, "Build"
+// step 3; Salmon & Warren 1997; Kontkanen et al. keep leaf_size + 1 points in memory).
+//
+// A node is interior iff it holds more than leaf_size points and lies above the maximum depth.
+// Since a node's points are contiguous in Morton order, when point i is the first point of a
+// node at depth d, the node is interior iff point i + leaf_size shares its depth-d key prefix:
+// a look-ahead window of leaf_size + 1 points decides every node when it opens. Open nodes (at
+// most 22, the path to the current point) accumulate aggregates in double; a node closes when the
+// first point outside it arrives, children before parents, and goes to the NodePacker. Points
+// stream straight to point pages in arrival (= Morton = depth-first) order.
+//
+// Not thread-safe.
+#ifndef PBGI_BUILD_OCTREE_BUILDER_H_
+#define PBGI_BUILD_OCTREE_BUILDER_H_
+
+#include <array>
+#include <cstdint>
+#include <vector>
+
+#include "absl/status/status.h"
+#include "absl/status/statusor.h"
+#include "build/node_packer.h"
+#include "build/page_sink.h"
+#include "build/sort_record.h"
+#include "pbgi/surfel.h"
+#include "store/page_format.h"
+
+namespace pbgi::internal {
+
+// Writes points in order into full point pages.
+class PointPageWriter {
+ public:
+  PointPageWriter(Channels channels, PageSink* sink);
+  absl::Status Add(const SortRecord& r);
+  absl::Status Flush();
+  uint64_t pages() const { return next_page_; }
+  uint64_t points() const { return points_; }
+
+ private:
+  Channels channels_;
+  PageSink* sink_;
+  uint32_t record_size_;
+  uint32_t per_page_;
+  std::vector<uint8_t> buf_;
+  uint32_t count_ = 0;
+  uint64_t next_page_ = 0;
+  uint64_t points_ = 0;
+};
+
+// Sums of a node's points, in double (DESIGN.md, "Build" step 4).
+struct NodeAggregate {
+  Bounds bounds;
+  double area = 0;
+  std::array<double, 9> sh_area{};
+  std::array<std::array<double, 9>, 3> sh_power{};
+
+  void AddPoint(const SortRecord& r, bool radiance);
+  void Add(const NodeAggregate& o);
+};
+
+struct OctreeStats {
+  uint64_t nodes = 0;
+  uint64_t leaves = 0;
+  uint32_t max_depth = 0;
+  uint64_t max_leaf_points = 0;
+  Bounds bounds;
+};
+
+class OctreeBuilder {
+ public:
+  OctreeBuilder(uint32_t leaf_size, Channels channels, PointPageWriter* points, NodePacker* packer);
+  // Points must arrive in non-decreasing key order.
+  absl::Status Add(const SortRecord& r);
+  // Closes every open node and returns the root's ref. REQUIRES: at least one point.
+  absl::StatusOr<NodeRef> Finish();
+  const OctreeStats& stats() const { return stats_; }
+
+ private:
+  struct OpenNode {
+    uint32_t depth = 0;
+    uint64_t prefix = 0;
+    uint64_t first_point = 0;
+    uint64_t count = 0;
+    NodeAggregate agg;
+    std::vector<ClosedNode> children;
+  };
+
+  absl::Status Process(const SortRecord& r, bool have_ahead, uint64_t ahead_key);
+  PendingNode MakeRecord(const OpenNode& n, bool leaf) const;
+  absl::Status CloseLeaf();
+  absl::Status CloseTop();
+  absl::Status Deliver(ClosedNode closed, const NodeAggregate& agg, uint64_t count);
+
+  uint32_t leaf_size_;
+  Channels channels_;
+  PointPageWriter* points_;
+  NodePacker* packer_;
+  // Look-ahead window: a ring of leaf_size + 1 records.
+  std::vector<SortRecord> window_;
+  size_t window_head_ = 0, window_size_ = 0;
+  uint64_t next_point_ = 0;  // global index of the next point to place
+  uint64_t last_key_ = 0;
+  bool any_ = false;
+  std::vector<OpenNode> stack_;  // open interior nodes, root first
+  bool leaf_open_ = false;
+  OpenNode leaf_;
+  bool have_root_ = false;
+  ClosedNode root_;
+  OctreeStats stats_;
+};
+
+}  // namespace pbgi::internal
+
+#endif  // PBGI_BUILD_OCTREE_BUILDER_H_

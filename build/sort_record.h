@@ -1,0 +1,48 @@
+// The record that the external sort moves around: a Morton key and the surfel it belongs to.
+#ifndef PBGI_BUILD_SORT_RECORD_H_
+#define PBGI_BUILD_SORT_RECORD_H_
+
+#include <cmath>
+#include <cstdint>
+
+#include "pbgi/surfel.h"
+
+namespace pbgi::internal {
+
+struct SortRecord {
+  uint64_t key;
+  float position[3];
+  float normal[3];
+  float radius;
+  float radiance[3];
+};
+static_assert(sizeof(SortRecord) == 48);
+
+inline SortRecord MakeSortRecord(uint64_t key, const Surfel& s) {
+  return SortRecord{key,
+                    {s.position.x, s.position.y, s.position.z},
+                    {s.normal.x, s.normal.y, s.normal.z},
+                    s.radius,
+                    {s.radiance.x, s.radiance.y, s.radiance.z}};
+}
+
+// Why a surfel cannot be stored, or nullptr when it can. `use_radiance`: radiance is checked
+// only when it will be stored.
+inline const char* InvalidSurfelReason(const Surfel& s, bool use_radiance) {
+  auto finite3 = [](const glm::vec3& v) {
+    return std::isfinite(v.x) && std::isfinite(v.y) && std::isfinite(v.z);
+  };
+  if (!finite3(s.position)) return "position is NaN or infinite";
+  if (!finite3(s.normal)) return "normal is NaN or infinite";
+  if (!std::isfinite(s.radius)) return "radius is NaN or infinite";
+  if (!(s.radius > 0)) return "radius is zero or negative";
+  double n2 = double(s.normal.x) * s.normal.x + double(s.normal.y) * s.normal.y +
+              double(s.normal.z) * s.normal.z;
+  if (!(n2 > 1e-12)) return "normal is zero";
+  if (use_radiance && !finite3(s.radiance)) return "radiance is NaN or infinite";
+  return nullptr;
+}
+
+}  // namespace pbgi::internal
+
+#endif  // PBGI_BUILD_SORT_RECORD_H_

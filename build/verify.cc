@@ -1,0 +1,268 @@
+// VerifyTree: the octree's invariants, checked over any page source.
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <cstring>
+#include <vector>
+
+#include "absl/strings/str_format.h"
+#include "build/builder.h"
+#include "build/morton.h"
+#include "pbgi/sh.h"
+#include "pbgi/status.h"
+#include "store/page_format.h"
+
+namespace pbgi::internal {
+namespace {
+
+// Float storage rounds each value once; sums of n floats differ from the float of the double
+// sum by a few ulps of the magnitudes involved.
+constexpr double kRelTol = 2e-5;
+
+struct Sums {
+  double area = 0, area_abs = 0;
+  std::array<double, 9> sh{}, sh_abs{};
+  std::array<std::array<double, 9>, 3> pw{}, pw_abs{};
+};
+
+class Verifier {
+ public:
+  Verifier(const StoreMeta& meta, PageGetter& pages)
+      : meta_(meta),
+        pages_(pages),
+        radiance_(HasRadiance(meta.channels)),
+        record_size_(NodeRecordSize(meta.channels)),
+        per_point_page_(PointsPerPage(meta.page_size, meta.channels)) {}
+
+  absl::Status Run() {
+    PBGI_RETURN_IF_ERROR(CheckPageCounts());
+    NodeRecordRadiance root;
+    PBGI_RETURN_IF_ERROR(ReadNode(meta_.root, &root, 1));
+    PBGI_RETURN_IF_ERROR(Visit(meta_.root, root, 0));
+    if (next_point_ != meta_.point_count) {
+      return absl::DataLossError(absl::StrFormat(
+          "leaves cover %d points but the meta record counts %d", next_point_, meta_.point_count));
+    }
+    if (nodes_ != meta_.node_count) {
+      return absl::DataLossError(absl::StrFormat(
+          "the tree has %d nodes but the meta record counts %d", nodes_, meta_.node_count));
+    }
+    if (max_depth_ != meta_.max_depth) {
+      return absl::DataLossError(absl::StrFormat("the tree is %d deep but the meta record says %d",
+                                                 max_depth_, meta_.max_depth));
+    }
+    return absl::OkStatus();
+  }
+
+ private:
+  absl::Status CheckPageCounts() {
+    uint64_t records = 0;
+    for (uint64_t p = 0; p < meta_.node_pages; ++p) {
+      PBGI_ASSIGN_OR_RETURN(PageRead r, pages_.Get(Section::kNodes, p));
+      records += r.record_count;
+    }
+    if (records != meta_.node_count) {
+      return absl::DataLossError(
+          absl::StrFormat("node pages hold %d records but the meta record counts %d nodes", records,
+                          meta_.node_count));
+    }
+    const uint64_t want_pages = (meta_.point_count + per_point_page_ - 1) / per_point_page_;
+    if (want_pages != meta_.point_pages) {
+      return absl::DataLossError(absl::StrFormat("%d points need %d point pages, meta says %d",
+                                                 meta_.point_count, want_pages, meta_.point_pages));
+    }
+    for (uint64_t p = 0; p < meta_.point_pages; ++p) {
+      PBGI_ASSIGN_OR_RETURN(PageRead r, pages_.Get(Section::kPoints, p));
+      const uint64_t want =
+          p + 1 < meta_.point_pages ? per_point_page_ : meta_.point_count - p * per_point_page_;
+      if (r.record_count != want) {
+        return absl::DataLossError(
+            absl::StrFormat("point page %d holds %d points, expected %d", p, r.record_count, want));
+      }
+    }
+    return absl::OkStatus();
+  }
+
+  // Reads `count` consecutive records starting at `ref` (a sibling group must share a page).
+  absl::Status ReadNode(NodeRef ref, NodeRecordRadiance* out, uint32_t count) {
+    PBGI_ASSIGN_OR_RETURN(PageRead r, pages_.Get(Section::kNodes, RefPage(ref)));
+    if (uint64_t{RefSlot(ref)} + count > r.record_count ||
+        (uint64_t{RefSlot(ref)} + count) * record_size_ > r.payload.size()) {
+      return absl::DataLossError(
+          absl::StrFormat("node page %d: records [%d, %d) requested but the page holds %d",
+                          RefPage(ref), RefSlot(ref), RefSlot(ref) + count, r.record_count));
+    }
+    for (uint32_t i = 0; i < count; ++i) {
+      out[i] = NodeRecordRadiance{};
+      std::memcpy(&out[i], r.payload.data() + size_t{RefSlot(ref) + i} * record_size_,
+                  record_size_);
+    }
+    return absl::OkStatus();
+  }
+
+  absl::StatusOr<Surfel> ReadPoint(uint64_t index) {
+    const uint64_t page = index / per_point_page_;
+    if (!have_point_page_ || page != point_page_no_) {
+      PBGI_ASSIGN_OR_RETURN(point_page_, pages_.Get(Section::kPoints, page));
+      point_page_no_ = page;
+      have_point_page_ = true;
+    }
+    const uint32_t slot = static_cast<uint32_t>(index % per_point_page_);
+    if (slot >= point_page_.record_count) {
+      return absl::DataLossError(
+          absl::StrFormat("point %d: slot %d missing from point page %d", index, slot, page));
+    }
+    return DecodePoint(point_page_.payload.data(), slot, meta_.channels);
+  }
+
+  static bool Contains(const NodeRecordCommon& n, const float lo[3], const float hi[3]) {
+    for (int k = 0; k < 3; ++k) {
+      if (!(lo[k] >= n.lo[k] && hi[k] <= n.hi[k])) return false;
+    }
+    return true;
+  }
+
+  absl::Status Compare(const char* what, NodeRef ref, const NodeRecordRadiance& n, const Sums& s) {
+    auto close = [](double want, double got, double scale) {
+      return std::abs(want - got) <= kRelTol * scale + 1e-30;
+    };
+    const NodeRecordCommon& c = n.common;
+    if (!close(s.area, c.area, s.area_abs + std::abs(double(c.area)))) {
+      return absl::DataLossError(absl::StrFormat("node %d/%d: area %g but its %s sum to %g",
+                                                 RefPage(ref), RefSlot(ref), c.area, what, s.area));
+    }
+    for (int k = 0; k < 9; ++k) {
+      if (!close(s.sh[k], c.sh_area[k], s.sh_abs[k] + std::abs(double(c.sh_area[k])))) {
+        return absl::DataLossError(
+            absl::StrFormat("node %d/%d: area SH coefficient %d is %g but its %s sum to %g",
+                            RefPage(ref), RefSlot(ref), k, c.sh_area[k], what, s.sh[k]));
+      }
+      if (!radiance_) continue;
+      for (int ch = 0; ch < 3; ++ch) {
+        if (!close(s.pw[ch][k], n.sh_power[ch][k],
+                   s.pw_abs[ch][k] + std::abs(double(n.sh_power[ch][k])))) {
+          return absl::DataLossError(absl::StrFormat(
+              "node %d/%d: power SH (colour %d) coefficient %d is %g but its %s sum to %g",
+              RefPage(ref), RefSlot(ref), ch, k, n.sh_power[ch][k], what, s.pw[ch][k]));
+        }
+      }
+    }
+    return absl::OkStatus();
+  }
+
+  absl::Status Visit(NodeRef ref, const NodeRecordRadiance& n, uint32_t depth) {
+    const NodeRecordCommon& c = n.common;
+    ++nodes_;
+    if (nodes_ > meta_.node_count) {
+      return absl::DataLossError(absl::StrFormat(
+          "the tree has more nodes than the meta record's %d (a cycle?)", meta_.node_count));
+    }
+    auto where = [&]() { return absl::StrFormat("node %d/%d", RefPage(ref), RefSlot(ref)); };
+    if (c.depth != depth) {
+      return absl::DataLossError(
+          absl::StrFormat("%s: depth %d, expected %d", where(), c.depth, depth));
+    }
+    max_depth_ = std::max(max_depth_, depth);
+    if (c.first_point != next_point_) {
+      return absl::DataLossError(
+          absl::StrFormat("%s: first point %d, but depth-first order puts point %d next", where(),
+                          c.first_point, next_point_));
+    }
+    if (c.point_count == 0) {
+      return absl::DataLossError(absl::StrFormat("%s: holds no points", where()));
+    }
+    Sums s;
+    if (c.flags & kNodeFlagLeaf) {
+      if (c.child_count != 0) {
+        return absl::DataLossError(absl::StrFormat("%s: a leaf with children", where()));
+      }
+      if (c.point_count > meta_.leaf_size && depth < kMaxOctreeDepth) {
+        return absl::DataLossError(
+            absl::StrFormat("%s: a leaf of %d points above the maximum depth (leaf size %d)",
+                            where(), c.point_count, meta_.leaf_size));
+      }
+      if (c.first_point + c.point_count > meta_.point_count) {
+        return absl::DataLossError(absl::StrFormat("%s: points past the end", where()));
+      }
+      for (uint64_t i = c.first_point; i < c.first_point + c.point_count; ++i) {
+        PBGI_ASSIGN_OR_RETURN(Surfel p, ReadPoint(i));
+        const float pos[3] = {p.position.x, p.position.y, p.position.z};
+        if (!Contains(c, pos, pos)) {
+          return absl::DataLossError(
+              absl::StrFormat("%s: point %d lies outside the node's bounds", where(), i));
+        }
+        const double a = sh::kPi * double(p.radius) * double(p.radius);
+        auto y = sh::ProjectClampedCosine<double>(p.normal.x, p.normal.y, p.normal.z, a);
+        s.area += a;
+        s.area_abs += a;
+        for (int k = 0; k < 9; ++k) {
+          s.sh[k] += y[k];
+          s.sh_abs[k] += std::abs(y[k]);
+          for (int ch = 0; ch < 3; ++ch) {
+            s.pw[ch][k] += y[k] * p.radiance[ch];
+            s.pw_abs[ch][k] += std::abs(y[k] * p.radiance[ch]);
+          }
+        }
+      }
+      next_point_ += c.point_count;
+      return Compare("points", ref, n, s);
+    }
+    if (c.child_count < 1 || c.child_count > 8) {
+      return absl::DataLossError(
+          absl::StrFormat("%s: interior node with %d children", where(), c.child_count));
+    }
+    if (depth >= kMaxOctreeDepth) {
+      return absl::DataLossError(
+          absl::StrFormat("%s: interior node at the maximum depth", where()));
+    }
+    NodeRecordRadiance kids[8];
+    PBGI_RETURN_IF_ERROR(ReadNode(c.children, kids, c.child_count));
+    for (uint32_t i = 0; i < c.child_count; ++i) {
+      const NodeRecordCommon& k = kids[i].common;
+      if (!Contains(c, k.lo, k.hi)) {
+        return absl::DataLossError(
+            absl::StrFormat("%s: child %d's bounds are not inside its parent's", where(), i));
+      }
+      PBGI_RETURN_IF_ERROR(
+          Visit(MakeNodeRef(RefPage(c.children), RefSlot(c.children) + i), kids[i], depth + 1));
+      s.area += k.area;
+      s.area_abs += std::abs(double(k.area));
+      for (int j = 0; j < 9; ++j) {
+        s.sh[j] += k.sh_area[j];
+        s.sh_abs[j] += std::abs(double(k.sh_area[j]));
+        for (int ch = 0; ch < 3; ++ch) {
+          s.pw[ch][j] += kids[i].sh_power[ch][j];
+          s.pw_abs[ch][j] += std::abs(double(kids[i].sh_power[ch][j]));
+        }
+      }
+    }
+    if (next_point_ != c.first_point + c.point_count) {
+      return absl::DataLossError(absl::StrFormat("%s: counts %d points but its children hold %d",
+                                                 where(), c.point_count,
+                                                 next_point_ - c.first_point));
+    }
+    return Compare("children", ref, n, s);
+  }
+
+  const StoreMeta& meta_;
+  PageGetter& pages_;
+  bool radiance_;
+  uint32_t record_size_;
+  uint32_t per_point_page_;
+  uint64_t next_point_ = 0;
+  uint64_t nodes_ = 0;
+  uint32_t max_depth_ = 0;
+  bool have_point_page_ = false;
+  uint64_t point_page_no_ = 0;
+  PageRead point_page_;
+};
+
+}  // namespace
+
+absl::Status VerifyTreePages(const StoreMeta& meta, PageGetter& pages) {
+  if (meta.point_count == 0) return absl::DataLossError("the store holds no points");
+  Verifier v(meta, pages);
+  return v.Run();
+}
+
+}  // namespace pbgi::internal

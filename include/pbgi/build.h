@@ -1,0 +1,111 @@
+// pbgi::BuildDatabase: the out-of-core octree builder (DESIGN.md, "Build"; Kontkanen, Tabellion,
+// Overbeck, EGSR 2011; Salmon & Warren 1997).
+//
+// The builder pulls surfels from any SurfelSource, computes 63-bit Morton keys inside the cubed,
+// padded bounds, sorts them externally inside a memory budget (radix-sorted runs spilled to
+// temporary files, then a k-way merge), and builds the octree in one streaming pass over the
+// sorted points, packing nodes into coherent pages as they close. Points are written in Morton
+// order, so a node's points are one contiguous range of global point indices.
+//
+// Thread safety: BuildDatabase uses one thread; independent builds may run concurrently.
+//
+// Caveats:
+// - The memory budget covers the sort buffers, the merge buffers, the node packer and LMDB's
+//   write batch. Budgets below a few MiB are exceeded by fixed overheads (the run size has a
+//   floor), which is only useful to force spilling in tests.
+// - The measurement layouts kBreadthFirst and kShuffled hold every node record in memory (216 or
+//   104 bytes per node, about one node per leaf_size/2 points): they exist only to measure what
+//   coherence buys, not to build huge databases. kCoherent and kPostOrder stream.
+// - Temporary run files are unlinked as soon as they are created and only kept open, so they
+//   disappear on success, on error, on Ctrl-C and even on a crash.
+#ifndef PBGI_BUILD_H_
+#define PBGI_BUILD_H_
+
+#include <atomic>
+#include <cstdint>
+#include <functional>
+#include <string>
+
+#include "absl/status/status.h"
+#include "absl/status/statusor.h"
+#include "pbgi/store.h"
+#include "pbgi/surfel.h"
+
+namespace pbgi {
+
+// How node records are ordered in node pages. All layouts keep sibling groups contiguous in one
+// page (store/page_format.h); only kCoherent is meant for production.
+enum class Layout {
+  kCoherent,      // treelets: a sibling group and as many levels below it as fit in a page
+  kPostOrder,     // sibling groups in the order their parents close, packed sequentially
+  kBreadthFirst,  // sibling groups level by level (holds all nodes in memory)
+  kShuffled,      // sibling groups in a random order (holds all nodes in memory)
+};
+
+// "coherent", "postorder", "breadth-first", "shuffled".
+const char* LayoutName(Layout layout);
+absl::StatusOr<Layout> ParseLayout(const std::string& name);
+
+// Reported by BuildOptions::progress, at most every few hundred thousand points.
+struct BuildProgress {
+  const char* pass = "";      // "bounds", "sort", "merge+octree"
+  uint64_t points_done = 0;   // surfels processed in this pass so far
+  int64_t points_total = -1;  // when known
+};
+
+struct BuildOptions {
+  uint64_t memory_bytes = uint64_t{1} << 30;
+  uint32_t leaf_size = 16;
+  uint32_t page_size = kDefaultPageSize;
+  Channels channels = Channels::kRadiance;
+  Layout layout = Layout::kCoherent;
+  // Directory for the sort's temporary run files; empty: the database's parent directory.
+  std::string tmp_dir;
+  // Count and drop invalid surfels (NaN/Inf, zero normal, radius <= 0) instead of failing.
+  bool skip_invalid = false;
+  std::function<void(const BuildProgress&)> progress;
+  // Seed of the kShuffled layout.
+  uint64_t shuffle_seed = 12345;
+  // When set and it becomes true (e.g. from a SIGINT handler), the build stops at the next
+  // batch with a Cancelled error, removing its temporary files and the incomplete store.
+  const std::atomic<bool>* cancel = nullptr;
+};
+
+struct BuildStats {
+  uint64_t points = 0;   // surfels stored
+  uint64_t skipped = 0;  // invalid surfels dropped (skip_invalid)
+  uint64_t nodes = 0;
+  uint64_t leaves = 0;
+  uint64_t node_pages = 0;
+  uint64_t point_pages = 0;
+  uint32_t max_depth = 0;
+  uint64_t max_leaf_points = 0;  // > leaf_size only for coincident points at the maximum depth
+  uint64_t bytes_on_disk = 0;    // data file size after Finish (0 for in-memory sinks)
+  double node_page_fill = 0;     // mean fraction of node page capacity used
+  double seconds_bounds = 0;     // pass 1 (0 when the source knew its bounds)
+  double seconds_sort = 0;       // pass 2: keys, radix-sorted runs, spills
+  double seconds_merge = 0;      // merge + octree + pages (the streaming pass)
+  double seconds_finish = 0;     // final commit
+  double seconds_total = 0;
+  uint64_t runs_spilled = 0;    // 0 when the input fit the budget
+  uint64_t merge_passes = 0;    // intermediate merge passes (too many runs for one merge)
+  uint64_t run_capacity = 0;    // points per in-memory run
+  uint64_t spill_bytes = 0;     // bytes written to temporary files
+  uint64_t peak_rss_bytes = 0;  // VmHWM of the process after the build
+};
+
+// Builds a database at `db_path` (a directory, created or replaced) from all surfels of `source`.
+// Errors name the surfel (record number) or page concerned. An empty input is an error.
+absl::StatusOr<BuildStats> BuildDatabase(SurfelSource& source, const std::string& db_path,
+                                         const BuildOptions& options);
+
+// Checks the tree invariants of a finished store: every point in exactly one leaf, leaves in
+// depth-first order cover the points in order, node bounds contain their children and points,
+// a parent's SH (area, power) is the sum of its children's and a leaf's the sum of its points'
+// within float tolerance, sibling groups fit their page, and counts and depth match the meta
+// record. Reads the whole store once.
+absl::Status VerifyTree(const PageStore& store);
+
+}  // namespace pbgi
+
+#endif  // PBGI_BUILD_H_

@@ -1,0 +1,303 @@
+// pbgi::Database and pbgi::Reader: gather the octree cut for a receiver from many threads at
+// once, inside one memory cap, touching only the pages the answer needs (DESIGN.md, "Query").
+//
+//   auto db = pbgi::Database::Open("scene.pbgi", {.cache_bytes = 512 << 20});
+//   auto reader = (*db)->NewReader();          // one per thread
+//   pbgi::Gathered g;                          // reused across queries: no allocation when warm
+//   absl::Status s = (*reader)->Gather({p, n}, pbgi::Cut{}, &g, &stats);
+//
+// Thread safety: a Database is safe to share between threads; a Reader belongs to one thread
+// at a time (make one per thread with Database::NewReader()).
+//
+// What a gather returns (the cut; the test harness in pbgi/testing.h checks it by brute force):
+// every surfel that is in front of the receiver (not SurfelWhollyBehind) and within
+// max_distance (not SurfelBeyond) is represented exactly once, either by itself (surfels,
+// surfel_ids = its global point index) or by one cluster (an octree node whose point range
+// covers it). Nothing wholly behind the receiver's tangent plane is emitted on its own, and no
+// cluster lies wholly behind it or wholly beyond max_distance (with a node's disk reach, below).
+//
+// Traversal, for each node from the root, depth first:
+// 1. Skip it if its bounds, grown by its disk reach sqrt(area / pi), lie wholly behind the
+//    tangent plane, or wholly farther than max_distance. Node bounds hold surfel centres; a
+//    surfel's disk can reach its radius further, and any surfel radius below a node is at most
+//    sqrt(area / pi) (pi r_i^2 <= sum_j pi r_j^2), so the test never drops a surfel in front.
+// 2. Accept it as a cluster if the receiver is outside its bounds (the near-field rule) and
+//    ClusterSolidAngle() < max_solid_angle: the projected-area SH evaluated toward the
+//    receiver from the bounds centre, clamped at 0, over the squared distance to the centre
+//    (RenderMan's `maxsolidangle`, default 0.03).
+// 3. Otherwise descend; at a leaf emit its surfels that are neither wholly behind nor beyond.
+//
+// Memory (one budget, DatabaseOptions::cache_bytes): decoded pages live only in the shared
+// cache, which keeps its usage within cache_bytes by evicting unpinned pages. A Reader's own
+// LRU (the first level, lock-free hits) holds pins into the shared cache, not copies, within
+// reader_cache_bytes each; pinned pages cannot be evicted, so the cap holds while
+// (number of Readers) * reader_cache_bytes <= cache_bytes. By default each Reader may pin
+// cache_bytes / (2 * live Readers), re-read on every miss of its LRU, so the rule holds for
+// any number of Readers and one or two Readers get a large lock-free level (a Reader keeps at
+// least two pages, so a budget below 2 * Readers pages is exceeded by those pins).
+//
+// Caveats:
+// - Each Reader holds one LMDB read transaction for its lifetime. The store is immutable after
+//   its build, so a long-lived reader costs nothing but one slot in LMDB's reader table
+//   (126 by default): do not make more Readers than threads.
+// - A pinned page costs its decoded size (about the page size) and cannot be evicted. When a
+//   Reader is made, the others shrink to their new share at their next miss, not at once.
+//   A budget smaller than a few pages still answers correctly, but thrashes.
+// - A corrupt page is reported as an error naming the store, the section and the page number;
+//   the gather stops there and `out` holds a partial result that must not be used.
+#ifndef PBGI_QUERY_H_
+#define PBGI_QUERY_H_
+
+#include <array>
+#include <atomic>
+#include <cmath>
+#include <cstdint>
+#include <limits>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "absl/functional/function_ref.h"
+#include "absl/status/status.h"
+#include "absl/status/statusor.h"
+#include "absl/types/span.h"
+#include "glm/geometric.hpp"
+#include "glm/vec3.hpp"
+#include "pbgi/sh.h"
+#include "pbgi/store.h"
+#include "pbgi/surfel.h"
+
+namespace pbgi {
+
+namespace internal {
+class PageSource;
+class PageCache;
+class FrontCache;
+}  // namespace internal
+
+// Receiver (a shading point) is defined in pbgi/surfel.h; Gather normalizes its normal.
+
+// The cut criterion.
+struct Cut {
+  // Accept a node as a cluster when the solid angle it subtends is below this (steradians).
+  // 0 gathers every surfel in front on its own.
+  float max_solid_angle = 0.03f;
+  // Ignore what is farther than this.
+  float max_distance = std::numeric_limits<float>::infinity();
+};
+
+// Whether a surfel's disk lies wholly behind the receiver's tangent plane: the highest point of
+// the disk above the plane, n.(c - p) + r * sqrt(1 - (n.m)^2), is <= 0. A surfel lying in the
+// plane (a flat neighbour) counts as behind.
+// (Gather and the test harness evaluate exactly this code, so they agree to the last bit.)
+inline bool SurfelWhollyBehindUnit(const Surfel& s, const glm::vec3& p, const glm::vec3& unit_n) {
+  const float h = glm::dot(unit_n, s.position - p);
+  const float c = glm::dot(unit_n, s.normal);
+  return h + s.radius * std::sqrt(std::max(0.0f, 1.0f - c * c)) <= 0.0f;
+}
+inline bool SurfelWhollyBehind(const Surfel& s, const Receiver& r) {
+  return SurfelWhollyBehindUnit(s, r.position, glm::normalize(r.normal));
+}
+
+// Whether a surfel's disk lies wholly beyond max_distance: |c - p| - r > max_distance.
+inline bool SurfelBeyond(const Surfel& s, const Receiver& r, float max_distance) {
+  return glm::length(s.position - r.position) - s.radius > max_distance;
+}
+
+// The solid angle a node subtends from the receiver, as the cut criterion measures it.
+inline float NodeSolidAngle(const glm::vec3& lo, const glm::vec3& hi, const float* sh_area,
+                            const glm::vec3& p) {
+  const glm::vec3 v = p - 0.5f * (lo + hi);
+  const float d2 = glm::dot(v, v);
+  if (!(d2 > 0.0f)) return std::numeric_limits<float>::infinity();
+  const glm::vec3 w = v / std::sqrt(d2);
+  return std::max(0.0f, sh::Eval<float>(sh_area, w)) / d2;
+}
+inline float ClusterSolidAngle(const Cluster& c, const Receiver& r) {
+  return NodeSolidAngle(c.bounds.lo, c.bounds.hi, c.sh_area.data(), r.position);
+}
+
+// A conservative bound of how far a disk of a node reaches beyond its bounds: sqrt(area / pi).
+inline float NodeReach(float area) {
+  return std::sqrt(std::max(0.0f, area) * float(1.0 / sh::kPi));
+}
+
+// Whether a node (bounds of surfel centres, disk reach) lies wholly behind the tangent plane
+// (unit normal) or wholly beyond max_distance: the traversal skips it. Both keep a small
+// margin so that rounding never makes them drop a surfel that the exact surfel tests keep.
+inline float NodeMargin(const glm::vec3& lo, const glm::vec3& hi, const glm::vec3& p) {
+  const glm::vec3 m = glm::max(glm::max(glm::abs(lo), glm::abs(hi)), glm::abs(p));
+  return 1e-5f * (1.0f + std::max(m.x, std::max(m.y, m.z)));
+}
+inline bool NodeWhollyBehind(const glm::vec3& lo, const glm::vec3& hi, float reach,
+                             const glm::vec3& p, const glm::vec3& unit_n) {
+  const glm::vec3 far{unit_n.x > 0 ? hi.x : lo.x, unit_n.y > 0 ? hi.y : lo.y,
+                      unit_n.z > 0 ? hi.z : lo.z};
+  return glm::dot(unit_n, far - p) + reach < -NodeMargin(lo, hi, p);
+}
+inline bool NodeBeyond(const glm::vec3& lo, const glm::vec3& hi, float reach, const glm::vec3& p,
+                       float max_distance) {
+  const glm::vec3 d = glm::max(glm::max(lo - p, p - hi), glm::vec3(0.0f));
+  return glm::length(d) - reach > max_distance + NodeMargin(lo, hi, p);
+}
+
+// Counters of one cache level.
+struct LevelCounters {
+  uint64_t hits = 0;
+  uint64_t misses = 0;
+  uint64_t pages_read = 0;  // pages loaded from the store into this level
+  uint64_t bytes_read = 0;  // bytes of those pages as stored
+  uint64_t evictions = 0;
+  double HitRate() const {
+    return hits + misses == 0 ? 1.0 : static_cast<double>(hits) / double(hits + misses);
+  }
+  void Add(const LevelCounters& o) {
+    hits += o.hits, misses += o.misses, pages_read += o.pages_read, bytes_read += o.bytes_read,
+        evictions += o.evictions;
+  }
+};
+
+// Counters of both levels: the Reader's own LRU, then the shared cache (asked on a Reader miss).
+struct CacheStats {
+  LevelCounters reader;
+  LevelCounters shared;
+  void Add(const CacheStats& o) {
+    reader.Add(o.reader);
+    shared.Add(o.shared);
+  }
+};
+
+// Index of the per-level arrays of QueryStats: node depth 0..kMaxTreeDepth-1, and
+// kPointLevel for the point pages that leaves read.
+inline constexpr int kMaxTreeDepth = 32;
+inline constexpr int kPointLevel = kMaxTreeDepth;
+inline constexpr int kStatLevels = kMaxTreeDepth + 1;
+
+// What one or more gathers cost. Gather() adds to it (Clear() it to start over).
+struct QueryStats {
+  uint64_t queries = 0;
+  uint64_t nodes_visited = 0;
+  uint64_t nodes_culled = 0;  // skipped: behind the plane or beyond max_distance
+  uint64_t clusters = 0;
+  uint64_t surfels = 0;
+  uint64_t points_tested = 0;
+  // Per level (see kStatLevels): nodes visited; page lookups (a node or point in another page
+  // than the previous one); how the Reader's LRU and then the shared cache answered them.
+  std::array<uint64_t, kStatLevels> nodes{};
+  std::array<uint64_t, kStatLevels> pages_touched{};
+  std::array<uint64_t, kStatLevels> reader_hits{};
+  std::array<uint64_t, kStatLevels> reader_misses{};
+  std::array<uint64_t, kStatLevels> shared_hits{};
+  std::array<uint64_t, kStatLevels> shared_misses{};
+  uint64_t pages_read = 0;  // loaded from the store by this reader
+  uint64_t bytes_read = 0;
+
+  void Clear() { *this = QueryStats{}; }
+  void Add(const QueryStats& o);
+  uint64_t TotalPagesTouched() const;
+  uint64_t TotalReaderHits() const;
+  uint64_t TotalSharedHits() const;
+  uint64_t TotalSharedMisses() const;
+};
+
+struct DatabaseOptions {
+  uint64_t cache_bytes = uint64_t{256} << 20;  // both cache levels together
+  // Each Reader's own LRU (pins into the shared cache). 0: cache_bytes / (2 * live Readers),
+  // adjusted as Readers come and go.
+  uint64_t reader_cache_bytes = 0;
+  int cache_shard_bits = -1;  // -1: chosen from cache_bytes and page size
+  bool verify_checksums = true;
+};
+
+class Reader;
+
+// An opened database. Safe to share between threads.
+class Database {
+ public:
+  // Opens the database at `path` read-only; refuses what PageStore::Open refuses.
+  static absl::StatusOr<std::unique_ptr<Database>> Open(const std::string& path,
+                                                        const DatabaseOptions& options = {});
+  // Opens a database over any page source (tests use an in-memory one).
+  static absl::StatusOr<std::unique_ptr<Database>> OpenSource(
+      std::unique_ptr<internal::PageSource> source, const DatabaseOptions& options = {});
+  ~Database();
+  Database(const Database&) = delete;
+  Database& operator=(const Database&) = delete;
+
+  const StoreMeta& meta() const;
+  const std::string& path() const;
+  uint64_t FileBytes() const;
+  const DatabaseOptions& options() const { return options_; }
+
+  // A new Reader for one thread. REQUIRES: the Database outlives it.
+  absl::StatusOr<std::unique_ptr<Reader>> NewReader();
+
+  // Counters of all Readers (each adds its own every 64 gathers and when destroyed)
+  // and the shared cache's evictions.
+  CacheStats TotalStats() const;
+  // Bytes of decoded pages in the shared cache now (pinned ones included).
+  uint64_t CacheUsageBytes() const;
+  // Empties the shared cache of unpinned pages (to measure cold runs).
+  void DropCache();
+
+ private:
+  friend class Reader;
+  Database(std::unique_ptr<internal::PageSource> source, const DatabaseOptions& options);
+  void AddTotals(const CacheStats& s);
+
+  // What each Reader's own LRU may pin now (see DatabaseOptions::reader_cache_bytes).
+  uint64_t ReaderCacheBytes() const;
+
+  std::unique_ptr<internal::PageSource> source_;
+  DatabaseOptions options_;
+  uint64_t page_charge_ = 0;
+  std::atomic<uint32_t> live_readers_{0};
+  std::unique_ptr<internal::PageCache> cache_;
+  struct Totals;
+  std::unique_ptr<Totals> totals_;
+};
+
+// One thread's access to a Database. Not thread-safe; cheap to keep for a thread's lifetime.
+class Reader {
+ public:
+  ~Reader();
+  Reader(const Reader&) = delete;
+  Reader& operator=(const Reader&) = delete;
+
+  // Gathers the cut for one receiver into `out` (cleared first; its capacity is reused).
+  // Adds its costs to `stats` when not null.
+  absl::Status Gather(const Receiver& receiver, const Cut& cut, Gathered* out,
+                      QueryStats* stats = nullptr);
+
+  // Gathers for receivers[order[0]], receivers[order[1]], ... (every receiver in index order
+  // when `order` is empty), reusing one Gathered, and calls fn(index, gathered) after each.
+  // Stops at the first error, from the gather or from fn.
+  absl::Status GatherBatch(absl::Span<const Receiver> receivers, const Cut& cut,
+                           absl::Span<const uint32_t> order,
+                           absl::FunctionRef<absl::Status(size_t, const Gathered&)> fn,
+                           QueryStats* stats = nullptr);
+
+  // Reads the surfels with global point indices [first, first + count) into `out` (appended).
+  absl::Status ReadPoints(uint64_t first, uint64_t count, std::vector<Surfel>* out);
+
+  // This Reader's counters since it was made.
+  const CacheStats& stats() const { return stats_; }
+
+ private:
+  friend class Database;
+  struct Impl;
+  Reader(Database* db, std::unique_ptr<Impl> impl);
+
+  Database* db_;
+  std::unique_ptr<Impl> impl_;
+  CacheStats stats_;
+  CacheStats flushed_;
+};
+
+// The order in which to visit receivers for coherence: sorted by the Morton (Z-order) key of
+// their positions, quantized to 21 bits per axis inside the receivers' bounds.
+std::vector<uint32_t> ZOrder(absl::Span<const Receiver> receivers);
+
+}  // namespace pbgi
+
+#endif  // PBGI_QUERY_H_

@@ -1,0 +1,269 @@
+// Scenes: the inputs of Coherent PBGI (DESIGN.md, "Scenes").
+//
+// A Scene is triangles (meshes placed by instances), materials (albedo, emission) and lights (a
+// sun, a uniform sky, and area lights, which are simply the emissive triangles). The same scene
+// feeds Embree through a Tracer (camera rays, shadow rays, the reference integrator) and the
+// surfel sampler that streams points to the builder, so both sides see one geometry and one
+// lighting function.
+//
+// Radiance convention (used everywhere in this header): a diffuse surface of albedo `a` lit by
+// irradiance E reflects radiance a * E / pi. The lighting function DirectLight() returns E / pi,
+// so a surfel's radiance is albedo * DirectLight + emission. In these units:
+// - a sun of `radiance` S gives a surface facing it at angle theta: albedo * S * cos(theta);
+// - a uniform sky of radiance K gives: albedo * K * (cosine-weighted visible fraction);
+// - an emissive triangle of emission Le is a one-sided Lambertian emitter of radiance Le.
+//
+// Thread safety: Scene is plain data. A Tracer is immutable after Create() and all its const
+// methods may be called from many threads at once. A SurfelSource belongs to one thread (it uses
+// TBB internally).
+#ifndef PBGI_SCENE_H_
+#define PBGI_SCENE_H_
+
+#include <cstdint>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "absl/status/status.h"
+#include "absl/status/statusor.h"
+#include "absl/strings/string_view.h"
+#include "absl/types/span.h"
+#include "glm/mat4x4.hpp"
+#include "glm/vec3.hpp"
+#include "pbgi/surfel.h"
+
+namespace pbgi {
+
+struct Material {
+  glm::vec3 albedo{0.8f};
+  glm::vec3 emission{0.0f};  // one-sided: emitted on the side the triangle's normal points to
+};
+
+struct Sun {
+  glm::vec3 direction{0.0f, 0.0f, 1.0f};  // unit vector from the scene towards the sun
+  glm::vec3 radiance{0.0f};               // see the radiance convention above
+};
+
+struct Lights {
+  bool has_sun = false;
+  Sun sun;
+  glm::vec3 sky{0.0f};         // uniform sky radiance (rays that leave the scene see it)
+  int sky_rays = 4;            // stratified cosine-weighted shadow rays per point for the sky
+  int area_light_samples = 8;  // stratified shadow rays per point over all emissive triangles
+};
+
+// An indexed triangle mesh in its own object space. The normal of triangle (a, b, c) is
+// normalize(cross(b - a, c - a)): winding decides the front side.
+struct Mesh {
+  std::vector<glm::vec3> positions;
+  std::vector<glm::uvec3> triangles;
+  std::vector<uint32_t> materials;  // one material index per triangle
+};
+
+// A placement of a mesh. Instancing keeps scenes compact: a forest of a thousand trees holds
+// a few tree meshes.
+struct Instance {
+  uint32_t mesh = 0;
+  glm::mat4 transform{1.0f};  // affine, object to world
+  int32_t material = -1;      // >= 0: overrides the mesh's per-triangle materials
+};
+
+struct Scene {
+  std::string name;
+  std::vector<Mesh> meshes;
+  std::vector<Instance> instances;
+  std::vector<Material> materials;
+  Lights lights;
+  // False for occlusion-only scenes (the forest): samplers then bake no radiance.
+  bool has_radiance = true;
+
+  // Checks indices, material references and finite transforms; names what is wrong.
+  absl::Status Validate() const;
+  // Bounds of all instanced triangles in world space.
+  Bounds ComputeBounds() const;
+  // Total world-space area of all instanced triangles (double precision).
+  double SurfaceArea() const;
+  // Number of instanced triangles (what the sampler and Embree see).
+  int64_t TriangleCount() const;
+};
+
+// ---- Procedural scenes ------------------------------------------------------------------------
+
+struct SceneOptions {
+  uint64_t seed = 1;
+  // Scale of the scene's content: city blocks per side, trees per side of the forest. 0 picks
+  // the scene's default. Point counts do not depend on it: the sampler sets the density.
+  int size = 0;
+};
+
+// The names MakeScene() knows: cornell, city, forest, disk, sphere-in-box.
+std::vector<std::string> ProceduralSceneNames();
+absl::StatusOr<Scene> MakeScene(absl::string_view name, const SceneOptions& options = {});
+
+// Cornell box in [0,1]^3 (z up, open towards -y), two white blocks, a red wall at x=0, a green
+// wall at x=1, and an emissive quad under the ceiling (the only light).
+Scene MakeCornellScene(const SceneOptions& options);
+// A grid of city blocks with buildings of many sizes on a ground plane, lit by a sun and a sky.
+Scene MakeCityScene(const SceneOptions& options);
+// Many instanced trees (trunks and leaf quads) on a ground plane; occlusion only.
+Scene MakeForestScene(const SceneOptions& options);
+// A disk of `radius` (a `segments`-gon) in the plane z = 0 whose front faces -z, emission
+// `emission`, albedo 0, no other light. From a point at (0, 0, -h) facing +z the disk subtends
+// the form factor r^2 / (h^2 + r^2) (occlusion), and irradiance pi * emission * r^2/(h^2 + r^2).
+Scene MakeDiskScene(float radius = 1.0f, int segments = 256, glm::vec3 emission = glm::vec3(1.0f));
+// A closed box [-2,2]^3 with inward faces (albedo 0.5) around an emissive sphere (radius 0.5,
+// emission 1, albedo 0) at the origin, and a sun and a sky outside that must not leak in. A wall
+// point at distance d from the center facing it sees the sphere with form factor (R/d)^2.
+Scene MakeSphereInBoxScene(const SceneOptions& options);
+
+// ---- Embree -----------------------------------------------------------------------------------
+
+// A pinhole camera. Pixel (x, y) has y = 0 at the top row.
+struct Camera {
+  glm::vec3 eye{0.0f, -1.0f, 0.5f};
+  glm::vec3 look_at{0.0f, 0.0f, 0.5f};
+  glm::vec3 up{0.0f, 0.0f, 1.0f};
+  float fov_y_degrees = 45.0f;
+  int width = 640;
+  int height = 480;
+
+  // The unit direction of the ray through the point (px, py) in pixel coordinates (pixel
+  // centers are at x + 0.5).
+  glm::vec3 Direction(float px, float py) const;
+};
+
+struct Hit {
+  bool hit = false;
+  float distance = 0.0f;
+  glm::vec3 position{0.0f};
+  glm::vec3 normal{0.0f};  // unit geometric normal of the triangle's front side (by winding)
+  bool front = false;      // the ray arrived at the front side
+  uint32_t material = 0;
+  uint32_t instance = 0;
+  uint32_t triangle = 0;  // index in the instance's mesh
+};
+
+// What a camera pixel sees: a receiver for shading, with the normal turned to face the camera.
+struct CameraHit {
+  bool hit = false;
+  glm::vec3 position{0.0f};
+  glm::vec3 normal{0.0f};
+  uint32_t material = 0;
+};
+
+// A point that receives light: a shading point and its unit normal.
+// Receiver (a shading point: position and normal) is defined in pbgi/surfel.h.
+
+// Embree over a Scene: one RTCScene per mesh, instanced into a top-level RTCScene.
+// Thread safety: immutable after Create(); every method is const and safe to call from many
+// threads. REQUIRES: the Scene outlives the Tracer and is not modified while it lives.
+class Tracer {
+ public:
+  static absl::StatusOr<std::unique_ptr<Tracer>> Create(const Scene& scene);
+  ~Tracer();
+  Tracer(const Tracer&) = delete;
+  Tracer& operator=(const Tracer&) = delete;
+
+  const Scene& scene() const;
+  // Offset along the normal for rays leaving a surface (relative to the scene's size).
+  float epsilon() const;
+
+  // Closest hit along origin + t * dir, t in (0, tmax). REQUIRES: dir is unit length.
+  Hit Intersect(const glm::vec3& origin, const glm::vec3& dir, float tmax) const;
+  // Whether anything lies along origin + t * dir, t in (0, tmax).
+  bool Occluded(const glm::vec3& origin, const glm::vec3& dir, float tmax) const;
+
+  // One ray per pixel center, TBB-parallel; row-major, width * height entries.
+  std::vector<CameraHit> TraceCamera(const Camera& camera) const;
+
+  // The lighting function: irradiance / pi at point p with unit normal n from the scene's sun,
+  // sky and emissive triangles, with shadow rays. `key` seeds the stratified samples (same key,
+  // same answer). The surfel baker and the reference integrator both use it.
+  glm::vec3 DirectLight(const glm::vec3& p, const glm::vec3& n, uint64_t key) const;
+  // Outgoing radiance of a surface point on the front side of `material`:
+  // albedo * DirectLight + emission.
+  glm::vec3 SurfaceRadiance(const glm::vec3& p, const glm::vec3& n, uint32_t material,
+                            uint64_t key) const;
+  // The same for many points, in groups of kGroup points that share their stratified light
+  // samples (drawn from `key` and the group's index); each point keeps its own normal and
+  // shadow rays, so every estimate is unbiased, and neighbours' rays stay coherent (measured
+  // 1.4x faster than independent samples per point). REQUIRES: all spans have the same size.
+  static constexpr int kGroup = 16;
+  void SurfaceRadiance(absl::Span<const glm::vec3> p, absl::Span<const glm::vec3> n,
+                       absl::Span<const uint32_t> materials, uint64_t key,
+                       absl::Span<glm::vec3> out) const;
+
+  // Reference integrator (Embree against the scene geometry): `rays` stratified
+  // cosine-weighted rays from p around n. Occlusion: the fraction that hit something within
+  // max_distance (any side). Irradiance: the integral of incident radiance times cos over the
+  // hemisphere (one diffuse bounce: the radiance of each hit point is SurfaceRadiance(), zero on
+  // back sides; rays that miss contribute nothing, the sky being direct light). Divide by pi
+  // for RenderMan's "average radiance" convention.
+  float ReferenceOcclusion(const glm::vec3& p, const glm::vec3& n, int rays, float max_distance,
+                           uint64_t seed = 1) const;
+  glm::vec3 ReferenceIrradiance(const glm::vec3& p, const glm::vec3& n, int rays,
+                                uint64_t seed = 1) const;
+  // TBB-parallel batch forms; results in receiver order, deterministic for a seed.
+  std::vector<float> ReferenceOcclusion(absl::Span<const Receiver> receivers, int rays,
+                                        float max_distance, uint64_t seed = 1) const;
+  std::vector<glm::vec3> ReferenceIrradiance(absl::Span<const Receiver> receivers, int rays,
+                                             uint64_t seed = 1) const;
+
+ private:
+  struct Impl;
+  explicit Tracer(std::unique_ptr<Impl> impl);
+  // Direct light (irradiance / pi) at up to kGroup points; `active` false skips a point.
+  void DirectLightGroup(int count, const glm::vec3* p, const glm::vec3* n, const bool* active,
+                        uint64_t key, glm::vec3* out) const;
+  // Shadow rays for up to kGroup points: blocked[i] for the active ones.
+  void OccludedGroup(int count, const glm::vec3* origin, const glm::vec3* dir, const float* tfar,
+                     const bool* active, bool* blocked) const;
+  std::unique_ptr<Impl> impl_;
+};
+
+// ---- Surfel sampling --------------------------------------------------------------------------
+
+struct SamplerOptions {
+  int64_t count = 0;     // number of surfels (exact), or
+  double density = 0.0;  // surfels per unit area, used when count == 0
+  uint64_t seed = 1;
+  bool bake = true;  // bake direct light into radiance (never for occlusion-only scenes)
+  int64_t chunk_size = 1 << 17;  // surfels generated per parallel batch (bounds the memory)
+};
+
+// A streaming SurfelSource over a scene's triangles. Surfels are stratified over the area
+// (systematic sampling along the cumulative area of the triangles, a rotated Hammersley set
+// inside each triangle), each representing area/count: pi r^2 = area per surfel, so the total
+// surfel area equals the mesh area. Normals are the triangles' geometric normals. Radiance is
+// SurfaceRadiance() at the surfel. Memory is constant in the count (one chunk in flight);
+// surfel i depends only on (scene, options, i), so the stream is identical for any number of
+// threads. Not thread-safe (uses TBB internally).
+absl::StatusOr<std::unique_ptr<SurfelSource>> MakeSceneSurfelSource(
+    std::shared_ptr<const Scene> scene, const SamplerOptions& options);
+
+// ---- Mesh import ------------------------------------------------------------------------------
+
+// What ImportMesh() found and dropped. Each dropped item is counted, and `warnings` has one
+// line per kind of problem, with its count.
+struct ImportReport {
+  int64_t meshes = 0;     // meshes kept
+  int64_t instances = 0;  // placements of kept meshes in the node hierarchy
+  int64_t triangles = 0;  // triangles kept (per mesh, before instancing)
+  int64_t materials = 0;
+  int64_t meshes_without_normals = 0;  // normals are taken from the geometry anyway
+  int64_t empty_meshes = 0;            // meshes with no usable triangles
+  int64_t degenerate_triangles = 0;    // zero-area triangles, dropped
+  int64_t nan_triangles = 0;           // triangles with a NaN or infinite vertex, dropped
+  int64_t non_triangle_faces = 0;      // points and lines, dropped
+  std::vector<std::string> warnings;
+};
+
+// Reads a mesh file through Assimp (OBJ, PLY, glTF/GLB, FBX, DAE, STL, 3MF, ...), keeping its
+// node hierarchy as instances and its materials' base (or diffuse) and emissive colours. A file
+// that Assimp cannot read is an error naming the file and Assimp's reason; a file with nothing
+// usable left is an error. The scene has no lights: the caller adds them.
+absl::StatusOr<Scene> ImportMesh(const std::string& path, ImportReport* report);
+
+}  // namespace pbgi
+
+#endif  // PBGI_SCENE_H_

@@ -1,0 +1,459 @@
+// Database, Reader and the gather traversal (DESIGN.md, "Query"; the cut is documented in
+// include/pbgi/query.h).
+#include <algorithm>
+#include <atomic>
+#include <cmath>
+#include <cstring>
+#include <utility>
+
+#include "absl/strings/str_format.h"
+#include "pbgi/query.h"
+#include "pbgi/status.h"
+#include "query/decoded_page.h"
+#include "query/front_cache.h"
+#include "query/page_cache.h"
+#include "query/page_source.h"
+#include "store/page_format.h"
+
+namespace pbgi {
+
+using internal::DecodedPage;
+using internal::NodeHot;
+using internal::NodeRef;
+using internal::PageCache;
+using internal::PageKey;
+
+void QueryStats::Add(const QueryStats& o) {
+  queries += o.queries;
+  nodes_visited += o.nodes_visited;
+  nodes_culled += o.nodes_culled;
+  clusters += o.clusters;
+  surfels += o.surfels;
+  points_tested += o.points_tested;
+  for (int i = 0; i < kStatLevels; ++i) {
+    nodes[i] += o.nodes[i];
+    pages_touched[i] += o.pages_touched[i];
+    reader_hits[i] += o.reader_hits[i];
+    reader_misses[i] += o.reader_misses[i];
+    shared_hits[i] += o.shared_hits[i];
+    shared_misses[i] += o.shared_misses[i];
+  }
+  pages_read += o.pages_read;
+  bytes_read += o.bytes_read;
+}
+
+namespace {
+uint64_t Sum(const std::array<uint64_t, kStatLevels>& a) {
+  uint64_t s = 0;
+  for (uint64_t v : a) s += v;
+  return s;
+}
+}  // namespace
+
+uint64_t QueryStats::TotalPagesTouched() const { return Sum(pages_touched); }
+uint64_t QueryStats::TotalReaderHits() const { return Sum(reader_hits); }
+uint64_t QueryStats::TotalSharedHits() const { return Sum(shared_hits); }
+uint64_t QueryStats::TotalSharedMisses() const { return Sum(shared_misses); }
+
+// ---------------------------------------------------------------------------------------------
+// Database
+
+struct Database::Totals {
+  std::atomic<uint64_t> v[10] = {};
+};
+
+Database::Database(std::unique_ptr<internal::PageSource> source, const DatabaseOptions& options)
+    : source_(std::move(source)), options_(options), totals_(new Totals) {
+  const StoreMeta& m = source_->meta();
+  // A decoded page costs about its stored size (see DecodedPage::Charge).
+  const uint64_t page_charge = std::max<uint64_t>(m.page_size, 4096);
+  page_charge_ = page_charge;
+  const int bits = options_.cache_shard_bits >= 0
+                       ? options_.cache_shard_bits
+                       : PageCache::DefaultShardBits(options_.cache_bytes, page_charge);
+  cache_ = std::make_unique<PageCache>(options_.cache_bytes, bits);
+}
+
+Database::~Database() = default;
+
+absl::StatusOr<std::unique_ptr<Database>> Database::OpenSource(
+    std::unique_ptr<internal::PageSource> source, const DatabaseOptions& options) {
+  if (source == nullptr) return absl::InvalidArgumentError("Database::OpenSource: no source");
+  const StoreMeta& m = source->meta();
+  if (m.page_size <= sizeof(PageHeader) + internal::NodeRecordSize(m.channels)) {
+    return absl::FailedPreconditionError(
+        absl::StrFormat("%s: page size %d is too small", source->name(), m.page_size));
+  }
+  if (m.point_count > 0 && internal::RefSlot(m.root) >= 0xffffu) {
+    return absl::DataLossError(absl::StrFormat("%s: meta: bad root reference", source->name()));
+  }
+  return std::unique_ptr<Database>(new Database(std::move(source), options));
+}
+
+const StoreMeta& Database::meta() const { return source_->meta(); }
+const std::string& Database::path() const { return source_->name(); }
+uint64_t Database::FileBytes() const { return source_->FileBytes(); }
+uint64_t Database::CacheUsageBytes() const { return cache_->usage(); }
+void Database::DropCache() { cache_->Prune(); }
+
+void Database::AddTotals(const CacheStats& s) {
+  const uint64_t add[10] = {
+      s.reader.hits, s.reader.misses, s.reader.pages_read, s.reader.bytes_read, s.reader.evictions,
+      s.shared.hits, s.shared.misses, s.shared.pages_read, s.shared.bytes_read, s.shared.evictions};
+  for (int i = 0; i < 10; ++i) {
+    if (add[i] != 0) totals_->v[i].fetch_add(add[i], std::memory_order_relaxed);
+  }
+}
+
+CacheStats Database::TotalStats() const {
+  uint64_t v[10];
+  for (int i = 0; i < 10; ++i) v[i] = totals_->v[i].load(std::memory_order_relaxed);
+  CacheStats s;
+  s.reader = {v[0], v[1], v[2], v[3], v[4]};
+  s.shared = {v[5], v[6], v[7], v[8], v[9]};
+  s.shared.evictions = cache_->counters().evictions;
+  return s;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Reader
+
+namespace {
+// DFS stack: a node pushes at most 8 children and pops one, so depth * 7 + 1 entries suffice.
+constexpr int kStackSize = kMaxTreeDepth * 8;
+constexpr int kFlushEvery = 64;
+}  // namespace
+
+struct Reader::Impl {
+  struct StackEntry {
+    NodeRef ref;
+    uint32_t depth;
+  };
+
+  Impl(Database* d, std::unique_ptr<internal::PageReader> r, uint64_t budget, uint32_t max_entries)
+      : db(d),
+        meta(d->meta()),
+        source(std::move(r)),
+        front(budget, max_entries),
+        points_per_page(internal::PointsPerPage(meta.page_size, meta.channels)) {}
+
+  // A page through both cache levels, counted at `level`.
+  inline absl::Status Fetch(Section section, uint64_t page_no, int level, const DecodedPage** out) {
+    const uint64_t key = PageKey(section, page_no);
+    ++q.pages_touched[level];
+    if (const DecodedPage* p = front.Find(key)) {
+      ++q.reader_hits[level];
+      *out = p;
+      return absl::OkStatus();
+    }
+    ++q.reader_misses[level];
+    return FetchSlow(section, page_no, key, level, out);
+  }
+
+  absl::Status FetchSlow(Section section, uint64_t page_no, uint64_t key, int level,
+                         const DecodedPage** out);
+  absl::Status Gather(const Receiver& receiver, const Cut& cut, Gathered* out);
+  absl::Status EmitLeafPoints(uint64_t first, uint64_t count, const glm::vec3& p,
+                              const glm::vec3& n, float max_distance, bool check_distance,
+                              Gathered* out);
+
+  Database* db;
+  const StoreMeta& meta;
+  std::unique_ptr<internal::PageReader> source;
+  internal::FrontCache front;
+  const uint64_t points_per_page;
+  QueryStats q;  // counters of the current query
+  StackEntry stack[kStackSize];
+  int since_flush = 0;
+};
+
+absl::Status Reader::Impl::FetchSlow(Section section, uint64_t page_no, uint64_t key, int level,
+                                     const DecodedPage** out) {
+  uint64_t bytes = 0;
+  auto load = [&]() -> absl::StatusOr<PageCache::Loaded> {
+    absl::StatusOr<PageView> view = source->Read(section, page_no);
+    if (!view.ok()) return view.status();
+    bytes = meta.page_size;  // pages are stored at their fixed size
+    absl::StatusOr<std::unique_ptr<DecodedPage>> page =
+        internal::DecodePage(*view, section, page_no, meta, db->path());
+    if (!page.ok()) return page.status();
+    PageCache::Loaded loaded;
+    loaded.charge = (*page)->Charge();
+    loaded.value = std::move(*page);
+    return loaded;
+  };
+  PageCache::Outcome outcome;
+  absl::StatusOr<PageCache::Handle> handle = db->cache_->Lookup(key, load, &outcome);
+  // The share may have shrunk since another Reader was made: the next Insert honours it.
+  front.set_budget_bytes(db->ReaderCacheBytes());
+  if (!handle.ok()) return handle.status();
+  if (outcome == PageCache::Outcome::kLoaded) {
+    ++q.shared_misses[level];
+    ++q.pages_read;
+    q.bytes_read += bytes;
+  } else {
+    ++q.shared_hits[level];
+  }
+  *out = front.Insert(key, std::move(*handle));
+  return absl::OkStatus();
+}
+
+absl::Status Reader::Impl::EmitLeafPoints(uint64_t first, uint64_t count, const glm::vec3& p,
+                                          const glm::vec3& n, float max_distance,
+                                          bool check_distance, Gathered* out) {
+  uint64_t i = first;
+  const uint64_t end = first + count;
+  while (i < end) {
+    const uint64_t page_no = i / points_per_page;
+    const uint64_t slot0 = i % points_per_page;
+    const uint64_t run = std::min(end - i, points_per_page - slot0);
+    const DecodedPage* page;
+    if (absl::Status s = Fetch(Section::kPoints, page_no, kPointLevel, &page); !s.ok()) return s;
+    const Surfel* pts = page->points.get() + slot0;
+    for (uint64_t k = 0; k < run; ++k) {
+      const Surfel& s = pts[k];
+      if (SurfelWhollyBehindUnit(s, p, n)) continue;
+      if (check_distance && SurfelBeyond(s, Receiver{p, n}, max_distance)) continue;
+      out->surfels.push_back(s);
+      out->surfel_ids.push_back(i + k);
+    }
+    q.points_tested += run;
+    i += run;
+  }
+  return absl::OkStatus();
+}
+
+absl::Status Reader::Impl::Gather(const Receiver& receiver, const Cut& cut, Gathered* out) {
+  out->Clear();
+  ++q.queries;
+  if (meta.point_count == 0 || meta.root == internal::kNoNodeRef) return absl::OkStatus();
+  const glm::vec3 p = receiver.position;
+  const glm::vec3 n = glm::normalize(receiver.normal);
+  const float max_sa = cut.max_solid_angle;
+  const float max_d = cut.max_distance;
+  const bool check_distance = std::isfinite(max_d);
+
+  int sp = 0;
+  stack[sp++] = {meta.root, 0};
+  uint64_t cur_page = ~uint64_t{0};
+  const DecodedPage* page = nullptr;
+  uint64_t front_evictions = front.evictions();
+
+  while (sp > 0) {
+    const StackEntry e = stack[--sp];
+    const uint64_t page_no = internal::RefPage(e.ref);
+    const uint32_t slot = internal::RefSlot(e.ref);
+    const int level = static_cast<int>(e.depth);
+    if (page_no != cur_page || front.evictions() != front_evictions) {
+      if (absl::Status s = Fetch(Section::kNodes, page_no, level, &page); !s.ok()) return s;
+      cur_page = page_no;
+      front_evictions = front.evictions();
+    }
+    if (slot >= page->count) {
+      return absl::DataLossError(
+          absl::StrFormat("%s: nodes page %d is corrupt: a link points at slot %d of %d",
+                          db->path(), page_no, slot, page->count));
+    }
+    const NodeHot& node = page->nodes[slot];
+    if (node.depth != e.depth) {
+      return absl::DataLossError(
+          absl::StrFormat("%s: nodes page %d is corrupt: node %d has depth %d, its parent says %d",
+                          db->path(), page_no, slot, node.depth, e.depth));
+    }
+    ++q.nodes_visited;
+    ++q.nodes[level];
+
+    if (NodeWhollyBehind(node.lo, node.hi, node.reach, p, n) ||
+        (check_distance && NodeBeyond(node.lo, node.hi, node.reach, p, max_d))) {
+      ++q.nodes_culled;
+      continue;
+    }
+    const bool inside = p.x >= node.lo.x && p.y >= node.lo.y && p.z >= node.lo.z &&
+                        p.x <= node.hi.x && p.y <= node.hi.y && p.z <= node.hi.z;
+    if (!inside && NodeSolidAngle(node.lo, node.hi, node.sh_area, p) < max_sa) {
+      Cluster& c = out->clusters.emplace_back();
+      c.bounds.lo = node.lo;
+      c.bounds.hi = node.hi;
+      c.area = node.area;
+      std::memcpy(c.sh_area.data(), node.sh_area, sizeof(node.sh_area));
+      if (page->power) {
+        c.sh_power = page->power[slot];
+      } else {
+        c.sh_power = {};
+      }
+      c.depth = node.depth;
+      c.first_point = node.first_point;
+      c.point_count = node.point_count;
+      ++q.clusters;
+      continue;
+    }
+    if (node.child_count == 0) {
+      // The point pages may evict this node page from the front cache (a small budget): the
+      // eviction counter makes the next node look its page up again.
+      const uint64_t first = node.first_point, count = node.point_count;
+      if (absl::Status s = EmitLeafPoints(first, count, p, n, max_d, check_distance, out);
+          !s.ok()) {
+        return s;
+      }
+      continue;
+    }
+    if (e.depth + 1 >= static_cast<uint32_t>(kMaxTreeDepth) ||
+        sp + static_cast<int>(node.child_count) > kStackSize) {
+      return absl::DataLossError(
+          absl::StrFormat("%s: nodes page %d is corrupt: node %d is deeper than %d levels",
+                          db->path(), page_no, slot, kMaxTreeDepth));
+    }
+    // Push in reverse so that children are visited in stored (depth-first) order.
+    for (uint32_t k = node.child_count; k-- > 0;) stack[sp++] = {node.children + k, e.depth + 1};
+  }
+  q.surfels += out->surfels.size();
+  return absl::OkStatus();
+}
+
+Reader::Reader(Database* db, std::unique_ptr<Impl> impl) : db_(db), impl_(std::move(impl)) {}
+
+Reader::~Reader() {
+  db_->AddTotals(CacheStats{
+      {stats_.reader.hits - flushed_.reader.hits, stats_.reader.misses - flushed_.reader.misses,
+       stats_.reader.pages_read - flushed_.reader.pages_read,
+       stats_.reader.bytes_read - flushed_.reader.bytes_read,
+       stats_.reader.evictions - flushed_.reader.evictions},
+      {stats_.shared.hits - flushed_.shared.hits, stats_.shared.misses - flushed_.shared.misses,
+       stats_.shared.pages_read - flushed_.shared.pages_read,
+       stats_.shared.bytes_read - flushed_.shared.bytes_read, 0}});
+  impl_.reset();  // unpins before the Database can go
+  db_->live_readers_.fetch_sub(1, std::memory_order_relaxed);
+}
+
+uint64_t Database::ReaderCacheBytes() const {
+  if (options_.reader_cache_bytes != 0) return options_.reader_cache_bytes;
+  const uint64_t live = std::max<uint32_t>(1, live_readers_.load(std::memory_order_relaxed));
+  return options_.cache_bytes / (2 * live);
+}
+
+absl::StatusOr<std::unique_ptr<Reader>> Database::NewReader() {
+  absl::StatusOr<std::unique_ptr<internal::PageReader>> r = source_->NewReader();
+  if (!r.ok()) return r.status();
+  live_readers_.fetch_add(1, std::memory_order_relaxed);
+  // Slots for the largest share a Reader can get (alone: half the budget), at most 16384.
+  const uint64_t most =
+      options_.reader_cache_bytes != 0 ? options_.reader_cache_bytes : options_.cache_bytes / 2;
+  const uint64_t entries = std::clamp<uint64_t>(most / (page_charge_ / 2) + 2, 2, 1u << 14);
+  auto impl = std::make_unique<Reader::Impl>(this, std::move(*r), ReaderCacheBytes(),
+                                             static_cast<uint32_t>(entries));
+  return std::unique_ptr<Reader>(new Reader(this, std::move(impl)));
+}
+
+absl::Status Reader::Gather(const Receiver& receiver, const Cut& cut, Gathered* out,
+                            QueryStats* stats) {
+  Impl& im = *impl_;
+  const uint64_t evictions_before = im.front.evictions();
+  im.q.Clear();
+  absl::Status status = im.Gather(receiver, cut, out);
+  const QueryStats& q = im.q;
+  const uint64_t rh = q.TotalReaderHits();
+  const uint64_t rm = q.TotalPagesTouched() - rh;
+  stats_.reader.hits += rh;
+  stats_.reader.misses += rm;
+  stats_.reader.pages_read += rm;  // every miss of this level is filled from the next one
+  stats_.reader.evictions += im.front.evictions() - evictions_before;
+  const uint64_t sh = q.TotalSharedHits();
+  stats_.shared.hits += sh;
+  stats_.shared.misses += q.TotalSharedMisses();
+  stats_.shared.pages_read += q.pages_read;
+  stats_.shared.bytes_read += q.bytes_read;
+  if (stats != nullptr) stats->Add(q);
+  if (++im.since_flush >= kFlushEvery) {
+    im.since_flush = 0;
+    CacheStats delta;
+    delta.reader = {stats_.reader.hits - flushed_.reader.hits,
+                    stats_.reader.misses - flushed_.reader.misses,
+                    stats_.reader.pages_read - flushed_.reader.pages_read,
+                    stats_.reader.bytes_read - flushed_.reader.bytes_read,
+                    stats_.reader.evictions - flushed_.reader.evictions};
+    delta.shared = {stats_.shared.hits - flushed_.shared.hits,
+                    stats_.shared.misses - flushed_.shared.misses,
+                    stats_.shared.pages_read - flushed_.shared.pages_read,
+                    stats_.shared.bytes_read - flushed_.shared.bytes_read, 0};
+    db_->AddTotals(delta);
+    flushed_ = stats_;
+  }
+  return status;
+}
+
+absl::Status Reader::GatherBatch(absl::Span<const Receiver> receivers, const Cut& cut,
+                                 absl::Span<const uint32_t> order,
+                                 absl::FunctionRef<absl::Status(size_t, const Gathered&)> fn,
+                                 QueryStats* stats) {
+  Gathered g;
+  const size_t n = order.empty() ? receivers.size() : order.size();
+  for (size_t j = 0; j < n; ++j) {
+    const size_t i = order.empty() ? j : order[j];
+    if (i >= receivers.size()) {
+      return absl::InvalidArgumentError(absl::StrFormat(
+          "GatherBatch: order[%d] = %d, but only %d receivers", j, i, receivers.size()));
+    }
+    if (absl::Status s = Gather(receivers[i], cut, &g, stats); !s.ok()) return s;
+    if (absl::Status s = fn(i, g); !s.ok()) return s;
+  }
+  return absl::OkStatus();
+}
+
+absl::Status Reader::ReadPoints(uint64_t first, uint64_t count, std::vector<Surfel>* out) {
+  const StoreMeta& m = impl_->meta;
+  if (count > m.point_count || first > m.point_count - count) {
+    return absl::OutOfRangeError(absl::StrFormat("%s: points [%d, +%d) outside the %d points",
+                                                 db_->path(), first, count, m.point_count));
+  }
+  impl_->q.Clear();
+  uint64_t i = first;
+  const uint64_t end = first + count;
+  const uint64_t ppp = impl_->points_per_page;
+  while (i < end) {
+    const DecodedPage* page;
+    PBGI_RETURN_IF_ERROR(impl_->Fetch(Section::kPoints, i / ppp, kPointLevel, &page));
+    const uint64_t slot0 = i % ppp;
+    const uint64_t run = std::min(end - i, ppp - slot0);
+    out->insert(out->end(), page->points.get() + slot0, page->points.get() + slot0 + run);
+    i += run;
+  }
+  return absl::OkStatus();
+}
+
+// ---------------------------------------------------------------------------------------------
+// Z-order of receivers
+
+namespace {
+uint64_t Spread21(uint64_t x) {
+  x &= 0x1fffff;
+  x = (x | x << 32) & 0x1f00000000ffffull;
+  x = (x | x << 16) & 0x1f0000ff0000ffull;
+  x = (x | x << 8) & 0x100f00f00f00f00full;
+  x = (x | x << 4) & 0x10c30c30c30c30c3ull;
+  x = (x | x << 2) & 0x1249249249249249ull;
+  return x;
+}
+}  // namespace
+
+std::vector<uint32_t> ZOrder(absl::Span<const Receiver> receivers) {
+  Bounds b;
+  for (const Receiver& r : receivers) b.Extend(r.position);
+  const glm::vec3 ext = b.Extent();
+  const float size = std::max(ext.x, std::max(ext.y, ext.z));
+  const float scale = size > 0 ? float((1u << 21) - 1) / size : 0.0f;
+  std::vector<std::pair<uint64_t, uint32_t>> keyed(receivers.size());
+  for (size_t i = 0; i < receivers.size(); ++i) {
+    const glm::vec3 q = (receivers[i].position - b.lo) * scale;
+    const auto cell = [](float v) {
+      return static_cast<uint64_t>(std::clamp(v, 0.0f, float((1u << 21) - 1)));
+    };
+    keyed[i] = {Spread21(cell(q.x)) << 2 | Spread21(cell(q.y)) << 1 | Spread21(cell(q.z)),
+                static_cast<uint32_t>(i)};
+  }
+  std::sort(keyed.begin(), keyed.end());
+  std::vector<uint32_t> order(receivers.size());
+  for (size_t i = 0; i < keyed.size(); ++i) order[i] = keyed[i].second;
+  return order;
+}
+
+}  // namespace pbgi

@@ -1,0 +1,120 @@
+#include "query/decoded_page.h"
+
+#include <cmath>
+#include <cstring>
+
+#include "absl/strings/str_format.h"
+#include "pbgi/query.h"
+
+namespace pbgi::internal {
+namespace {
+
+template <typename... Args>
+absl::Status Corrupt(const std::string& store, Section section, uint64_t page_no,
+                     const absl::FormatSpec<Args...>& format, const Args&... args) {
+  return absl::DataLossError(absl::StrFormat("%s: %s page %d is corrupt: %s", store,
+                                             SectionName(section), page_no,
+                                             absl::StrFormat(format, args...)));
+}
+
+bool Finite3(const float* v) {
+  return std::isfinite(v[0]) && std::isfinite(v[1]) && std::isfinite(v[2]);
+}
+
+}  // namespace
+
+uint64_t DecodedPage::Charge() const {
+  uint64_t bytes = sizeof(DecodedPage);
+  if (nodes) bytes += uint64_t{count} * sizeof(NodeHot);
+  if (power) bytes += uint64_t{count} * sizeof(std::array<Sh9, 3>);
+  if (points) bytes += uint64_t{count} * sizeof(Surfel);
+  return bytes;
+}
+
+absl::StatusOr<std::unique_ptr<DecodedPage>> DecodePage(const PageView& view, Section section,
+                                                        uint64_t page_no, const StoreMeta& meta,
+                                                        const std::string& store) {
+  if (view.header == nullptr) return Corrupt(store, section, page_no, "no header");
+  const PageHeader& h = *view.header;
+  const PageKind want = section == Section::kNodes ? PageKind::kNode : PageKind::kPoint;
+  if (h.kind != static_cast<uint16_t>(want)) {
+    return Corrupt(store, section, page_no, "kind %d, expected %d", h.kind, static_cast<int>(want));
+  }
+  if (h.page_no != page_no) {
+    return Corrupt(store, section, page_no, "header says page %d", h.page_no);
+  }
+  auto page = std::make_unique<DecodedPage>();
+  page->section = section;
+  page->page_no = page_no;
+  page->count = h.record_count;
+  const uint8_t* data = view.payload.data();
+
+  if (section == Section::kNodes) {
+    const uint32_t rec = NodeRecordSize(meta.channels);
+    if (h.record_count == 0 || uint64_t{h.record_count} * rec > view.payload.size()) {
+      return Corrupt(store, section, page_no, "%d node records of %d bytes in a %d-byte payload",
+                     h.record_count, rec, view.payload.size());
+    }
+    page->nodes.reset(new NodeHot[h.record_count]);
+    if (HasRadiance(meta.channels)) page->power.reset(new std::array<Sh9, 3>[h.record_count]);
+    for (uint32_t i = 0; i < h.record_count; ++i) {
+      NodeRecordCommon r;
+      std::memcpy(&r, data + size_t{i} * rec, sizeof(r));
+      if (!Finite3(r.lo) || !Finite3(r.hi) || r.lo[0] > r.hi[0] || r.lo[1] > r.hi[1] ||
+          r.lo[2] > r.hi[2] || !std::isfinite(r.area) || r.area < 0) {
+        return Corrupt(store, section, page_no, "node %d has bad bounds or area", i);
+      }
+      const bool leaf = (r.flags & kNodeFlagLeaf) != 0;
+      if (leaf ? r.child_count != 0 : (r.child_count < 1 || r.child_count > 8)) {
+        return Corrupt(store, section, page_no, "node %d: %d children (leaf flag %d)", i,
+                       r.child_count, leaf ? 1 : 0);
+      }
+      if (!leaf && RefSlot(r.children) + r.child_count > 0x10000u) {
+        return Corrupt(store, section, page_no, "node %d: children run past a page", i);
+      }
+      if (r.point_count > meta.point_count || r.first_point > meta.point_count - r.point_count) {
+        return Corrupt(store, section, page_no, "node %d: points [%d, +%d) outside the %d points",
+                       i, r.first_point, r.point_count, meta.point_count);
+      }
+      if (r.depth >= static_cast<uint32_t>(kMaxTreeDepth)) {
+        return Corrupt(store, section, page_no, "node %d: depth %d", i, r.depth);
+      }
+      NodeHot& n = page->nodes[i];
+      n.lo = {r.lo[0], r.lo[1], r.lo[2]};
+      n.hi = {r.hi[0], r.hi[1], r.hi[2]};
+      n.child_count = leaf ? 0 : r.child_count;
+      n.depth = r.depth;
+      n.children = leaf ? kNoNodeRef : r.children;
+      n.first_point = r.first_point;
+      n.point_count = r.point_count;
+      n.area = r.area;
+      n.reach = NodeReach(r.area);
+      std::memcpy(n.sh_area, r.sh_area, sizeof(n.sh_area));
+      n.pad[0] = n.pad[1] = n.pad[2] = 0;
+      if (page->power) {
+        NodeRecordRadiance rr;
+        std::memcpy(&rr, data + size_t{i} * rec, sizeof(rr));
+        for (int c = 0; c < 3; ++c) {
+          std::memcpy(page->power[i][c].data(), rr.sh_power[c], sizeof(rr.sh_power[c]));
+        }
+      }
+    }
+  } else {
+    const uint32_t rec = PointRecordSize(meta.channels);
+    const uint64_t per_page = PointsPerPage(meta.page_size, meta.channels);
+    const uint64_t first = page_no * per_page;
+    const uint64_t expect =
+        first >= meta.point_count ? 0 : std::min(per_page, meta.point_count - first);
+    if (h.record_count != expect || uint64_t{h.record_count} * rec > view.payload.size()) {
+      return Corrupt(store, section, page_no, "%d point records (expected %d) in %d bytes",
+                     h.record_count, expect, view.payload.size());
+    }
+    page->points.reset(new Surfel[h.record_count]);
+    for (uint32_t i = 0; i < h.record_count; ++i) {
+      page->points[i] = DecodePoint(data, i, meta.channels);
+    }
+  }
+  return page;
+}
+
+}  // namespace pbgi::internal

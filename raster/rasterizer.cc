@@ -1,0 +1,394 @@
+// The rasterizer's splatting, compositing and integration (see rasterizer.h, raster.h).
+#include "raster/rasterizer.h"
+
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+#include <limits>
+
+#include "glm/geometric.hpp"
+#include "pbgi/sh.h"
+#include "raster/cluster_model.h"
+#include "raster/cube.h"
+
+namespace pbgi::internal {
+namespace {
+// A cone's coverage ramps from 1 to 0 across its edge over 1 / kRampSlope pixel widths.
+constexpr float kRampSlope = 1.0f;
+// Splats up to this many pixels' solid angle are spread bilinearly (at most a full pixel each).
+constexpr float kBilinearMax = 1.0f;
+}  // namespace
+
+// LSD radix sort of (depth, index) on the top 22 bits of the depth (positive floats sort as
+// integers; 22 bits keep 13 mantissa bits, a relative depth step of 1e-4), two 11-bit passes.
+void Rasterizer::SortByDepth() {
+  auto& splats = mb_.splats_;
+  auto& order = mb_.order_;
+  auto& tmp = mb_.order_tmp_;
+  const size_t n = splats.size();
+  order.resize(n);
+  tmp.resize(n);
+  constexpr int kBits = 11, kBuckets = 1 << kBits;
+  uint32_t count[2][kBuckets] = {};
+  for (size_t i = 0; i < n; ++i) {
+    uint32_t key;
+    std::memcpy(&key, &splats[i].depth, sizeof key);
+    key >>= 10;
+    order[i] = (static_cast<uint64_t>(key) << 32) | i;
+    ++count[0][key & (kBuckets - 1)];
+    ++count[1][(key >> kBits) & (kBuckets - 1)];
+  }
+  for (int pass = 0; pass < 2; ++pass) {
+    uint32_t sum = 0;
+    for (int b = 0; b < kBuckets; ++b) {
+      const uint32_t c = count[pass][b];
+      count[pass][b] = sum;
+      sum += c;
+    }
+    const int shift = 32 + pass * kBits;
+    for (size_t i = 0; i < n; ++i) {
+      const uint64_t o = order[i];
+      tmp[count[pass][(o >> shift) & (kBuckets - 1)]++] = o;
+    }
+    order.swap(tmp);
+  }
+}
+
+void Rasterizer::Reset() {
+  PixelState empty{};
+  empty.depth = std::numeric_limits<float>::infinity();
+  std::fill(mb_.pixels_.begin(), mb_.pixels_.end(), empty);
+}
+
+void Rasterizer::SetFrame(const ShadeReceiver& r) {
+  n_ = glm::normalize(r.normal);
+  // Duff et al. 2017, "Building an Orthonormal Basis, Revisited".
+  const float sign = std::copysign(1.0f, n_.z);
+  const float a = -1.0f / (sign + n_.z);
+  const float b = n_.x * n_.y * a;
+  t_ = glm::vec3(1.0f + sign * n_.x * n_.x * a, sign * b, -sign * n_.x);
+  b_ = glm::vec3(b, sign + n_.y * n_.y * a, -n_.y);
+  origin_ = r.position + o_.bias * n_;
+}
+
+void Rasterizer::PrepareCluster(const Cluster& c, ShadeResult* out) {
+  if (c.bounds.Empty()) {
+    ++out->culled;
+    return;
+  }
+  const glm::vec3 rel = c.bounds.Center() - origin_;
+  // Entirely behind (or in) the tangent plane: the box's highest corner along n.
+  const float top = glm::dot(n_, rel) + 0.5f * glm::dot(glm::abs(n_), c.bounds.Extent());
+  const float d2 = glm::dot(rel, rel);
+  if (!(top > 0.0f) || !(d2 > 0.0f) || !std::isfinite(d2)) {
+    ++out->culled;
+    return;
+  }
+  const float d = std::sqrt(d2);
+  if (d > o_.max_distance) {
+    ++out->culled;
+    return;
+  }
+  const glm::vec3 to_receiver = -rel / d;
+  const float area = ProjectedArea(c, to_receiver, o_.hitsides, o_.cluster_model);
+  const float omega = std::min(area / d2, 2.0f * static_cast<float>(sh::kPi));
+  if (!(omega > 0.0f)) {
+    ++out->culled;
+    return;
+  }
+  PreparedSplat s;
+  s.dir = ToLocal(rel / d);
+  s.omega = omega;
+  s.normal = glm::vec3(0.0f);
+  s.depth = d;
+  s.extent = 0.5f * glm::length(c.bounds.Extent());
+  s.radiance = radiance_ ? ClusterRadiance(c, to_receiver, o_.hitsides) : glm::vec3(0.0f);
+  s.near = 0;
+  mb_.splats_.push_back(s);
+  ++out->clusters_drawn;
+}
+
+void Rasterizer::PrepareSurfel(const Surfel& sf, ShadeResult* out) {
+  const glm::vec3 rel = sf.position - origin_;
+  const float r = sf.radius;
+  const float nn = glm::dot(sf.normal, sf.normal);
+  if (!(r > 0.0f) || !(nn > 0.0f)) {
+    ++out->culled;
+    return;
+  }
+  const glm::vec3 normal = sf.normal / std::sqrt(nn);
+  // The disk's highest point along the receiver's normal.
+  const float cn = glm::dot(normal, n_);
+  const float top = glm::dot(n_, rel) + r * std::sqrt(std::max(0.0f, 1.0f - cn * cn));
+  const float d2 = glm::dot(rel, rel);
+  const float d = std::sqrt(d2);
+  // side > 0: the receiver is in front of the surfel.
+  const float side = -glm::dot(normal, rel);
+  const bool visible = (o_.hitsides == HitSides::kFront && side > 0.0f) ||
+                       (o_.hitsides == HitSides::kBack && side < 0.0f) ||
+                       (o_.hitsides == HitSides::kBoth && side != 0.0f);
+  if (!(top > 0.0f) || !visible || !std::isfinite(d2) || d > o_.max_distance) {
+    ++out->culled;
+    return;
+  }
+  PreparedSplat s;
+  s.depth = d;
+  s.extent = r;
+  s.radiance = radiance_ ? sf.radiance : glm::vec3(0.0f);
+  if (d < o_.near_field_factor * r) {
+    s.dir = ToLocal(rel);
+    s.omega = r;
+    s.normal = ToLocal(normal);
+    s.near = 1;
+    mb_.splats_.push_back(s);
+    ++out->near_disks_drawn;
+    return;
+  }
+  const float omega =
+      std::min(sf.Area() * std::fabs(side) / (d2 * d), 2.0f * static_cast<float>(sh::kPi));
+  if (!(omega > 0.0f) || !(d2 > 0.0f)) {
+    ++out->culled;
+    return;
+  }
+  s.dir = ToLocal(rel / d);
+  s.omega = omega;
+  s.normal = glm::vec3(0.0f);
+  s.near = 0;
+  mb_.splats_.push_back(s);
+  ++out->surfels_drawn;
+}
+
+void Rasterizer::SplatCone(const PreparedSplat& s) {
+  const glm::vec3& d = s.dir;
+  // The face and pixel that contain the cone's axis.
+  const glm::vec3 ad = glm::abs(d);
+  const int k = ad.x >= ad.y ? (ad.x >= ad.z ? 0 : 2) : (ad.y >= ad.z ? 1 : 2);
+  const int f = 2 * k + (d[k] < 0.0f ? 1 : 0);
+  const FaceAxes face = Face(f);
+  const float inv = 1.0f / ad[k];
+  const float half = 0.5f * static_cast<float>(res_);
+  const float x = (d[face.k1] * inv + 1.0f) * half - 0.5f;
+  const float y = (d[face.k2] * inv + 1.0f) * half - 0.5f;
+  const int base = f * res_ * res_;
+  auto pixel = [&](int col, int row) {
+    col = std::clamp(col, 0, res_ - 1);
+    row = std::clamp(row, 0, res_ - 1);
+    return static_cast<uint32_t>(base + row * res_ + col);
+  };
+  // x, y >= -0.5, so int(x + 1.5) - 1 is floor(x + 0.5): the nearest pixel centre.
+  const int cx = static_cast<int>(x + 1.5f) - 1, cy = static_cast<int>(y + 1.5f) - 1;
+  const uint32_t q = pixel(cx, cy);
+  if (s.omega <= kBilinearMax * omega_[q]) {
+    // At most a pixel: bilinear weights over the four nearest pixel centres. Their
+    // sums over a surface's many small splats beat with the pixel grid by a few percent, which
+    // the depth layers absorb (a layer's coverage is not clamped per pixel).
+    const float fx = std::floor(x), fy = std::floor(y);
+    const float tx = x - fx, ty = y - fy;
+    const int c0 = static_cast<int>(fx), r0 = static_cast<int>(fy);
+    const float w[4] = {(1 - tx) * (1 - ty), tx * (1 - ty), (1 - tx) * ty, tx * ty};
+    const uint32_t p[4] = {pixel(c0, r0), pixel(c0 + 1, r0), pixel(c0, r0 + 1),
+                           pixel(c0 + 1, r0 + 1)};
+    for (int i = 0; i < 4; ++i) Emit(p[i], s.omega * w[i] * inv_omega_[p[i]], s);
+    return;
+  }
+  // A cone of solid angle omega has chord radius sqrt(omega / pi) (2 - 2 cos = omega / pi).
+  const float chord = std::sqrt(s.omega / static_cast<float>(sh::kPi));
+  const float reach = chord + 0.5f / kRampSlope * max_width_;
+  auto& frags = mb_.fragments_;
+  frags.clear();
+  float sum = 0.0f;
+  // The home face first; the others only when the cone crosses the home face's border.
+  bool contained = false;
+  for (int step = 0; step < 6; ++step) {
+    const int fi = step == 0 ? f : (step <= f ? step - 1 : step);
+    int col0, col1, row0, row1;
+    if (!FaceRange(Face(fi), d, reach, res_, &col0, &col1, &row0, &row1,
+                   step == 0 ? &contained : nullptr)) {
+      continue;
+    }
+    for (int row = row0; row <= row1; ++row) {
+      const uint32_t rbase = static_cast<uint32_t>((fi * res_ + row) * res_);
+      for (int col = col0; col <= col1; ++col) {
+        const uint32_t p = rbase + static_cast<uint32_t>(col);
+        const PixelDir& u = dirs_[p];
+        const float dot = u.x * d.x + u.y * d.y + u.z * d.z;
+        const float dist = std::sqrt(std::max(0.0f, 2.0f - 2.0f * dot));
+        const float cov = std::min(1.0f, 0.5f + kRampSlope * (chord - dist) * u.inv_width);
+        if (cov > 0.0f) {
+          frags.emplace_back(p, cov);
+          sum += cov * omega_[p];
+        }
+      }
+    }
+    if (contained) break;
+  }
+  if (!(sum > 0.0f)) {
+    Emit(q, s.omega / omega_[q], s);
+    return;
+  }
+  // Rescale so that the footprint's solid angle is the element's exactly (a covered pixel may
+  // then hold slightly more than 1; the depth layers take it as they take overlaps).
+  const float scale = s.omega / sum;
+  for (const auto& [p, cov] : frags) Emit(p, cov * scale, s);
+}
+
+void Rasterizer::SplatDisk(const PreparedSplat& s) {
+  const glm::vec3& c = s.dir;  // centre, local frame
+  const glm::vec3& nrm = s.normal;
+  const float r = s.omega;
+  const float dist = s.depth;
+  // Bounding cone of the disk's bounding sphere, widened by a pixel (a pixel whose centre is
+  // outside may still overlap); everything when the receiver is inside the sphere.
+  glm::vec3 axis(0.0f, 0.0f, 1.0f);
+  float chord = 2.0f;
+  if (dist > r) {
+    axis = c / dist;
+    const float sin_t = r / dist;
+    const float cos_t = std::sqrt(std::max(0.0f, 1.0f - sin_t * sin_t));
+    chord = std::min(2.0f, std::sqrt(std::max(0.0f, 2.0f - 2.0f * cos_t)) + max_width_);
+  }
+  const int k = o_.near_field_samples;
+  const float step = 2.0f / static_cast<float>(res_);
+  const float sub = step / static_cast<float>(k);
+  const float plane = glm::dot(nrm, c);
+  const float r2 = r * r;
+  // Hits closer than this are the receiver's own surface (self-intersection epsilon).
+  const float min_t2 = (1e-4f * r) * (1e-4f * r);
+  // The disk's own frame, for its exact image on each face.
+  glm::vec3 e1, e2;
+  {
+    const float sign = std::copysign(1.0f, nrm.z);
+    const float a = -1.0f / (sign + nrm.z);
+    const float b = nrm.x * nrm.y * a;
+    e1 = glm::vec3(1.0f + sign * nrm.x * nrm.x * a, sign * b, -sign * nrm.x);
+    e2 = glm::vec3(b, sign + nrm.y * nrm.y * a, -nrm.y);
+  }
+  // Faces -x, +x, -y, +y, +z; -z lies wholly below the horizon, and so do the lower rows of the
+  // side faces: pixels there count for nothing, so they are not sampled.
+  for (int fi = 0; fi < 5; ++fi) {
+    const FaceAxes face = Face(fi);
+    int col0 = 0, col1 = res_ - 1, row0 = 0, row1 = res_ - 1;
+    const DiskRange range = DiskFaceRange(face, c, e1, e2, r, res_, &col0, &col1, &row0, &row1);
+    if (range == DiskRange::kNone) continue;
+    if (range == DiskRange::kUnknown) {
+      col0 = 0, col1 = res_ - 1, row0 = 0, row1 = res_ - 1;
+      if (chord < 2.0f && !FaceRange(face, axis, chord, res_, &col0, &col1, &row0, &row1)) {
+        continue;
+      }
+    }
+    if (face.k != 2) row0 = std::max(row0, res_ / 2);
+    for (int row = row0; row <= row1; ++row) {
+      for (int col = col0; col <= col1; ++col) {
+        float hit = 0.0f, all = 0.0f;
+        for (int sj = 0; sj < k; ++sj) {
+          const float bcoord = -1.0f + static_cast<float>(row) * step + (sj + 0.5f) * sub;
+          for (int si = 0; si < k; ++si) {
+            const float acoord = -1.0f + static_cast<float>(col) * step + (si + 0.5f) * sub;
+            glm::vec3 v;
+            v[face.k] = face.sign;
+            v[face.k1] = acoord;
+            v[face.k2] = bcoord;
+            // Each ray stands for the solid angle of its sub-pixel, dA / |v|^3.
+            const float v2 = glm::dot(v, v);
+            const float dw = 1.0f / (v2 * std::sqrt(v2));
+            all += dw;
+            const float den = glm::dot(nrm, v);
+            if (den == 0.0f) continue;
+            const float t = plane / den;
+            if (!(t > 0.0f)) continue;
+            const glm::vec3 h = t * v - c;
+            if (glm::dot(h, h) <= r2 && t * t * v2 > min_t2) hit += dw;
+          }
+        }
+        if (hit > 0.0f) {
+          Emit(static_cast<uint32_t>((fi * res_ + row) * res_ + col), hit / all, s);
+        }
+      }
+    }
+  }
+}
+
+void Rasterizer::Integrate(const ShadeReceiver& r, ShadeResult* out) {
+  const size_t n = mb_.hemisphere_.size();
+  const uint32_t* hp = mb_.hemisphere_.data();
+  const float* w = mb_.hemi_weight_.data();
+  const float* om = mb_.hemi_omega_.data();
+  for (PixelState& px : mb_.pixels_) Close(px);
+  double occ = 0.0, cover = 0.0;
+  glm::dvec3 e(0.0);
+  for (size_t i = 0; i < n; ++i) {
+    const PixelState& px = px_[hp[i]];
+    occ += static_cast<double>(px.closed) * w[i];
+    cover += static_cast<double>(std::min(1.0f, px.closed)) * om[i];
+    if (radiance_) {
+      e += glm::dvec3(px.closed_rgb[0], px.closed_rgb[1], px.closed_rgb[2]) *
+           static_cast<double>(w[i]);
+    }
+  }
+  out->occlusion = static_cast<float>(occ / sh::kPi);
+  out->coverage = static_cast<float>(cover / (2.0 * sh::kPi));
+  out->irradiance = glm::vec3(e);
+  out->glossy = glm::vec3(0.0f);
+  if (radiance_ && o_.lobe != GlossyLobe::kNone) {
+    const float rl = glm::length(r.reflection);
+    if (rl > 0.0f && std::isfinite(rl)) {
+      const glm::vec3 refl = ToLocal(r.reflection / rl);
+      const float alpha2 = o_.ggx_roughness * o_.ggx_roughness;
+      double wsum = 0.0;
+      glm::dvec3 g(0.0);
+      for (size_t i = 0; i < n; ++i) {
+        const uint32_t p = hp[i];
+        const PixelDir& u = dirs_[p];
+        const float cosa = u.x * refl.x + u.y * refl.y + u.z * refl.z;
+        if (!(cosa > 0.0f)) continue;
+        float lobe;
+        if (o_.lobe == GlossyLobe::kPhong) {
+          lobe = std::pow(cosa, o_.phong_exponent);
+        } else {
+          const float q = (alpha2 - 1.0f) * cosa * cosa + 1.0f;
+          lobe = alpha2 / (static_cast<float>(sh::kPi) * q * q);
+        }
+        const double wt = static_cast<double>(lobe) * om[i];
+        wsum += wt;
+        const PixelState& px = px_[p];
+        g += glm::dvec3(px.closed_rgb[0], px.closed_rgb[1], px.closed_rgb[2]) * wt;
+      }
+      if (wsum > 0.0) out->glossy = glm::vec3(g / wsum);
+    }
+  }
+  if (clamp_) {
+    out->occlusion = std::clamp(out->occlusion, 0.0f, 1.0f);
+    out->coverage = std::clamp(out->coverage, 0.0f, 1.0f);
+    out->irradiance = glm::max(out->irradiance, glm::vec3(0.0f));
+    out->glossy = glm::max(out->glossy, glm::vec3(0.0f));
+  }
+}
+
+absl::Status Rasterizer::Run(const Gathered& g, const ShadeReceiver& r, ShadeResult* out) {
+  *out = ShadeResult{};
+  SetFrame(r);
+  Reset();
+  auto& splats = mb_.splats_;
+  splats.clear();
+  splats.reserve(g.size());
+  for (const Cluster& c : g.clusters) PrepareCluster(c, out);
+  for (const Surfel& s : g.surfels) PrepareSurfel(s, out);
+  auto draw = [&](const PreparedSplat& s) {
+    if (s.near) {
+      SplatDisk(s);
+    } else {
+      SplatCone(s);
+    }
+  };
+  if (clamp_) {
+    // Front to back, for the depth layers of Emit().
+    SortByDepth();
+    for (uint64_t o : mb_.order_) draw(splats[o & 0xffffffffu]);
+  } else {
+    for (const PreparedSplat& s : splats) draw(s);
+  }
+  Integrate(r, out);
+  return absl::OkStatus();
+}
+
+}  // namespace pbgi::internal

@@ -1,0 +1,264 @@
+// PageStore (read-only opening of a finished store) and ReadTxn.
+#include <lmdb.h>
+#include <sys/stat.h>
+
+#include <cerrno>
+#include <cstring>
+#include <memory>
+#include <string>
+#include <utility>
+
+#include "absl/strings/str_cat.h"
+#include "absl/strings/str_format.h"
+#include "pbgi/status.h"
+#include "pbgi/store.h"
+#include "store/crc32c.h"
+#include "store/lmdb_status.h"
+#include "store/meta_codec.h"
+#include "store/store_internal.h"
+
+namespace pbgi {
+
+const char* SectionName(Section s) {
+  switch (s) {
+    case Section::kNodes:
+      return "nodes";
+    case Section::kPoints:
+      return "points";
+  }
+  return "unknown";
+}
+
+namespace internal {
+
+uint32_t PageChecksum(const void* page, uint32_t page_size) {
+  return Crc32c(0, static_cast<const uint8_t*>(page) + 4, page_size - 4);
+}
+
+absl::Status CheckPage(const std::string& path, Section section, uint64_t page_no, const void* data,
+                       size_t size, uint32_t page_size, bool verify_checksum) {
+  auto loss = [&](const std::string& what) {
+    return absl::DataLossError(absl::StrFormat("store %s: %s page %d is corrupt: %s", path,
+                                               SectionName(section), page_no, what));
+  };
+  if (size != page_size) {
+    return loss(
+        absl::StrFormat("stored size %d bytes, the store's page size is %d", size, page_size));
+  }
+  if (reinterpret_cast<uintptr_t>(data) % alignof(PageHeader) != 0) {
+    return loss("stored at a misaligned address (page size not a multiple of 8?)");
+  }
+  PageHeader h;
+  std::memcpy(&h, data, sizeof(h));
+  if (verify_checksum) {
+    const uint32_t actual = PageChecksum(data, page_size);
+    if (actual != h.checksum) {
+      return loss(absl::StrFormat("checksum mismatch (stored 0x%08x, computed 0x%08x)", h.checksum,
+                                  actual));
+    }
+  }
+  if (h.page_no != page_no) {
+    return loss(absl::StrFormat("its header says it is page %d (misplaced page)", h.page_no));
+  }
+  if (h.kind != static_cast<uint16_t>(KindOf(section))) {
+    return loss(absl::StrFormat("page kind %d does not belong in this section", h.kind));
+  }
+  if (h.payload_bytes > page_size - sizeof(PageHeader)) {
+    return loss(absl::StrFormat("payload of %d bytes does not fit a page of %d bytes",
+                                h.payload_bytes, page_size));
+  }
+  return absl::OkStatus();
+}
+
+}  // namespace internal
+
+// ---------------------------------------------------------------------------------------------
+// ReadTxn
+
+struct ReadTxn::Impl {
+  const PageStore::Impl* store = nullptr;
+  MDB_txn* txn = nullptr;
+  bool active = false;
+  ~Impl() {
+    if (txn != nullptr) mdb_txn_abort(txn);
+  }
+};
+
+ReadTxn::ReadTxn(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
+ReadTxn::ReadTxn(ReadTxn&&) noexcept = default;
+ReadTxn& ReadTxn::operator=(ReadTxn&&) noexcept = default;
+ReadTxn::~ReadTxn() = default;
+
+absl::StatusOr<PageView> ReadTxn::Get(Section section, uint64_t page_no) {
+  if (impl_ == nullptr || !impl_->active) {
+    return absl::FailedPreconditionError(
+        "ReadTxn::Get on a transaction that was reset (call Renew() first) or moved from");
+  }
+  const PageStore::Impl& s = *impl_->store;
+  uint8_t key_bytes[8];
+  internal::EncodeKey(page_no, key_bytes);
+  MDB_val key{sizeof(key_bytes), key_bytes};
+  MDB_val val;
+  const int rc = mdb_get(impl_->txn, s.Dbi(section), &key, &val);
+  if (rc != MDB_SUCCESS) {
+    if (rc == MDB_NOTFOUND) {
+      return absl::NotFoundError(absl::StrFormat("store %s: %s page %d does not exist", s.path,
+                                                 SectionName(section), page_no));
+    }
+    return internal::LmdbStatus(
+        rc, absl::StrFormat("store %s: reading %s page %d", s.path, SectionName(section), page_no));
+  }
+  PBGI_RETURN_IF_ERROR(internal::CheckPage(s.path, section, page_no, val.mv_data, val.mv_size,
+                                           s.meta.page_size, s.options.verify_checksums));
+  PageView v;
+  v.header = static_cast<const PageHeader*>(val.mv_data);
+  v.payload = absl::Span<const uint8_t>(
+      static_cast<const uint8_t*>(val.mv_data) + sizeof(PageHeader), v.header->payload_bytes);
+  return v;
+}
+
+void ReadTxn::Reset() {
+  if (impl_ != nullptr && impl_->active) {
+    mdb_txn_reset(impl_->txn);
+    impl_->active = false;
+  }
+}
+
+absl::Status ReadTxn::Renew() {
+  if (impl_ == nullptr) return absl::FailedPreconditionError("ReadTxn::Renew on a moved-from txn");
+  if (impl_->active) return absl::OkStatus();
+  PBGI_RETURN_IF_ERROR(internal::LmdbStatus(
+      mdb_txn_renew(impl_->txn), absl::StrCat("store ", impl_->store->path, ": renewing a read")));
+  impl_->active = true;
+  return absl::OkStatus();
+}
+
+// ---------------------------------------------------------------------------------------------
+// PageStore
+
+PageStore::PageStore(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
+PageStore::~PageStore() = default;
+const StoreMeta& PageStore::meta() const { return impl_->meta; }
+const std::string& PageStore::path() const { return impl_->path; }
+uint64_t PageStore::FileBytes() const { return impl_->file_bytes; }
+const StoreOptions& PageStore::options() const { return impl_->options; }
+
+absl::StatusOr<ReadTxn> PageStore::BeginRead() const {
+  auto t = std::make_unique<ReadTxn::Impl>();
+  t->store = impl_.get();
+  PBGI_RETURN_IF_ERROR(
+      internal::LmdbStatus(mdb_txn_begin(impl_->env, nullptr, MDB_RDONLY, &t->txn),
+                           absl::StrCat("store ", impl_->path, ": beginning a read")));
+  t->active = true;
+  return ReadTxn(std::move(t));
+}
+
+absl::StatusOr<std::unique_ptr<PageStore>> PageStore::Open(const std::string& path,
+                                                           const StoreOptions& options) {
+  using internal::LmdbStatus;
+  struct stat st;
+  if (stat(path.c_str(), &st) != 0) {
+    const int err = errno;
+    if (err == ENOENT) {
+      return absl::NotFoundError(absl::StrFormat("store %s does not exist", path));
+    }
+    return LmdbStatus(err, absl::StrFormat("store %s", path));
+  }
+  if (!S_ISDIR(st.st_mode)) {
+    return absl::FailedPreconditionError(absl::StrFormat(
+        "%s is not a store: a store is a directory holding %s", path, internal::kDataFile));
+  }
+  auto impl = std::make_unique<Impl>();
+  impl->path = path;
+  impl->data_path = absl::StrCat(path, "/", internal::kDataFile);
+  impl->options = options;
+  const std::string& data_path = impl->data_path;
+  if (stat(data_path.c_str(), &st) != 0) {
+    const int err = errno;
+    const std::string building = absl::StrCat(path, "/", internal::kBuildingFile);
+    struct stat bst;
+    if (err == ENOENT && stat(building.c_str(), &bst) == 0) {
+      return absl::FailedPreconditionError(absl::StrFormat(
+          "store %s is incomplete: the build did not finish (only %s exists; rebuild it)", path,
+          internal::kBuildingFile));
+    }
+    if (err == ENOENT) {
+      return absl::NotFoundError(
+          absl::StrFormat("%s is not a store: it has no %s", path, internal::kDataFile));
+    }
+    return LmdbStatus(err, absl::StrFormat("store %s: %s", path, internal::kDataFile));
+  }
+  impl->file_bytes = static_cast<uint64_t>(st.st_size);
+  if (impl->file_bytes == 0) {
+    // LMDB would take an empty file for a new environment and try to initialize it.
+    return absl::DataLossError(
+        absl::StrFormat("store %s: %s is empty (0 bytes): truncated, or not an LMDB file", path,
+                        internal::kDataFile));
+  }
+  const std::string where = absl::StrCat("store ", path);
+
+  PBGI_RETURN_IF_ERROR(LmdbStatus(mdb_env_create(&impl->env), where));
+  PBGI_RETURN_IF_ERROR(LmdbStatus(mdb_env_set_maxdbs(impl->env, 4), where));
+  // The store is immutable once finished (the writer works on a separate file and renames it),
+  // so readers need no lock table: MDB_NOLOCK. MDB_NOTLS lets a thread hold several ReadTxns
+  // and move them between threads.
+  unsigned flags = MDB_NOSUBDIR | MDB_RDONLY | MDB_NOLOCK | MDB_NOTLS;
+  if (!options.read_ahead) flags |= MDB_NORDAHEAD;
+  PBGI_RETURN_IF_ERROR(LmdbStatus(mdb_env_open(impl->env, data_path.c_str(), flags, 0644),
+                                  absl::StrCat(where, ": opening ", internal::kDataFile)));
+
+  // A file cut short still has valid LMDB meta pages; reading a page past its end would fault.
+  MDB_envinfo info;
+  MDB_stat est;
+  PBGI_RETURN_IF_ERROR(LmdbStatus(mdb_env_info(impl->env, &info), where));
+  PBGI_RETURN_IF_ERROR(LmdbStatus(mdb_env_stat(impl->env, &est), where));
+  const uint64_t needed = (static_cast<uint64_t>(info.me_last_pgno) + 1) * est.ms_psize;
+  if (impl->file_bytes < needed) {
+    return absl::DataLossError(absl::StrFormat(
+        "store %s: %s is truncated: it has %d bytes but its last page ends at byte %d", path,
+        internal::kDataFile, impl->file_bytes, needed));
+  }
+
+  MDB_txn* txn = nullptr;
+  PBGI_RETURN_IF_ERROR(LmdbStatus(mdb_txn_begin(impl->env, nullptr, MDB_RDONLY, &txn), where));
+  auto abort = [&](absl::Status s) {
+    mdb_txn_abort(txn);
+    return s;
+  };
+  MDB_dbi meta_dbi;
+  int rc = mdb_dbi_open(txn, internal::kMetaDb, 0, &meta_dbi);
+  if (rc == MDB_NOTFOUND) {
+    return abort(absl::FailedPreconditionError(absl::StrFormat(
+        "store %s has no meta section: not a pbgi store, or its build did not finish", path)));
+  }
+  if (rc != MDB_SUCCESS) return abort(LmdbStatus(rc, absl::StrCat(where, ": meta section")));
+  MDB_val key{sizeof(internal::kMetaKey) - 1, const_cast<char*>(internal::kMetaKey)};
+  MDB_val val;
+  rc = mdb_get(txn, meta_dbi, &key, &val);
+  if (rc == MDB_NOTFOUND) {
+    return abort(absl::FailedPreconditionError(absl::StrFormat(
+        "store %s is incomplete: the build did not finish (no meta record)", path)));
+  }
+  if (rc != MDB_SUCCESS) return abort(LmdbStatus(rc, absl::StrCat(where, ": meta record")));
+  absl::StatusOr<internal::DecodedMeta> decoded = internal::DecodeMeta(
+      absl::string_view(static_cast<const char*>(val.mv_data), val.mv_size), where);
+  if (!decoded.ok()) return abort(decoded.status());
+  if (!decoded->complete) {
+    return abort(absl::FailedPreconditionError(absl::StrFormat(
+        "store %s is incomplete: the build did not finish (meta record not marked complete)",
+        path)));
+  }
+  impl->meta = std::move(decoded->meta);
+  rc = mdb_dbi_open(txn, internal::kNodesDb, 0, &impl->nodes);
+  if (rc == MDB_SUCCESS) rc = mdb_dbi_open(txn, internal::kPointsDb, 0, &impl->points);
+  if (rc == MDB_NOTFOUND) {
+    return abort(absl::DataLossError(
+        absl::StrFormat("store %s: the nodes or points section is missing", path)));
+  }
+  if (rc != MDB_SUCCESS) return abort(LmdbStatus(rc, absl::StrCat(where, ": sections")));
+  // Committing (not aborting) a read transaction keeps the opened section handles.
+  PBGI_RETURN_IF_ERROR(LmdbStatus(mdb_txn_commit(txn), where));
+  return std::unique_ptr<PageStore>(new PageStore(std::move(impl)));
+}
+
+}  // namespace pbgi

@@ -1,0 +1,375 @@
+// PageWriter: appends fixed-size pages to a new store with MDB_APPEND | MDB_RESERVE, in batches,
+// growing the map on MDB_MAP_FULL, and commits the meta record last (DESIGN.md, "Store").
+#include <fcntl.h>
+#include <lmdb.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <cerrno>
+#include <cstring>
+#include <filesystem>
+#include <memory>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "absl/strings/str_cat.h"
+#include "absl/strings/str_format.h"
+#include "pbgi/status.h"
+#include "pbgi/store.h"
+#include "store/lmdb_status.h"
+#include "store/meta_codec.h"
+#include "store/store_internal.h"
+
+namespace pbgi {
+namespace {
+
+using internal::LmdbStatus;
+
+// A write transaction's reserved pages stay at fixed addresses until it ends, as long as LMDB
+// does not spill dirty pages to disk, which it starts to do near MDB_IDL_UM_MAX (2^17) dirty
+// pages = 512 MiB. The map-growth retry relies on those addresses, so batches stay well below.
+constexpr uint64_t kMaxBatchBytes = uint64_t{256} << 20;
+constexpr uint32_t kMaxPageSize = 64u << 20;
+
+void RemoveFile(const std::string& p) { unlink(p.c_str()); }
+
+}  // namespace
+
+struct PageWriter::Impl {
+  std::string path;        // the store directory
+  std::string tmp_path;    // path/data.mdb.tmp, being written
+  std::string final_path;  // path/data.mdb
+  StoreOptions options;
+  MDB_env* env = nullptr;
+  MDB_txn* txn = nullptr;
+  MDB_dbi meta_dbi = 0, nodes = 0, points = 0;
+  uint64_t map_size = 0;
+  uint32_t env_page = 4096;  // LMDB's page size (the OS page size)
+
+  // Pages reserved in the open write transaction, in append order: what a map-growth retry
+  // must write again into the next transaction.
+  struct Pending {
+    Section section;
+    uint64_t page_no;
+    uint8_t* page;
+  };
+  std::vector<Pending> pending;
+  uint64_t batch_bytes = 0;
+
+  bool has_last[2] = {false, false};
+  uint64_t last[2] = {0, 0};
+  uint64_t pages[2] = {0, 0};
+  uint64_t bytes_written = 0;
+  absl::Status failed;  // sticky: after an error the writer refuses to continue
+  bool finished = false;
+
+  static int Index(Section s) { return s == Section::kNodes ? 0 : 1; }
+  MDB_dbi Dbi(Section s) const { return s == Section::kNodes ? nodes : points; }
+  std::string Where() const { return absl::StrCat("store ", path, " (writing ", tmp_path, ")"); }
+
+  ~Impl() {
+    if (txn != nullptr) mdb_txn_abort(txn);
+    if (env != nullptr) mdb_env_close(env);
+    if (!finished) {
+      RemoveFile(tmp_path);
+      RemoveFile(tmp_path + internal::kLockSuffix);
+    }
+  }
+
+  absl::Status Fail(absl::Status s) {
+    if (txn != nullptr) {
+      mdb_txn_abort(txn);
+      txn = nullptr;
+    }
+    pending.clear();
+    batch_bytes = 0;
+    failed = s;
+    return s;
+  }
+
+  int Begin() { return mdb_txn_begin(env, nullptr, 0, &txn); }
+
+  int Reserve(Section section, uint64_t page_no, uint8_t** out) {
+    uint8_t key_bytes[8];
+    internal::EncodeKey(page_no, key_bytes);
+    MDB_val key{sizeof(key_bytes), key_bytes};
+    MDB_val val{options.page_size, nullptr};
+    const int rc = mdb_put(txn, Dbi(section), &key, &val, MDB_APPEND | MDB_RESERVE);
+    *out = static_cast<uint8_t*>(val.mv_data);
+    return rc;
+  }
+
+  // MDB_MAP_FULL inside the open transaction: LMDB has poisoned it. Save the batch's pages,
+  // abort, double the map (up to max_map_size) and write the batch again, as often as needed.
+  absl::Status GrowAndReplay() {
+    std::vector<uint8_t> saved(pending.size() * size_t{options.page_size});
+    for (size_t i = 0; i < pending.size(); ++i) {
+      std::memcpy(saved.data() + i * options.page_size, pending[i].page, options.page_size);
+    }
+    for (;;) {
+      if (txn != nullptr) {
+        mdb_txn_abort(txn);
+        txn = nullptr;
+      }
+      if (map_size >= options.max_map_size) {
+        return absl::ResourceExhaustedError(
+            absl::StrFormat("%s: map full at %d bytes after %d pages: the store needs more than "
+                            "StoreOptions::max_map_size (%d bytes)",
+                            Where(), map_size, pages[0] + pages[1], options.max_map_size));
+      }
+      const uint64_t next = std::min(options.max_map_size, map_size * 2);
+      PBGI_RETURN_IF_ERROR(LmdbStatus(
+          mdb_env_set_mapsize(env, next),
+          absl::StrFormat("%s: growing the map from %d to %d bytes", Where(), map_size, next)));
+      map_size = next;
+      PBGI_RETURN_IF_ERROR(LmdbStatus(Begin(), Where()));
+      int rc = MDB_SUCCESS;
+      for (size_t i = 0; i < pending.size() && rc == MDB_SUCCESS; ++i) {
+        rc = Reserve(pending[i].section, pending[i].page_no, &pending[i].page);
+        if (rc == MDB_SUCCESS) {
+          std::memcpy(pending[i].page, saved.data() + i * options.page_size, options.page_size);
+        }
+      }
+      if (rc == MDB_MAP_FULL) continue;
+      return LmdbStatus(rc, absl::StrCat(Where(), ": rewriting a batch after growing the map"));
+    }
+  }
+
+  // LMDB aborts a transaction whose commit fails, so a commit must not run out of map: when the
+  // batch's pages (overflow runs, leaf entries, freelist) might not fit, grow first.
+  absl::Status CommitBatch() {
+    if (txn == nullptr) return absl::OkStatus();
+    MDB_envinfo info;
+    PBGI_RETURN_IF_ERROR(LmdbStatus(mdb_env_info(env, &info), Where()));
+    const uint64_t run = (uint64_t{options.page_size} + 16 + env_page - 1) / env_page;
+    const uint64_t estimate =
+        info.me_last_pgno + 1 + pending.size() * run + pending.size() / 64 + 64;
+    if (estimate * env_page > map_size) PBGI_RETURN_IF_ERROR(GrowAndReplay());
+    const int rc = mdb_txn_commit(txn);
+    txn = nullptr;
+    pending.clear();
+    batch_bytes = 0;
+    return LmdbStatus(rc, absl::StrCat(Where(), ": committing a batch of pages"));
+  }
+
+  absl::Status PutMeta(const std::string& record) {
+    for (;;) {
+      PBGI_RETURN_IF_ERROR(LmdbStatus(Begin(), Where()));
+      MDB_val key{sizeof(internal::kMetaKey) - 1, const_cast<char*>(internal::kMetaKey)};
+      MDB_val val{record.size(), const_cast<char*>(record.data())};
+      int rc = mdb_put(txn, meta_dbi, &key, &val, 0);
+      if (rc == MDB_SUCCESS) {
+        rc = mdb_txn_commit(txn);
+        txn = nullptr;
+        if (rc != MDB_MAP_FULL) return LmdbStatus(rc, absl::StrCat(Where(), ": meta record"));
+      }
+      if (rc != MDB_MAP_FULL) return LmdbStatus(rc, absl::StrCat(Where(), ": meta record"));
+      PBGI_RETURN_IF_ERROR(GrowAndReplay());  // nothing pending: grows the map only
+      mdb_txn_abort(txn);
+      txn = nullptr;
+    }
+  }
+};
+
+PageWriter::PageWriter(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
+PageWriter::~PageWriter() = default;
+uint32_t PageWriter::page_size() const { return impl_->options.page_size; }
+uint64_t PageWriter::bytes_written() const { return impl_->bytes_written; }
+
+absl::StatusOr<std::unique_ptr<PageWriter>> PageWriter::Create(const std::string& path,
+                                                               const StoreOptions& options) {
+  if (options.page_size <= sizeof(PageHeader) || options.page_size > kMaxPageSize) {
+    return absl::InvalidArgumentError(
+        absl::StrFormat("store %s: page size %d must be more than %d and at most %d bytes", path,
+                        options.page_size, sizeof(PageHeader), kMaxPageSize));
+  }
+  if (options.page_size % alignof(PageHeader) != 0) {
+    // LMDB keeps values of a few KiB inside its own pages, 2-byte aligned unless every entry's
+    // size is a multiple of 8; page views hand out a PageHeader*, which needs 8.
+    return absl::InvalidArgumentError(
+        absl::StrFormat("store %s: page size %d is not a multiple of %d (use EfficientPageSize(k))",
+                        path, options.page_size, alignof(PageHeader)));
+  }
+  if (options.initial_map_size < (uint64_t{1} << 16) ||
+      options.max_map_size < options.initial_map_size) {
+    return absl::InvalidArgumentError(absl::StrFormat(
+        "store %s: map sizes must satisfy 64 KiB <= initial_map_size (%d) <= max_map_size (%d)",
+        path, options.initial_map_size, options.max_map_size));
+  }
+  std::error_code ec;
+  std::filesystem::create_directories(path, ec);
+  if (ec || !std::filesystem::is_directory(path, ec)) {
+    return absl::FailedPreconditionError(
+        absl::StrFormat("store %s: cannot create the store directory: %s", path,
+                        ec ? ec.message() : std::string("a file of that name exists")));
+  }
+  auto impl = std::make_unique<Impl>();
+  impl->path = path;
+  impl->tmp_path = absl::StrCat(path, "/", internal::kBuildingFile);
+  impl->final_path = absl::StrCat(path, "/", internal::kDataFile);
+  impl->options = options;
+  impl->options.batch_bytes =
+      std::clamp<uint64_t>(options.batch_bytes, options.page_size, kMaxBatchBytes);
+  impl->map_size = options.initial_map_size;
+  // A leftover from a build that died.
+  RemoveFile(impl->tmp_path);
+  RemoveFile(impl->tmp_path + internal::kLockSuffix);
+
+  const std::string where = impl->Where();
+  PBGI_RETURN_IF_ERROR(LmdbStatus(mdb_env_create(&impl->env), where));
+  PBGI_RETURN_IF_ERROR(LmdbStatus(mdb_env_set_maxdbs(impl->env, 4), where));
+  PBGI_RETURN_IF_ERROR(LmdbStatus(mdb_env_set_mapsize(impl->env, impl->map_size), where));
+  // MDB_NOSYNC: batches are not synced one by one; Finish() syncs before and after the meta
+  // record, which is what makes the store durable and visible.
+  PBGI_RETURN_IF_ERROR(
+      LmdbStatus(mdb_env_open(impl->env, impl->tmp_path.c_str(), MDB_NOSUBDIR | MDB_NOSYNC, 0644),
+                 absl::StrCat(where, ": creating the file")));
+  MDB_stat est;
+  PBGI_RETURN_IF_ERROR(LmdbStatus(mdb_env_stat(impl->env, &est), where));
+  impl->env_page = est.ms_psize;
+
+  PBGI_RETURN_IF_ERROR(LmdbStatus(impl->Begin(), where));
+  int rc = mdb_dbi_open(impl->txn, internal::kMetaDb, MDB_CREATE, &impl->meta_dbi);
+  if (rc == MDB_SUCCESS) rc = mdb_dbi_open(impl->txn, internal::kNodesDb, MDB_CREATE, &impl->nodes);
+  if (rc == MDB_SUCCESS) {
+    rc = mdb_dbi_open(impl->txn, internal::kPointsDb, MDB_CREATE, &impl->points);
+  }
+  if (rc == MDB_SUCCESS) {
+    // An incomplete meta record first: should this file ever be taken for a store before
+    // Finish(), Open() refuses it as incomplete.
+    StoreMeta stub;
+    stub.page_size = options.page_size;
+    const std::string record = internal::EncodeMeta(stub, /*complete=*/false);
+    MDB_val key{sizeof(internal::kMetaKey) - 1, const_cast<char*>(internal::kMetaKey)};
+    MDB_val val{record.size(), const_cast<char*>(record.data())};
+    rc = mdb_put(impl->txn, impl->meta_dbi, &key, &val, 0);
+  }
+  if (rc == MDB_SUCCESS) {
+    rc = mdb_txn_commit(impl->txn);
+    impl->txn = nullptr;
+  }
+  PBGI_RETURN_IF_ERROR(LmdbStatus(rc, absl::StrCat(where, ": creating the sections")));
+  return std::unique_ptr<PageWriter>(new PageWriter(std::move(impl)));
+}
+
+absl::Status PageWriter::Append(Section section, uint64_t page_no, PageKind kind,
+                                uint32_t record_count, absl::Span<const uint8_t> payload) {
+  Impl& w = *impl_;
+  if (!w.failed.ok()) return w.failed;
+  if (w.finished) {
+    return absl::FailedPreconditionError(absl::StrFormat("%s: Append after Finish", w.Where()));
+  }
+  const int si = Impl::Index(section);
+  if (payload.size() > payload_capacity()) {
+    return absl::InvalidArgumentError(absl::StrFormat(
+        "%s: %s page %d: payload of %d bytes exceeds the capacity of %d bytes", w.Where(),
+        SectionName(section), page_no, payload.size(), payload_capacity()));
+  }
+  if (kind != internal::KindOf(section)) {
+    return absl::InvalidArgumentError(
+        absl::StrFormat("%s: %s page %d: page kind %d does not belong in this section", w.Where(),
+                        SectionName(section), page_no, static_cast<int>(kind)));
+  }
+  if (w.has_last[si] && page_no <= w.last[si]) {
+    return absl::InvalidArgumentError(absl::StrFormat(
+        "%s: %s page %d appended after page %d: pages must come in increasing order", w.Where(),
+        SectionName(section), page_no, w.last[si]));
+  }
+  if (w.txn == nullptr) {
+    const int rc = w.Begin();
+    if (rc != MDB_SUCCESS) return w.Fail(LmdbStatus(rc, w.Where()));
+  }
+  uint8_t* page = nullptr;
+  int rc = w.Reserve(section, page_no, &page);
+  while (rc == MDB_MAP_FULL) {
+    absl::Status grown = w.GrowAndReplay();
+    if (!grown.ok()) return w.Fail(grown);
+    rc = w.Reserve(section, page_no, &page);
+  }
+  if (rc != MDB_SUCCESS) {
+    return w.Fail(LmdbStatus(
+        rc, absl::StrFormat("%s: appending %s page %d", w.Where(), SectionName(section), page_no)));
+  }
+  // Header, payload and zero padding go straight into the map's reserved space; the checksum
+  // covers all of it after the checksum field.
+  const uint32_t size = w.options.page_size;
+  PageHeader h{};
+  h.kind = static_cast<uint16_t>(kind);
+  h.format = static_cast<uint16_t>(kStoreFormatVersion);
+  h.record_count = record_count;
+  h.payload_bytes = static_cast<uint32_t>(payload.size());
+  h.page_no = page_no;
+  std::memcpy(page, &h, sizeof(h));
+  if (!payload.empty()) std::memcpy(page + sizeof(h), payload.data(), payload.size());
+  std::memset(page + sizeof(h) + payload.size(), 0, size - sizeof(h) - payload.size());
+  const uint32_t crc = internal::PageChecksum(page, size);
+  std::memcpy(page, &crc, sizeof(crc));
+
+  w.pending.push_back({section, page_no, page});
+  w.has_last[si] = true;
+  w.last[si] = page_no;
+  ++w.pages[si];
+  w.bytes_written += size;
+  w.batch_bytes += size;
+  if (w.batch_bytes >= w.options.batch_bytes) {
+    absl::Status s = w.CommitBatch();
+    if (!s.ok()) return w.Fail(s);
+  }
+  return absl::OkStatus();
+}
+
+absl::Status PageWriter::Finish(const StoreMeta& meta) {
+  Impl& w = *impl_;
+  if (!w.failed.ok()) return w.failed;
+  if (w.finished) return absl::FailedPreconditionError(absl::StrCat(w.Where(), ": Finish twice"));
+  auto mismatch = [&](const char* field, uint64_t given, uint64_t actual) {
+    return absl::InvalidArgumentError(
+        absl::StrFormat("%s: the meta record says %s = %d but the writer wrote %d", w.Where(),
+                        field, given, actual));
+  };
+  StoreMeta m = meta;
+  if (m.magic != kStoreMagic) {
+    return absl::InvalidArgumentError(absl::StrCat(w.Where(), ": meta record has a wrong magic"));
+  }
+  m.version = kStoreFormatVersion;
+  if (m.node_pages != 0 && m.node_pages != w.pages[0]) {
+    return mismatch("node_pages", m.node_pages, w.pages[0]);
+  }
+  if (m.point_pages != 0 && m.point_pages != w.pages[1]) {
+    return mismatch("point_pages", m.point_pages, w.pages[1]);
+  }
+  m.page_size = w.options.page_size;
+  m.node_pages = w.pages[0];
+  m.point_pages = w.pages[1];
+
+  absl::Status s = w.CommitBatch();
+  // The pages must be on disk before the record that makes them visible.
+  const bool sync = w.options.sync;
+  if (s.ok() && sync) {
+    s = LmdbStatus(mdb_env_sync(w.env, 1), absl::StrCat(w.Where(), ": syncing pages"));
+  }
+  if (s.ok()) s = w.PutMeta(internal::EncodeMeta(m, /*complete=*/true));
+  if (s.ok() && sync) {
+    s = LmdbStatus(mdb_env_sync(w.env, 1), absl::StrCat(w.Where(), ": syncing meta"));
+  }
+  if (!s.ok()) return w.Fail(s);
+  mdb_env_close(w.env);
+  w.env = nullptr;
+  if (rename(w.tmp_path.c_str(), w.final_path.c_str()) != 0) {
+    return w.Fail(LmdbStatus(errno, absl::StrFormat("%s: renaming %s to %s", w.Where(),
+                                                    internal::kBuildingFile, internal::kDataFile)));
+  }
+  w.finished = true;
+  RemoveFile(w.tmp_path + internal::kLockSuffix);
+  // Make the rename itself durable.
+  const int dir = sync ? open(w.path.c_str(), O_RDONLY | O_DIRECTORY) : -1;
+  if (dir >= 0) {
+    fsync(dir);
+    close(dir);
+  }
+  return absl::OkStatus();
+}
+
+}  // namespace pbgi

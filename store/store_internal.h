@@ -1,0 +1,75 @@
+// Shared by the store's .cc files: file names, key encoding, the per-page check and the
+// PageStore's private state. Internal.
+#ifndef PBGI_STORE_STORE_INTERNAL_H_
+#define PBGI_STORE_STORE_INTERNAL_H_
+
+#include <lmdb.h>
+
+#include <cstdint>
+#include <string>
+
+#include "absl/status/status.h"
+#include "pbgi/store.h"
+
+namespace pbgi::internal {
+
+// A store directory holds data.mdb (LMDB, opened with MDB_NOSUBDIR) once it is complete. The
+// writer builds data.mdb.tmp (and its lock file data.mdb.tmp-lock) and renames it at the end.
+inline constexpr char kDataFile[] = "data.mdb";
+inline constexpr char kBuildingFile[] = "data.mdb.tmp";
+inline constexpr char kLockSuffix[] = "-lock";
+
+inline constexpr char kMetaDb[] = "meta";
+inline constexpr char kNodesDb[] = "nodes";
+inline constexpr char kPointsDb[] = "points";
+inline constexpr char kMetaKey[] = "meta";
+
+// Keys are 8-byte big-endian page numbers: LMDB's default memcmp order is then page order, which
+// MDB_APPEND requires.
+inline void EncodeKey(uint64_t page_no, uint8_t out[8]) {
+  for (int i = 7; i >= 0; --i) {
+    out[i] = static_cast<uint8_t>(page_no);
+    page_no >>= 8;
+  }
+}
+inline uint64_t DecodeKey(const uint8_t in[8]) {
+  uint64_t v = 0;
+  for (int i = 0; i < 8; ++i) v = (v << 8) | in[i];
+  return v;
+}
+
+inline PageKind KindOf(Section s) {
+  return s == Section::kNodes ? PageKind::kNode : PageKind::kPoint;
+}
+
+// Checks one stored page. The structural checks (size, kind, number, payload size) always run;
+// the checksum only when `verify_checksum`. DataLoss names the store, the section and the page.
+absl::Status CheckPage(const std::string& path, Section section, uint64_t page_no, const void* data,
+                       size_t size, uint32_t page_size, bool verify_checksum);
+
+// CRC-32C of a page as stored in its header: bytes [4, page_size).
+uint32_t PageChecksum(const void* page, uint32_t page_size);
+
+}  // namespace pbgi::internal
+
+namespace pbgi {
+
+struct PageStore::Impl {
+  std::string path;       // the store directory
+  std::string data_path;  // path/data.mdb
+  StoreOptions options;
+  StoreMeta meta;
+  MDB_env* env = nullptr;
+  MDB_dbi nodes = 0;
+  MDB_dbi points = 0;
+  uint64_t file_bytes = 0;
+
+  MDB_dbi Dbi(Section s) const { return s == Section::kNodes ? nodes : points; }
+  ~Impl() {
+    if (env != nullptr) mdb_env_close(env);
+  }
+};
+
+}  // namespace pbgi
+
+#endif  // PBGI_STORE_STORE_INTERNAL_H_

@@ -1,0 +1,461 @@
+// Gather over the in-memory fake store: the cut against brute force, small caches, threads,
+// corrupt pages, counters, batches. (gather_db_test.cc does the same over real LMDB databases.)
+#include <algorithm>
+#include <atomic>
+#include <cstdlib>
+#include <cstring>
+#include <new>
+#include <set>
+#include <thread>
+#include <tuple>
+#include <vector>
+
+#include "gmock/gmock.h"
+#include "gtest/gtest.h"
+#include "pbgi/query.h"
+#include "pbgi/testing.h"
+#include "query/page_source.h"
+#include "store/page_format.h"
+#include "tests/query/fake_db.h"
+
+// Counts allocations, to check that a warm gather makes none. (GCC pairs the inlined malloc
+// and free of these replacements with the callers' new and delete and warns; they do match.)
+#pragma GCC diagnostic ignored "-Wmismatched-new-delete"
+static std::atomic<uint64_t> g_allocations{0};
+void* operator new(size_t n) {
+  g_allocations.fetch_add(1, std::memory_order_relaxed);
+  if (void* p = std::malloc(n == 0 ? 1 : n)) return p;
+  throw std::bad_alloc();
+}
+void operator delete(void* p) noexcept { std::free(p); }
+void operator delete(void* p, size_t) noexcept { std::free(p); }
+
+namespace pbgi {
+namespace {
+
+using internal::BuildFakeDb;
+using internal::FakeDb;
+using internal::FakeDbOptions;
+using internal::MemPageSource;
+
+std::unique_ptr<Database> Open(FakeDb& fake, uint64_t cache_bytes = 64 << 20,
+                               uint64_t reader_bytes = 0) {
+  DatabaseOptions o;
+  o.cache_bytes = cache_bytes;
+  o.reader_cache_bytes = reader_bytes;
+  auto db = Database::OpenSource(std::move(fake.source), o);
+  EXPECT_TRUE(db.ok()) << db.status();
+  return std::move(*db);
+}
+
+// Half random receivers in and around the scene, half on surfels (as a renderer shades them).
+std::vector<Receiver> Receivers(const std::vector<Surfel>& surfels, size_t n, uint64_t seed) {
+  std::vector<Receiver> r = testing::RandomReceivers(n / 2, seed);
+  for (size_t i = 0; r.size() < n; ++i) {
+    const Surfel& s = surfels[(i * 7919 + seed) % surfels.size()];
+    r.push_back({s.position + 1e-4f * s.normal, s.normal});
+  }
+  return r;
+}
+
+// A comparable digest of a result.
+std::vector<std::tuple<uint64_t, uint64_t, int>> Digest(const Gathered& g) {
+  std::vector<std::tuple<uint64_t, uint64_t, int>> d;
+  for (const Cluster& c : g.clusters) d.emplace_back(c.first_point, c.point_count, 0);
+  for (uint64_t id : g.surfel_ids) d.emplace_back(id, 1, 1);
+  return d;
+}
+
+struct Config {
+  uint32_t leaf_size;
+  uint32_t page_size;
+  Channels channels;
+};
+
+class GatherFakeTest : public ::testing::TestWithParam<Config> {};
+
+TEST_P(GatherFakeTest, CutIsValidAgainstBruteForce) {
+  const Config cfg = GetParam();
+  std::vector<Surfel> input = testing::RandomSceneSurfels(3000, 11);
+  FakeDb fake = BuildFakeDb(input, {cfg.leaf_size, cfg.page_size, cfg.channels});
+  std::vector<Surfel> surfels = fake.surfels;
+  auto db = Open(fake);
+  auto reader = db->NewReader();
+  ASSERT_TRUE(reader.ok());
+  Gathered coarse, fine, exact, near;
+  const Cut coarse_cut{0.3f}, fine_cut{0.03f}, exact_cut{0.0f}, near_cut{0.03f, 0.25f};
+  size_t clusters = 0;
+  for (const Receiver& r : Receivers(surfels, 800, 5)) {
+    ASSERT_TRUE((*reader)->Gather(r, coarse_cut, &coarse).ok());
+    ASSERT_TRUE((*reader)->Gather(r, fine_cut, &fine).ok());
+    ASSERT_TRUE((*reader)->Gather(r, exact_cut, &exact).ok());
+    ASSERT_TRUE((*reader)->Gather(r, near_cut, &near).ok());
+    absl::Status s = testing::CheckValidCut(coarse, surfels, r, coarse_cut);
+    ASSERT_TRUE(s.ok()) << s;
+    s = testing::CheckValidCut(fine, surfels, r, fine_cut);
+    ASSERT_TRUE(s.ok()) << s;
+    s = testing::CheckValidCut(near, surfels, r, near_cut);
+    ASSERT_TRUE(s.ok()) << s;
+    s = testing::CheckFinerCutNotSmaller(coarse, fine, surfels, r, coarse_cut, fine_cut);
+    ASSERT_TRUE(s.ok()) << s;
+    // max_solid_angle = 0: exactly the surfels in front, each on its own.
+    EXPECT_TRUE(exact.clusters.empty());
+    std::vector<uint64_t> ids = exact.surfel_ids;
+    std::sort(ids.begin(), ids.end());
+    ASSERT_EQ(ids, testing::SurfelsInFront(surfels, r, exact_cut));
+    clusters += coarse.clusters.size();
+  }
+  EXPECT_GT(clusters, 800u);  // the cut does cluster
+}
+
+INSTANTIATE_TEST_SUITE_P(LeafAndPageSizes, GatherFakeTest,
+                         ::testing::Values(Config{1, 4096 - 16, Channels::kRadiance},
+                                           Config{8, 4096 - 16, Channels::kRadiance},
+                                           Config{16, 2 * 4096 - 16, Channels::kOcclusion},
+                                           Config{32, 1024, Channels::kOcclusion},
+                                           Config{4, 600, Channels::kRadiance}));
+
+TEST(GatherFake, FarReceiverGathersFewClustersNearOneDescends) {
+  std::vector<Surfel> input = testing::RandomSceneSurfels(2000, 3);
+  FakeDb fake = BuildFakeDb(input, {});
+  auto db = Open(fake);
+  auto reader = db->NewReader();
+  Gathered g;
+  // Far away, facing the scene: a handful of clusters stand for everything.
+  Receiver far{{0.5f, 0.5f, 30.0f}, {0, 0, -1}};
+  ASSERT_TRUE((*reader)->Gather(far, Cut{}, &g).ok());
+  EXPECT_GE(g.clusters.size(), 1u);
+  EXPECT_LE(g.size(), 8u);
+  // Facing away: nothing.
+  ASSERT_TRUE((*reader)->Gather({{0.5f, 0.5f, 30.0f}, {0, 0, 1}}, Cut{}, &g).ok());
+  EXPECT_EQ(g.size(), 0u);
+  // A receiver beyond max_distance of everything: nothing.
+  ASSERT_TRUE((*reader)->Gather(far, Cut{0.03f, 5.0f}, &g).ok());
+  EXPECT_EQ(g.size(), 0u);
+}
+
+TEST(GatherFake, RadianceClustersCarryPowerOcclusionOnesDoNot) {
+  std::vector<Surfel> input = testing::RandomSceneSurfels(1000, 4);
+  for (auto channels : {Channels::kRadiance, Channels::kOcclusion}) {
+    FakeDb fake = BuildFakeDb(input, {8, 4096 - 16, channels});
+    auto db = Open(fake);
+    auto reader = db->NewReader();
+    Gathered g;
+    ASSERT_TRUE((*reader)->Gather({{0.5f, 0.5f, 5.0f}, {0, 0, -1}}, Cut{0.5f}, &g).ok());
+    ASSERT_FALSE(g.clusters.empty());
+    float power = 0;
+    for (const Cluster& c : g.clusters) power += std::abs(c.sh_power[0][0]);
+    if (channels == Channels::kRadiance) {
+      EXPECT_GT(power, 0.0f);
+    } else {
+      EXPECT_EQ(power, 0.0f);
+    }
+  }
+}
+
+// A budget of a few pages thrashes but answers exactly as an unlimited one.
+TEST(GatherFake, TinyCacheAnswersLikeABigOne) {
+  std::vector<Surfel> input = testing::RandomSceneSurfels(3000, 8);
+  FakeDb big_fake = BuildFakeDb(input, {8, 1024, Channels::kRadiance});
+  FakeDb small_fake = BuildFakeDb(input, {8, 1024, Channels::kRadiance});
+  auto big = Open(big_fake, 64 << 20);
+  auto small = Open(small_fake, 3 * 1024, 1);
+  auto rb = big->NewReader();
+  auto rs = small->NewReader();
+  Gathered a, b;
+  QueryStats sb, ss;
+  for (const Receiver& r : Receivers(big_fake.surfels, 300, 9)) {
+    ASSERT_TRUE((*rb)->Gather(r, Cut{}, &a, &sb).ok());
+    absl::Status s = (*rs)->Gather(r, Cut{}, &b, &ss);
+    ASSERT_TRUE(s.ok()) << s;
+    ASSERT_EQ(Digest(a), Digest(b));
+  }
+  EXPECT_GT(ss.pages_read, 5 * sb.pages_read);  // it did thrash
+  EXPECT_LE(small->CacheUsageBytes(), 4 * 1024u + 4096u);
+}
+
+// One budget for both levels: with the default shares, eight Readers holding pins keep the
+// shared cache (where every decoded page lives) within cache_bytes.
+TEST(GatherFake, OneBudgetHoldsWithManyReaders) {
+  std::vector<Surfel> input = testing::RandomSceneSurfels(4000, 23);
+  FakeDb fake = BuildFakeDb(input, {8, 1024, Channels::kRadiance});
+  std::vector<Receiver> receivers = Receivers(fake.surfels, 64, 6);
+  const uint64_t budget = 40 * 1024;  // about 40 pages
+  auto db = Open(fake, budget);
+  std::vector<std::unique_ptr<Reader>> readers;
+  for (int i = 0; i < 8; ++i) readers.push_back(std::move(*db->NewReader()));
+  Gathered g;
+  uint64_t peak = 0;
+  for (size_t k = 0; k < receivers.size(); ++k) {
+    ASSERT_TRUE(readers[k % 8]->Gather(receivers[k], Cut{}, &g).ok());
+    peak = std::max(peak, db->CacheUsageBytes());
+  }
+  EXPECT_LE(peak, budget);
+  EXPECT_GT(peak, budget / 2);  // and it is used
+}
+
+// Eight threads at once produce exactly the single-threaded results (run under TSan too).
+TEST(GatherFake, EightThreadsMatchOneThread) {
+  std::vector<Surfel> input = testing::RandomSceneSurfels(4000, 21);
+  FakeDb fake = BuildFakeDb(input, {8, 4096 - 16, Channels::kRadiance});
+  std::vector<Receiver> receivers = Receivers(fake.surfels, 400, 2);
+  // A cache of about a third of the pages: threads evict, share and wait on each other.
+  const uint64_t pages =
+      fake.source->page_count(Section::kNodes) + fake.source->page_count(Section::kPoints);
+  auto db = Open(fake, pages * 4096 / 3);
+  std::vector<std::vector<std::tuple<uint64_t, uint64_t, int>>> expected;
+  {
+    auto reader = db->NewReader();
+    Gathered g;
+    for (const Receiver& r : receivers) {
+      ASSERT_TRUE((*reader)->Gather(r, Cut{}, &g).ok());
+      expected.push_back(Digest(g));
+    }
+  }
+  db->DropCache();
+  std::atomic<int> mismatches{0}, errors{0};
+  std::vector<std::thread> threads;
+  for (int t = 0; t < 8; ++t) {
+    threads.emplace_back([&, t] {
+      auto reader = db->NewReader();
+      if (!reader.ok()) {
+        errors.fetch_add(1);
+        return;
+      }
+      Gathered g;
+      for (size_t k = 0; k < receivers.size(); ++k) {
+        const size_t i = (k + t * 37) % receivers.size();  // different orders per thread
+        if (!(*reader)->Gather(receivers[i], Cut{}, &g).ok()) errors.fetch_add(1);
+        if (Digest(g) != expected[i]) mismatches.fetch_add(1);
+      }
+    });
+  }
+  for (auto& t : threads) t.join();
+  EXPECT_EQ(errors.load(), 0);
+  EXPECT_EQ(mismatches.load(), 0);
+  CacheStats total = db->TotalStats();
+  EXPECT_GT(total.reader.hits, 0u);
+  EXPECT_GT(total.shared.hits, 0u);
+}
+
+// Threads that miss the same pages at once read each page once (single flight through Gather).
+TEST(GatherFake, ConcurrentColdGathersReadEachPageOnce) {
+  std::vector<Surfel> input = testing::RandomSceneSurfels(2000, 5);
+  FakeDb fake = BuildFakeDb(input, {8, 4096 - 16, Channels::kRadiance});
+  MemPageSource* src = fake.source.get();
+  src->set_read_delay_us(2000);
+  auto db = Open(fake, 64 << 20);
+  std::vector<std::thread> threads;
+  std::atomic<int> ready{0};
+  for (int t = 0; t < 6; ++t) {
+    threads.emplace_back([&] {
+      auto reader = db->NewReader();
+      Gathered g;
+      ready.fetch_add(1);
+      while (ready.load() < 6) std::this_thread::yield();
+      EXPECT_TRUE((*reader)->Gather({{0.5f, 0.5f, 0.5f}, {0, 0, 1}}, Cut{}, &g).ok());
+    });
+  }
+  for (auto& t : threads) t.join();
+  const uint64_t pages = src->page_count(Section::kNodes) + src->page_count(Section::kPoints);
+  EXPECT_LE(src->reads(), pages);
+  for (uint64_t p = 0; p < src->page_count(Section::kNodes); ++p) {
+    EXPECT_LE(src->reads_of(Section::kNodes, p), 1u) << "nodes page " << p;
+  }
+}
+
+TEST(GatherFake, CountersAddUp) {
+  std::vector<Surfel> input = testing::RandomSceneSurfels(3000, 6);
+  FakeDb fake = BuildFakeDb(input, {8, 1024, Channels::kRadiance});
+  auto db = Open(fake);
+  auto reader = db->NewReader();
+  Gathered g;
+  QueryStats first, second;
+  const Receiver r{{0.5f, 0.5f, 0.5f}, {0, 1, 0}};
+  ASSERT_TRUE((*reader)->Gather(r, Cut{}, &g, &first).ok());
+  EXPECT_EQ(first.queries, 1u);
+  EXPECT_GT(first.nodes_visited, 0u);
+  EXPECT_EQ(first.clusters, g.clusters.size());
+  EXPECT_EQ(first.surfels, g.surfels.size());
+  uint64_t nodes = 0;
+  for (int l = 0; l < kStatLevels; ++l) {
+    nodes += first.nodes[l];
+    EXPECT_EQ(first.reader_hits[l] + first.reader_misses[l], first.pages_touched[l]);
+    EXPECT_EQ(first.shared_hits[l] + first.shared_misses[l], first.reader_misses[l]);
+  }
+  EXPECT_EQ(nodes, first.nodes_visited);
+  EXPECT_EQ(first.TotalSharedMisses(), first.pages_read);
+  EXPECT_GT(first.pages_read, 0u);
+  EXPECT_EQ(first.bytes_read, first.pages_read * 1024);
+  // The same gather again is served from the caches.
+  ASSERT_TRUE((*reader)->Gather(r, Cut{}, &g, &second).ok());
+  EXPECT_EQ(second.pages_read, 0u);
+  EXPECT_EQ(second.nodes_visited, first.nodes_visited);
+  EXPECT_EQ((*reader)->stats().shared.pages_read, first.pages_read);
+  EXPECT_EQ((*reader)->stats().reader.hits + (*reader)->stats().reader.misses,
+            first.TotalPagesTouched() + second.TotalPagesTouched());
+}
+
+TEST(GatherFake, WarmGatherDoesNotAllocate) {
+  std::vector<Surfel> input = testing::RandomSceneSurfels(3000, 7);
+  FakeDb fake = BuildFakeDb(input, {8, 4096 - 16, Channels::kRadiance});
+  std::vector<Receiver> receivers = Receivers(fake.surfels, 50, 3);
+  auto db = Open(fake);
+  auto reader = db->NewReader();
+  Gathered g;
+  QueryStats stats;
+  g.clusters.reserve(100000);
+  g.surfels.reserve(100000);
+  g.surfel_ids.reserve(100000);
+  for (const Receiver& r : receivers) ASSERT_TRUE((*reader)->Gather(r, Cut{}, &g, &stats).ok());
+  const uint64_t before = g_allocations.load();
+  for (const Receiver& r : receivers) ASSERT_TRUE((*reader)->Gather(r, Cut{}, &g, &stats).ok());
+  EXPECT_EQ(g_allocations.load() - before, 0u);
+}
+
+TEST(GatherFake, BatchInZOrderMatchesSingleGathers) {
+  std::vector<Surfel> input = testing::RandomSceneSurfels(2000, 12);
+  FakeDb fake = BuildFakeDb(input, {});
+  std::vector<Receiver> receivers = Receivers(fake.surfels, 200, 4);
+  auto db = Open(fake);
+  auto reader = db->NewReader();
+  std::vector<uint32_t> order = ZOrder(receivers);
+  ASSERT_EQ(order.size(), receivers.size());
+  std::vector<uint32_t> sorted = order;
+  std::sort(sorted.begin(), sorted.end());
+  for (uint32_t i = 0; i < sorted.size(); ++i) ASSERT_EQ(sorted[i], i);  // a permutation
+  // Z-order keeps neighbours together: consecutive receivers are closer than random pairs.
+  double walk = 0, random_walk = 0;
+  for (size_t i = 1; i < order.size(); ++i) {
+    walk += glm::length(receivers[order[i]].position - receivers[order[i - 1]].position);
+    random_walk += glm::length(receivers[i].position - receivers[i - 1].position);
+  }
+  EXPECT_LT(walk, 0.6 * random_walk);
+  std::vector<size_t> visited;
+  Gathered single;
+  absl::Status s = (*reader)->GatherBatch(
+      receivers, Cut{}, order, [&](size_t i, const Gathered& g) -> absl::Status {
+        visited.push_back(i);
+        absl::Status st = (*reader)->Gather(receivers[i], Cut{}, &single);
+        if (!st.ok()) return st;
+        EXPECT_EQ(Digest(g), Digest(single));
+        return absl::OkStatus();
+      });
+  ASSERT_TRUE(s.ok()) << s;
+  ASSERT_EQ(visited.size(), order.size());
+  for (size_t k = 0; k < order.size(); ++k) EXPECT_EQ(visited[k], order[k]);
+  // The callback's error stops the batch.
+  int calls = 0;
+  s = (*reader)->GatherBatch(receivers, Cut{}, {}, [&](size_t, const Gathered&) {
+    return ++calls == 3 ? absl::CancelledError("stop") : absl::OkStatus();
+  });
+  EXPECT_EQ(s.code(), absl::StatusCode::kCancelled);
+  EXPECT_EQ(calls, 3);
+}
+
+// --- corrupt pages: an error naming the page, no crash -----------------------------------
+
+class CorruptPageTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    fake_ = BuildFakeDb(testing::RandomSceneSurfels(2000, 13), {8, 1024, Channels::kRadiance});
+    src_ = fake_.source.get();
+    ASSERT_GE(src_->page_count(Section::kNodes), 3u);
+  }
+  // Opens the fake (once per test: the Database takes the source) and gathers everything.
+  absl::Status GatherAll() {
+    auto db = Open(fake_);
+    auto reader = db->NewReader();
+    Gathered g;
+    // max_solid_angle 0 from below the scene, facing it, visits every page.
+    return (*reader)->Gather({{0.5f, 0.5f, -10.0f}, {0, 0, 1}}, Cut{0.0f}, &g);
+  }
+  internal::NodeRecordRadiance* Node(uint64_t page, uint32_t slot) {
+    auto* bytes = src_->MutablePage(Section::kNodes, page);
+    return reinterpret_cast<internal::NodeRecordRadiance*>(
+        bytes->data() + sizeof(PageHeader) + slot * sizeof(internal::NodeRecordRadiance));
+  }
+  FakeDb fake_;
+  MemPageSource* src_ = nullptr;
+};
+
+TEST_F(CorruptPageTest, StoreErrorIsPassedOnWithThePage) {
+  src_->FailPage(Section::kNodes, 2,
+                 absl::DataLossError("fake-db: nodes page 2: checksum mismatch"));
+  absl::Status s = GatherAll();
+  EXPECT_EQ(s.code(), absl::StatusCode::kDataLoss);
+  EXPECT_THAT(std::string(s.message()), ::testing::HasSubstr("nodes page 2"));
+}
+
+TEST_F(CorruptPageTest, BadChildCount) {
+  Node(1, 0)->common.child_count = 100;
+  Node(1, 0)->common.flags = 0;
+  absl::Status s = GatherAll();
+  EXPECT_EQ(s.code(), absl::StatusCode::kDataLoss);
+  EXPECT_THAT(std::string(s.message()), ::testing::HasSubstr("nodes page 1 is corrupt"));
+}
+
+TEST_F(CorruptPageTest, LinkPastTheRecords) {
+  // Make the root's children point past the end of their page.
+  internal::NodeRecordRadiance* root = Node(0, 0);
+  ASSERT_EQ(root->common.flags & internal::kNodeFlagLeaf, 0u);
+  root->common.children = internal::MakeNodeRef(internal::RefPage(root->common.children), 4000);
+  absl::Status s = GatherAll();
+  EXPECT_EQ(s.code(), absl::StatusCode::kDataLoss);
+  EXPECT_THAT(std::string(s.message()), ::testing::HasSubstr("is corrupt"));
+}
+
+TEST_F(CorruptPageTest, CycleIsCaughtByDepth) {
+  internal::NodeRecordRadiance* root = Node(0, 0);
+  root->common.children = internal::MakeNodeRef(0, 0);  // the root is its own child
+  root->common.child_count = 1;
+  absl::Status s = GatherAll();
+  EXPECT_EQ(s.code(), absl::StatusCode::kDataLoss);
+  EXPECT_THAT(std::string(s.message()), ::testing::HasSubstr("nodes page 0"));
+}
+
+TEST_F(CorruptPageTest, WrongPageNumber) {
+  auto* bytes = src_->MutablePage(Section::kNodes, 1);
+  reinterpret_cast<PageHeader*>(bytes->data())->page_no = 77;
+  absl::Status s = GatherAll();
+  EXPECT_EQ(s.code(), absl::StatusCode::kDataLoss);
+  EXPECT_THAT(std::string(s.message()), ::testing::HasSubstr("nodes page 1"));
+}
+
+TEST_F(CorruptPageTest, WrongKind) {
+  auto* bytes = src_->MutablePage(Section::kPoints, 0);
+  reinterpret_cast<PageHeader*>(bytes->data())->kind = 1;
+  absl::Status s = GatherAll();
+  EXPECT_EQ(s.code(), absl::StatusCode::kDataLoss);
+  EXPECT_THAT(std::string(s.message()), ::testing::HasSubstr("points page 0"));
+}
+
+TEST_F(CorruptPageTest, WrongPointCount) {
+  auto* bytes = src_->MutablePage(Section::kPoints, 1);
+  reinterpret_cast<PageHeader*>(bytes->data())->record_count = 3;
+  absl::Status s = GatherAll();
+  EXPECT_EQ(s.code(), absl::StatusCode::kDataLoss);
+  EXPECT_THAT(std::string(s.message()), ::testing::HasSubstr("points page 1"));
+}
+
+TEST_F(CorruptPageTest, PointRangeOutsideTheDatabase) {
+  Node(1, 1)->common.first_point = uint64_t{1} << 40;
+  absl::Status s = GatherAll();
+  EXPECT_EQ(s.code(), absl::StatusCode::kDataLoss);
+  EXPECT_THAT(std::string(s.message()), ::testing::HasSubstr("nodes page 1"));
+}
+
+TEST_F(CorruptPageTest, FailedPageIsRetriedNotCached) {
+  src_->FailPage(Section::kPoints, 0, absl::DataLossError("fake-db: points page 0: bad"));
+  auto db = Open(fake_);
+  auto reader = db->NewReader();
+  Gathered g;
+  const Receiver r{{0.5f, 0.5f, -10.0f}, {0, 0, 1}};
+  EXPECT_FALSE((*reader)->Gather(r, Cut{0.0f}, &g).ok());
+  const uint64_t reads = src_->reads_of(Section::kPoints, 0);
+  EXPECT_FALSE((*reader)->Gather(r, Cut{0.0f}, &g).ok());
+  EXPECT_EQ(src_->reads_of(Section::kPoints, 0), reads + 1);
+}
+
+}  // namespace
+}  // namespace pbgi

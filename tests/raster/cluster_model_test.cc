@@ -1,0 +1,145 @@
+// The cluster model against brute force sum A_i max(0, n_i.w) over the cluster's surfels.
+#include "raster/cluster_model.h"
+
+#include <cmath>
+#include <random>
+#include <vector>
+
+#include "gtest/gtest.h"
+#include "pbgi/raster.h"
+#include "tests/raster/scenes.h"
+
+namespace pbgi {
+namespace {
+
+using internal::ClusterRadiance;
+using internal::ProjectedArea;
+using testing_raster::Aggregate;
+
+double BruteForce(const std::vector<Surfel>& s, const glm::vec3& w, HitSides sides) {
+  double sum = 0.0;
+  for (const Surfel& x : s) {
+    const double c = glm::dot(x.normal, w);
+    const double front = std::max(0.0, c), back = std::max(0.0, -c);
+    sum += x.Area() * (sides == HitSides::kFront  ? front
+                       : sides == HitSides::kBack ? back
+                                                  : front + back);
+  }
+  return sum;
+}
+
+std::vector<glm::vec3> Directions(int n, uint32_t seed) {
+  std::mt19937 rng(seed);
+  std::normal_distribution<float> g;
+  std::vector<glm::vec3> out;
+  for (int i = 0; i < n; ++i) out.push_back(glm::normalize(glm::vec3(g(rng), g(rng), g(rng))));
+  return out;
+}
+
+std::vector<Surfel> Patch(const glm::vec3& n, int count, float spread, uint32_t seed,
+                          glm::vec3 radiance = glm::vec3(1.0f)) {
+  std::mt19937 rng(seed);
+  std::normal_distribution<float> g;
+  std::uniform_real_distribution<float> r(0.01f, 0.05f);
+  std::vector<Surfel> out;
+  for (int i = 0; i < count; ++i) {
+    Surfel s;
+    s.position = glm::vec3(g(rng), g(rng), g(rng)) * 0.1f;
+    s.normal = glm::normalize(n + spread * glm::vec3(g(rng), g(rng), g(rng)));
+    s.radius = r(rng);
+    s.radiance = radiance;
+    out.push_back(s);
+  }
+  return out;
+}
+
+// A flat cluster is reproduced exactly by the moment model, on both sides, at every angle,
+// where plain SH evaluation is 6.25% high facing it and leaks 9.4% of its area edge-on.
+TEST(ClusterModelTest, FlatClusterIsExact) {
+  const glm::vec3 n = glm::normalize(glm::vec3(0.3f, -0.5f, 0.8f));
+  const std::vector<Surfel> s = Patch(n, 40, 0.0f, 1);
+  const Cluster c = Aggregate(s);
+  for (const glm::vec3& w : Directions(200, 2)) {
+    for (HitSides sides : {HitSides::kFront, HitSides::kBack, HitSides::kBoth}) {
+      EXPECT_NEAR(ProjectedArea(c, w, sides, ClusterModel::kMoments), BruteForce(s, w, sides),
+                  2e-4 * c.area);
+    }
+  }
+  EXPECT_NEAR(ProjectedArea(c, n, HitSides::kFront, ClusterModel::kShEval), 1.0625 * c.area,
+              1e-4 * c.area);
+  const glm::vec3 edge = glm::normalize(glm::cross(n, glm::vec3(1, 0, 0)));
+  EXPECT_NEAR(ProjectedArea(c, edge, HitSides::kFront, ClusterModel::kShEval), 0.09375 * c.area,
+              1e-4 * c.area);
+  EXPECT_NEAR(ProjectedArea(c, edge, HitSides::kFront, ClusterModel::kMoments), 0.0f,
+              1e-5 * c.area);
+}
+
+TEST(ClusterModelTest, TwoSidedSheetAndIsotropicBall) {
+  const glm::vec3 n(0, 0, 1);
+  std::vector<Surfel> sheet = Patch(n, 20, 0.0f, 3);
+  std::vector<Surfel> back = Patch(-n, 20, 0.0f, 4);
+  sheet.insert(sheet.end(), back.begin(), back.end());
+  const Cluster c = Aggregate(sheet);
+  for (const glm::vec3& w : Directions(100, 5)) {
+    EXPECT_NEAR(ProjectedArea(c, w, HitSides::kBoth, ClusterModel::kMoments),
+                BruteForce(sheet, w, HitSides::kBoth), 2e-4 * c.area);
+  }
+  const std::vector<Surfel> ball =
+      testing_raster::SphereSurfels(glm::vec3(0.0f), 0.1f, 2000, false, glm::vec3(1.0f));
+  const Cluster b = Aggregate(ball);
+  for (const glm::vec3& w : Directions(100, 6)) {
+    EXPECT_NEAR(ProjectedArea(b, w, HitSides::kFront, ClusterModel::kMoments), 0.25 * b.area,
+                0.01 * b.area);
+  }
+}
+
+// Curved patches (normals spread around a mean): the moment model stays within a few percent
+// of the cluster's area, and beats plain SH evaluation on average.
+TEST(ClusterModelTest, CurvedPatchesCloseToBruteForce) {
+  double err_moments = 0.0, err_sh = 0.0;
+  int count = 0;
+  for (uint32_t seed = 10; seed < 30; ++seed) {
+    for (float spread : {0.1f, 0.3f, 0.6f}) {
+      const std::vector<Surfel> s = Patch(glm::vec3(0, 1, 0), 30, spread, seed);
+      const Cluster c = Aggregate(s);
+      for (const glm::vec3& w : Directions(50, seed)) {
+        for (HitSides sides : {HitSides::kFront, HitSides::kBoth}) {
+          const double truth = BruteForce(s, w, sides);
+          const double m = ProjectedArea(c, w, sides, ClusterModel::kMoments);
+          const double e = ProjectedArea(c, w, sides, ClusterModel::kShEval);
+          EXPECT_GE(m, 0.0);
+          EXPECT_NEAR(m, truth, 0.08 * c.area);
+          err_moments += std::fabs(m - truth) / c.area;
+          err_sh += std::fabs(e - truth) / c.area;
+          ++count;
+        }
+      }
+    }
+  }
+  EXPECT_LT(err_moments / count, 0.02);
+  EXPECT_LT(err_moments, err_sh);
+}
+
+TEST(ClusterModelTest, UniformRadianceIsExactAtEveryAngle) {
+  const glm::vec3 radiance(0.7f, 0.2f, 3.0f);
+  const std::vector<Surfel> s = Patch(glm::vec3(1, 0, 0), 30, 0.4f, 9, radiance);
+  const Cluster c = Aggregate(s);
+  for (const glm::vec3& w : Directions(200, 11)) {
+    for (HitSides sides : {HitSides::kFront, HitSides::kBack, HitSides::kBoth}) {
+      const glm::vec3 l = ClusterRadiance(c, w, sides);
+      for (int ch = 0; ch < 3; ++ch) EXPECT_NEAR(l[ch], radiance[ch], 1e-4f * radiance[ch]);
+    }
+  }
+  // Two colours facing opposite ways: each side shows its own.
+  std::vector<Surfel> red = Patch(glm::vec3(0, 0, 1), 20, 0.0f, 12, glm::vec3(1, 0, 0));
+  std::vector<Surfel> blue = Patch(glm::vec3(0, 0, -1), 20, 0.0f, 13, glm::vec3(0, 0, 1));
+  red.insert(red.end(), blue.begin(), blue.end());
+  const Cluster two = Aggregate(red);
+  const glm::vec3 up = ClusterRadiance(two, glm::vec3(0, 0, 1), HitSides::kFront);
+  const glm::vec3 down = ClusterRadiance(two, glm::vec3(0, 0, -1), HitSides::kFront);
+  EXPECT_GT(up.x, 5.0f * up.z);
+  EXPECT_GT(down.z, 5.0f * down.x);
+}
+
+}  // namespace
+}  // namespace pbgi

@@ -1,0 +1,147 @@
+// Analytic test scenes for the rasterizer: disks and spheres of surfels, and clusters
+// aggregated from groups of surfels the way the builder does (SH sums in double).
+#ifndef PBGI_TESTS_RASTER_SCENES_H_
+#define PBGI_TESTS_RASTER_SCENES_H_
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <map>
+#include <tuple>
+#include <utility>
+#include <vector>
+
+#include "glm/geometric.hpp"
+#include "glm/mat3x3.hpp"
+#include "glm/vec3.hpp"
+#include "pbgi/sh.h"
+#include "pbgi/surfel.h"
+
+namespace pbgi::testing_raster {
+
+constexpr double kPi = 3.14159265358979323846;
+
+// An orthonormal basis (t, b) perpendicular to unit n.
+inline void Basis(const glm::vec3& n, glm::vec3* t, glm::vec3* b) {
+  const glm::vec3 a = std::fabs(n.x) < 0.9f ? glm::vec3(1, 0, 0) : glm::vec3(0, 1, 0);
+  *t = glm::normalize(glm::cross(a, n));
+  *b = glm::cross(n, *t);
+}
+
+// A disk of radius `radius` centred at `centre` with unit normal `normal`, made of surfels on a
+// square grid of pitch `pitch`; each surfel's area is pitch^2, so the areas sum to the disk's.
+inline std::vector<Surfel> DiskSurfels(const glm::vec3& centre, const glm::vec3& normal,
+                                       float radius, float pitch,
+                                       const glm::vec3& radiance = glm::vec3(0.0f)) {
+  glm::vec3 t, b;
+  Basis(normal, &t, &b);
+  std::vector<Surfel> out;
+  const int n = static_cast<int>(std::ceil(radius / pitch));
+  const float r = pitch / std::sqrt(static_cast<float>(kPi));
+  for (int j = -n; j <= n; ++j) {
+    for (int i = -n; i <= n; ++i) {
+      const float u = (i + 0.5f) * pitch, v = (j + 0.5f) * pitch;
+      if (u * u + v * v > radius * radius) continue;
+      Surfel s;
+      s.position = centre + u * t + v * b;
+      s.normal = normal;
+      s.radius = r;
+      s.radiance = radiance;
+      out.push_back(s);
+    }
+  }
+  return out;
+}
+
+// n surfels on a sphere (Fibonacci lattice), normals inward or outward, areas summing to the
+// sphere's area.
+inline std::vector<Surfel> SphereSurfels(const glm::vec3& centre, float radius, int n, bool inward,
+                                         const glm::vec3& radiance = glm::vec3(0.0f)) {
+  std::vector<Surfel> out;
+  const double golden = kPi * (3.0 - std::sqrt(5.0));
+  const float r = static_cast<float>(2.0 * radius / std::sqrt(static_cast<double>(n)));
+  for (int i = 0; i < n; ++i) {
+    const double z = 1.0 - (2.0 * i + 1.0) / n;
+    const double rho = std::sqrt(std::max(0.0, 1.0 - z * z));
+    const double phi = golden * i;
+    const glm::vec3 dir(static_cast<float>(rho * std::cos(phi)),
+                        static_cast<float>(rho * std::sin(phi)), static_cast<float>(z));
+    Surfel s;
+    s.position = centre + radius * dir;
+    s.normal = inward ? -dir : dir;
+    s.radius = r;  // pi r^2 = 4 pi R^2 / n
+    s.radiance = radiance;
+    out.push_back(s);
+  }
+  return out;
+}
+
+// One cluster standing for `surfels`, as the builder aggregates it.
+inline Cluster Aggregate(const std::vector<Surfel>& surfels) {
+  Cluster c;
+  std::array<double, 9> area{};
+  std::array<std::array<double, 9>, 3> power{};
+  double total = 0.0;
+  for (const Surfel& s : surfels) {
+    const double a = s.Area();
+    total += a;
+    c.bounds.Extend(s.position);
+    const auto y = sh::ProjectClampedCosine<double>(s.normal.x, s.normal.y, s.normal.z, a);
+    for (int i = 0; i < 9; ++i) {
+      area[i] += y[i];
+      for (int ch = 0; ch < 3; ++ch) power[ch][i] += y[i] * s.radiance[ch];
+    }
+  }
+  c.area = static_cast<float>(total);
+  for (int i = 0; i < 9; ++i) {
+    c.sh_area[i] = static_cast<float>(area[i]);
+    for (int ch = 0; ch < 3; ++ch) c.sh_power[ch][i] = static_cast<float>(power[ch][i]);
+  }
+  c.point_count = surfels.size();
+  return c;
+}
+
+// Groups surfels into cubic cells of edge `cell` and aggregates each group into a cluster.
+inline std::vector<Cluster> Clusters(const std::vector<Surfel>& surfels, float cell) {
+  std::map<std::tuple<int, int, int>, std::vector<Surfel>> groups;
+  for (const Surfel& s : surfels) {
+    const glm::vec3 q = glm::floor(s.position / cell);
+    groups[{static_cast<int>(q.x), static_cast<int>(q.y), static_cast<int>(q.z)}].push_back(s);
+  }
+  std::vector<Cluster> out;
+  for (const auto& [key, group] : groups) out.push_back(Aggregate(group));
+  return out;
+}
+
+// Applies p -> rot * (scale * p) + shift to a surfel (position, normal, radius).
+inline Surfel Transform(const Surfel& s, const glm::mat3& rot, float scale,
+                        const glm::vec3& shift) {
+  Surfel o = s;
+  o.position = rot * (scale * s.position) + shift;
+  o.normal = glm::normalize(rot * s.normal);
+  o.radius = s.radius * scale;
+  return o;
+}
+
+inline std::vector<Surfel> Transform(const std::vector<Surfel>& in, const glm::mat3& rot,
+                                     float scale, const glm::vec3& shift) {
+  std::vector<Surfel> out;
+  out.reserve(in.size());
+  for (const Surfel& s : in) out.push_back(Transform(s, rot, scale, shift));
+  return out;
+}
+
+// Rotation by `angle` about unit `axis` (Rodrigues).
+inline glm::mat3 Rotation(const glm::vec3& axis_in, float angle) {
+  const glm::vec3 a = glm::normalize(axis_in);
+  const float c = std::cos(angle), s = std::sin(angle), t = 1.0f - c;
+  glm::mat3 m;
+  m[0] = glm::vec3(t * a.x * a.x + c, t * a.x * a.y + s * a.z, t * a.x * a.z - s * a.y);
+  m[1] = glm::vec3(t * a.x * a.y - s * a.z, t * a.y * a.y + c, t * a.y * a.z + s * a.x);
+  m[2] = glm::vec3(t * a.x * a.z + s * a.y, t * a.y * a.z - s * a.x, t * a.z * a.z + c);
+  return m;
+}
+
+}  // namespace pbgi::testing_raster
+
+#endif  // PBGI_TESTS_RASTER_SCENES_H_

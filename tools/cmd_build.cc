@@ -1,0 +1,193 @@
+// `pbgi build IN.ply -o DB`: the out-of-core octree builder from a terminal (pbgi/build.h).
+#include <algorithm>
+#include <atomic>
+#include <chrono>
+#include <csignal>
+#include <cstdio>
+#include <fstream>
+#include <memory>
+#include <string>
+
+#include "absl/strings/str_format.h"
+#include "pbgi/build.h"
+#include "pbgi/ply.h"
+#include "pbgi/status.h"
+#include "tools/command.h"
+
+namespace pbgi::tools {
+namespace {
+
+std::atomic<bool> g_interrupted{false};
+
+extern "C" void OnInterrupt(int) { g_interrupted.store(true); }
+
+struct Args {
+  std::string input;
+  std::string output;
+  std::string memory = "1G";
+  uint32_t leaf_size = 16;
+  std::string page_size;
+  std::string channels = "radiance";
+  std::string layout = "coherent";
+  std::string tmp_dir;
+  bool skip_invalid = false;
+  std::string stats_json;
+};
+
+// Throttled progress: redraws one line on a terminal, prints a line per second otherwise.
+class Progress {
+ public:
+  explicit Progress(bool tty) : tty_(tty), start_(std::chrono::steady_clock::now()) {}
+  void operator()(const BuildProgress& p) {
+    const auto now = std::chrono::steady_clock::now();
+    const double since = std::chrono::duration<double>(now - last_).count();
+    if (since < (tty_ ? 0.1 : 1.0) && std::string(p.pass) == last_pass_) return;
+    last_ = now;
+    last_pass_ = p.pass;
+    const double t = std::chrono::duration<double>(now - start_).count();
+    std::string line =
+        p.points_total > 0
+            ? absl::StrFormat("[%7.1fs] %-13s %12d / %d points (%.0f%%)", t, p.pass, p.points_done,
+                              p.points_total,
+                              100.0 * double(p.points_done) / double(p.points_total))
+            : absl::StrFormat("[%7.1fs] %-13s %12d points", t, p.pass, p.points_done);
+    std::fprintf(stderr, tty_ ? "\r%s\033[K" : "%s\n", line.c_str());
+    drew_ = true;
+  }
+  void Done() {
+    if (tty_ && drew_) std::fprintf(stderr, "\n");
+  }
+
+ private:
+  bool tty_;
+  bool drew_ = false;
+  std::chrono::steady_clock::time_point start_, last_{};
+  std::string last_pass_;
+};
+
+std::string StatsJson(const BuildStats& s, const Args& a, const BuildOptions& o) {
+  const double pps = s.seconds_total > 0 ? double(s.points) / s.seconds_total : 0;
+  return absl::StrFormat(
+      "{\n  \"input\": \"%s\",\n  \"output\": \"%s\",\n  \"layout\": \"%s\",\n"
+      "  \"channels\": \"%s\",\n  \"memory_bytes\": %d,\n  \"leaf_size\": %d,\n"
+      "  \"page_size\": %d,\n  \"points\": %d,\n  \"skipped\": %d,\n  \"nodes\": %d,\n"
+      "  \"leaves\": %d,\n  \"node_pages\": %d,\n  \"point_pages\": %d,\n  \"max_depth\": %d,\n"
+      "  \"max_leaf_points\": %d,\n  \"node_page_fill\": %.4f,\n  \"bytes_on_disk\": %d,\n"
+      "  \"bytes_per_point\": %.2f,\n  \"seconds_bounds\": %.3f,\n  \"seconds_sort\": %.3f,\n"
+      "  \"seconds_merge\": %.3f,\n  \"seconds_finish\": %.3f,\n  \"seconds_total\": %.3f,\n"
+      "  \"points_per_second\": %.0f,\n  \"runs_spilled\": %d,\n  \"merge_passes\": %d,\n"
+      "  \"run_capacity\": %d,\n  \"spill_bytes\": %d,\n  \"peak_rss_bytes\": %d\n}\n",
+      a.input, a.output, LayoutName(o.layout), a.channels, o.memory_bytes, o.leaf_size, o.page_size,
+      s.points, s.skipped, s.nodes, s.leaves, s.node_pages, s.point_pages, s.max_depth,
+      s.max_leaf_points, s.node_page_fill, s.bytes_on_disk,
+      s.points ? double(s.bytes_on_disk) / double(s.points) : 0.0, s.seconds_bounds, s.seconds_sort,
+      s.seconds_merge, s.seconds_finish, s.seconds_total, pps, s.runs_spilled, s.merge_passes,
+      s.run_capacity, s.spill_bytes, s.peak_rss_bytes);
+}
+
+absl::Status Run(const Args& a) {
+  BuildOptions o;
+  PBGI_ASSIGN_OR_RETURN(o.memory_bytes, ParseBytes(a.memory));
+  o.leaf_size = a.leaf_size;
+  if (!a.page_size.empty()) {
+    PBGI_ASSIGN_OR_RETURN(uint64_t ps, ParseBytes(a.page_size));
+    if (ps > (uint64_t{1} << 30)) return absl::InvalidArgumentError("--page-size is too large");
+    o.page_size = static_cast<uint32_t>(ps);
+  }
+  if (a.channels == "radiance") {
+    o.channels = Channels::kRadiance;
+  } else if (a.channels == "occlusion") {
+    o.channels = Channels::kOcclusion;
+  } else {
+    return absl::InvalidArgumentError(
+        absl::StrFormat("--channels must be occlusion or radiance, not '%s'", a.channels));
+  }
+  PBGI_ASSIGN_OR_RETURN(o.layout, ParseLayout(a.layout));
+  o.tmp_dir = a.tmp_dir;
+  o.skip_invalid = a.skip_invalid;
+  auto progress = std::make_shared<Progress>(StderrIsTerminal());
+  o.progress = [progress](const BuildProgress& p) { (*progress)(p); };
+  o.cancel = &g_interrupted;
+
+  PBGI_ASSIGN_OR_RETURN(std::unique_ptr<SurfelSource> src, OpenPly(a.input));
+  if (o.channels == Channels::kRadiance && !src->HasRadiance()) {
+    std::fprintf(stderr,
+                 "pbgi build: note: %s has no colour properties; radiance will be zero (use "
+                 "--channels occlusion for a smaller database)\n",
+                 a.input.c_str());
+  }
+  auto prev_int = std::signal(SIGINT, OnInterrupt);
+  auto prev_term = std::signal(SIGTERM, OnInterrupt);
+  absl::StatusOr<BuildStats> st = BuildDatabase(*src, a.output, o);
+  std::signal(SIGINT, prev_int);
+  std::signal(SIGTERM, prev_term);
+  progress->Done();
+  if (!st.ok()) return st.status();
+  const BuildStats& s = *st;
+  // The library's own VmHWM reading is taken after Finish; ours includes the PLY reader too.
+  BuildStats shown = s;
+  shown.peak_rss_bytes = std::max(s.peak_rss_bytes, PeakRssBytes());
+  const double pps = s.seconds_total > 0 ? double(s.points) / s.seconds_total : 0;
+  std::printf("built %s from %s (%s layout, %s)\n", a.output.c_str(), a.input.c_str(),
+              LayoutName(o.layout), a.channels.c_str());
+  std::printf("  points      %14llu  (%llu invalid skipped)\n", (unsigned long long)s.points,
+              (unsigned long long)s.skipped);
+  std::printf("  nodes       %14llu  (%llu leaves, depth %u, largest leaf %llu points)\n",
+              (unsigned long long)s.nodes, (unsigned long long)s.leaves, s.max_depth,
+              (unsigned long long)s.max_leaf_points);
+  std::printf("  pages       %14llu node (%.0f%% full) + %llu point, %u bytes each\n",
+              (unsigned long long)s.node_pages, 100.0 * s.node_page_fill,
+              (unsigned long long)s.point_pages, o.page_size);
+  std::printf("  on disk     %14s  (%.1f bytes/point)\n", FormatBytes(s.bytes_on_disk).c_str(),
+              s.points ? double(s.bytes_on_disk) / double(s.points) : 0.0);
+  std::printf("  time        %13.2fs  (bounds %.2f, sort %.2f, merge+octree %.2f, commit %.2f)\n",
+              s.seconds_total, s.seconds_bounds, s.seconds_sort, s.seconds_merge, s.seconds_finish);
+  std::printf("  throughput  %12.2f M points/s\n", pps / 1e6);
+  std::printf("  sort        %14llu runs spilled (%s), %llu extra merge passes\n",
+              (unsigned long long)s.runs_spilled, FormatBytes(s.spill_bytes).c_str(),
+              (unsigned long long)s.merge_passes);
+  std::printf("  peak memory %14s  (budget %s)\n", FormatBytes(shown.peak_rss_bytes).c_str(),
+              FormatBytes(o.memory_bytes).c_str());
+  if (!a.stats_json.empty()) {
+    std::ofstream f(a.stats_json);
+    f << StatsJson(shown, a, o);
+    if (!f) {
+      return absl::InternalError(absl::StrFormat("cannot write %s", a.stats_json));
+    }
+  }
+  return absl::OkStatus();
+}
+
+CommandSetup Setup() {
+  return [](CLI::App* app) -> std::function<absl::Status()> {
+    auto a = std::make_shared<Args>();
+    app->add_option("IN", a->input, "Input PLY point file (binary or ASCII)")->required();
+    app->add_option("-o,--output", a->output, "Database directory to create")->required();
+    app->add_option("--memory", a->memory, "Memory budget (sort, merge, write batch)")
+        ->check(BytesValidator())
+        ->capture_default_str();
+    app->add_option("--leaf-size", a->leaf_size, "Maximum points per leaf")
+        ->check(CLI::Range(1, 65535))
+        ->capture_default_str();
+    app->add_option("--page-size", a->page_size,
+                    "Bytes per page (k*4096-16 is efficient; default 65520)")
+        ->check(BytesValidator());
+    app->add_option("--channels", a->channels, "occlusion or radiance")
+        ->check(CLI::IsMember({"occlusion", "radiance"}))
+        ->capture_default_str();
+    app->add_option("--layout", a->layout, "coherent, postorder, breadth-first or shuffled")
+        ->check(CLI::IsMember({"coherent", "postorder", "breadth-first", "shuffled"}))
+        ->capture_default_str();
+    app->add_option("--tmp", a->tmp_dir,
+                    "Directory for sort runs (default: the database's parent directory)");
+    app->add_flag("--skip-invalid", a->skip_invalid,
+                  "Drop invalid surfels (NaN/Inf, zero normal, radius <= 0) and count them");
+    app->add_option("--stats-json", a->stats_json, "Write the build statistics as JSON");
+    return [a]() { return Run(*a); };
+  };
+}
+
+}  // namespace
+PBGI_REGISTER_COMMAND(build, "build", "Build a database from a PLY point file (out of core)",
+                      Setup());
+}  // namespace pbgi::tools

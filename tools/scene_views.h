@@ -1,0 +1,46 @@
+// Scenes by name or path for the commands, their default cameras, and camera views shaded
+// from a database (the `shade --scene`, `eval` and `demo` commands share these).
+#ifndef PBGI_TOOLS_SCENE_VIEWS_H_
+#define PBGI_TOOLS_SCENE_VIEWS_H_
+
+#include <memory>
+#include <string>
+
+#include "absl/status/statusor.h"
+#include "pbgi/query.h"
+#include "pbgi/scene.h"
+#include "tools/image_io.h"
+#include "tools/shading.h"
+
+namespace pbgi::tools {
+
+// A procedural scene's name (see ProceduralSceneNames()) or a mesh file that Assimp reads.
+absl::StatusOr<std::shared_ptr<const Scene>> LoadScene(const std::string& spec, uint64_t seed,
+                                                       int size);
+
+// A camera that frames the scene: hand-placed for the procedural scenes, from the bounds
+// for anything else.
+Camera DefaultCamera(const Scene& scene, int width, int height);
+
+// "X,Y,Z" -> vector.
+absl::StatusOr<glm::vec3> ParseVec3(const std::string& text);
+
+struct ViewImages {
+  Image occlusion;  // 1 - occlusion (white = open), grey
+  Image indirect;   // diffuse indirect light: albedo / pi * irradiance
+  Image direct;     // direct light * albedo + emission, from the tracer
+  Image composite;  // direct + indirect, sky where nothing was hit
+  uint64_t receivers = 0;
+  double trace_seconds = 0;
+  ShadeJobStats shade;
+};
+
+// Traces the camera's primary rays with Embree, shades the hit points from `db` and composes the
+// images. With an occlusion-only database, `indirect` is black and `composite` is direct * (1 -
+// occlusion) plus the sky's ambient term.
+absl::StatusOr<ViewImages> RenderView(const Tracer& tracer, Database& db, const Camera& camera,
+                                      const ShadeJobOptions& options);
+
+}  // namespace pbgi::tools
+
+#endif  // PBGI_TOOLS_SCENE_VIEWS_H_
