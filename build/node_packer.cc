@@ -53,13 +53,32 @@ absl::Status NodePacker::WritePage(uint64_t page_no, const std::vector<Group*>& 
 }
 
 absl::Status NodePacker::FlushSet(PendingSet set) {
-  // A treelet goes whole into the page being filled, or starts a new page: small treelets that
-  // close one after the other (neighbours in space) share a page instead of wasting one each.
-  if (seq_records_ + set.records > capacity_) PBGI_RETURN_IF_ERROR(FlushSequential());
+  // A treelet goes whole into the page being filled when it fits, so treelets that close one
+  // after the other (neighbours in Z-order) share a page. When it does not fit and that page is
+  // nearly full, it starts a new page; otherwise it is split at sibling-group boundaries, in
+  // pre-order, onto the next page, which bounds the waste per page to a quarter.
+  const uint32_t room = capacity_ - seq_records_;
+  if (set.records > room && room < capacity_ / 4) PBGI_RETURN_IF_ERROR(FlushSequential());
+  struct ClosedPage {
+    uint64_t page_no;
+    std::vector<Group*> groups;
+    std::vector<std::unique_ptr<Group>> owned;
+  };
+  std::vector<ClosedPage> closed;
   for (auto& g : set.groups) {
+    if (seq_records_ + g->nodes.size() > capacity_) {
+      // Written below, once every group of the set is placed: only then are the children of
+      // its records sure to have refs.
+      closed.push_back({next_page_, std::move(seq_groups_), std::move(seq_owned_)});
+      seq_groups_.clear();
+      seq_owned_.clear();
+      seq_records_ = 0;
+      ++next_page_;
+    }
     PBGI_RETURN_IF_ERROR(AppendSequential(g.get()));
     seq_owned_.push_back(std::move(g));
   }
+  for (const ClosedPage& c : closed) PBGI_RETURN_IF_ERROR(WritePage(c.page_no, c.groups));
   return absl::OkStatus();
 }
 

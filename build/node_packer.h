@@ -7,10 +7,11 @@
 // closes, its children's groups become a new group and its children's pending sets merge into
 // the node's; while the merged set exceeds a page, the largest child set is flushed as a page of
 // its own. A flushed set (a treelet: a group and as many levels below it as fit, in pre-order)
-// goes whole into the page being filled, or starts the next one, so treelets that close one
-// after the other (neighbours in Z-order) share a page. Page numbers are assigned at flush,
-// children pages precede their parents', and at most (depth x 8) pending sets plus one page are
-// held in memory.
+// goes whole into the page being filled when it fits, so treelets that close one after the other
+// (neighbours in Z-order) share a page; otherwise it starts a new page (when less than a quarter
+// of the current one is free) or continues onto the next page at a sibling-group boundary.
+// Page numbers are assigned as pages fill; a page is written once every record in it knows its
+// children's ref. At most (depth x 8) pending sets plus one page are held in memory.
 //
 // Not thread-safe.
 #ifndef PBGI_BUILD_NODE_PACKER_H_

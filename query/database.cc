@@ -228,6 +228,14 @@ absl::Status Reader::Impl::Gather(const Receiver& receiver, const Cut& cut, Gath
   ++q.queries;
   if (meta.point_count == 0 || meta.root == internal::kNoNodeRef) return absl::OkStatus();
   const glm::vec3 p = receiver.position;
+  const float nlen = glm::length(receiver.normal);
+  if (!(nlen > 0.0f) || !std::isfinite(nlen) || !std::isfinite(p.x) || !std::isfinite(p.y) ||
+      !std::isfinite(p.z)) {
+    return absl::InvalidArgumentError(absl::StrFormat(
+        "Gather: receiver at (%g, %g, %g) with normal (%g, %g, %g): the position must be finite "
+        "and the normal finite and not zero",
+        p.x, p.y, p.z, receiver.normal.x, receiver.normal.y, receiver.normal.z));
+  }
   const glm::vec3 n = glm::normalize(receiver.normal);
   const float max_sa = cut.max_solid_angle;
   const float max_d = cut.max_distance;

@@ -194,6 +194,7 @@ void Rasterizer::SplatCone(const PreparedSplat& s) {
   // A cone of solid angle omega has chord radius sqrt(omega / pi) (2 - 2 cos = omega / pi).
   const float chord = std::sqrt(s.omega / static_cast<float>(sh::kPi));
   const float reach = chord + 0.5f / kRampSlope * max_width_;
+  const float reach2 = reach * reach;
   auto& frags = mb_.fragments_;
   frags.clear();
   float sum = 0.0f;
@@ -212,7 +213,11 @@ void Rasterizer::SplatCone(const PreparedSplat& s) {
         const uint32_t p = rbase + static_cast<uint32_t>(col);
         const PixelDir& u = dirs_[p];
         const float dot = u.x * d.x + u.y * d.y + u.z * d.z;
-        const float dist = std::sqrt(std::max(0.0f, 2.0f - 2.0f * dot));
+        // Squared chord first: most pixels of the bounding range lie beyond the ramp's reach
+        // (where coverage would be <= 0), and rejecting them needs no square root.
+        const float dist2 = 2.0f - 2.0f * dot;
+        if (dist2 >= reach2) continue;
+        const float dist = std::sqrt(std::max(0.0f, dist2));
         const float cov = std::min(1.0f, 0.5f + kRampSlope * (chord - dist) * u.inv_width);
         if (cov > 0.0f) {
           frags.emplace_back(p, cov);
@@ -313,7 +318,7 @@ void Rasterizer::Integrate(const ShadeReceiver& r, ShadeResult* out) {
   const uint32_t* hp = mb_.hemisphere_.data();
   const float* w = mb_.hemi_weight_.data();
   const float* om = mb_.hemi_omega_.data();
-  for (PixelState& px : mb_.pixels_) Close(px);
+  for (PixelState& px : mb_.pixels_) Close(px, /*behind=*/false);
   double occ = 0.0, cover = 0.0;
   glm::dvec3 e(0.0);
   for (size_t i = 0; i < n; ++i) {

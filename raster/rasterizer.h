@@ -63,7 +63,7 @@ class Rasterizer {
     }
     if (px.closed >= 1.0f) return;
     if (px.open > 0.0f && s.depth - s.extent > px.far) {
-      Close(px);
+      Close(px, /*behind=*/true);
       if (px.closed >= 1.0f) return;
     }
     if (px.open == 0.0f) {
@@ -77,10 +77,15 @@ class Rasterizer {
     }
   }
 
-  static void Close(PixelState& px) {
+  // `behind`: a fragment wholly behind the layer closes it. The first layer keeps its free sum
+  // only when nothing lies behind it (a lone surface whose splats' overlaps and gaps cancel);
+  // with a surface behind, the gaps are filled by that surface, so the overlaps must not count
+  // twice: the layer is clamped at 1 like the later ones (bug: hidden_surface_overcount).
+  static void Close(PixelState& px, bool behind) {
     if (!(px.open > 0.0f)) return;
-    const float e =
-        px.closed == 0.0f ? px.open : std::min(px.open, std::max(0.0f, 1.0f - px.closed));
+    const float e = px.closed == 0.0f && !behind
+                        ? px.open
+                        : std::min(px.open, std::max(0.0f, 1.0f - px.closed));
     const float scale = e / px.open;
     px.closed += e;
     for (int ch = 0; ch < 3; ++ch) {

@@ -1,11 +1,15 @@
 #include "store/lmdb_status.h"
 
 #include <lmdb.h>
+#include <sys/resource.h>
+#include <sys/stat.h>
+#include <sys/statvfs.h>
 
 #include <cerrno>
 #include <string>
 
 #include "absl/strings/str_cat.h"
+#include "absl/strings/str_format.h"
 
 namespace pbgi::internal {
 
@@ -63,6 +67,32 @@ absl::Status LmdbStatus(int rc, absl::string_view context) {
     default:
       return absl::InternalError(msg(absl::StrCat("unexpected LMDB error ", rc)));
   }
+}
+
+absl::Status LmdbWriteStatus(int rc, absl::string_view context, const std::string& file) {
+  if (rc == EIO) {
+    struct statvfs fs;
+    if (statvfs(file.c_str(), &fs) == 0) {
+      const uint64_t free_bytes = static_cast<uint64_t>(fs.f_bavail) * fs.f_frsize;
+      if (free_bytes < (uint64_t{16} << 20)) {
+        return absl::ResourceExhaustedError(absl::StrFormat(
+            "%s: disk full: a write to %s was cut short and only %d bytes are free on its file "
+            "system",
+            context, file, free_bytes));
+      }
+    }
+    struct rlimit lim;
+    struct stat st;
+    if (getrlimit(RLIMIT_FSIZE, &lim) == 0 && lim.rlim_cur != RLIM_INFINITY &&
+        stat(file.c_str(), &st) == 0 &&
+        static_cast<uint64_t>(st.st_size) + 4096 > static_cast<uint64_t>(lim.rlim_cur)) {
+      return absl::ResourceExhaustedError(absl::StrFormat(
+          "%s: file too large: %s reached the process's file size limit (RLIMIT_FSIZE, %d "
+          "bytes)",
+          context, file, static_cast<uint64_t>(lim.rlim_cur)));
+    }
+  }
+  return LmdbStatus(rc, context);
 }
 
 }  // namespace pbgi::internal

@@ -3,6 +3,8 @@
 #ifndef PBGI_STORE_LMDB_STATUS_H_
 #define PBGI_STORE_LMDB_STATUS_H_
 
+#include <string>
+
 #include "absl/status/status.h"
 #include "absl/strings/string_view.h"
 
@@ -17,6 +19,12 @@ namespace pbgi::internal {
 //   FailedPrecondition MDB_KEYEXIST                                        -> AlreadyExists
 //   anything else                                       -> Internal
 absl::Status LmdbStatus(int rc, absl::string_view context);
+
+// The same, for a write to the LMDB file `file`. LMDB reports a short write as EIO, and a full
+// disk usually shows up as one (the last write is partial before the next fails with ENOSPC), so
+// EIO is examined further: little space left on the file's file system -> ResourceExhausted
+// "disk full"; the file at the process's file size limit (RLIMIT_FSIZE) -> ResourceExhausted.
+absl::Status LmdbWriteStatus(int rc, absl::string_view context, const std::string& file);
 
 }  // namespace pbgi::internal
 

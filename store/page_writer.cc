@@ -151,7 +151,8 @@ struct PageWriter::Impl {
     txn = nullptr;
     pending.clear();
     batch_bytes = 0;
-    return LmdbStatus(rc, absl::StrCat(Where(), ": committing a batch of pages"));
+    return internal::LmdbWriteStatus(rc, absl::StrCat(Where(), ": committing a batch of pages"),
+                                     tmp_path);
   }
 
   absl::Status PutMeta(const std::string& record) {
@@ -163,9 +164,13 @@ struct PageWriter::Impl {
       if (rc == MDB_SUCCESS) {
         rc = mdb_txn_commit(txn);
         txn = nullptr;
-        if (rc != MDB_MAP_FULL) return LmdbStatus(rc, absl::StrCat(Where(), ": meta record"));
+        if (rc != MDB_MAP_FULL) {
+          return internal::LmdbWriteStatus(rc, absl::StrCat(Where(), ": meta record"), tmp_path);
+        }
       }
-      if (rc != MDB_MAP_FULL) return LmdbStatus(rc, absl::StrCat(Where(), ": meta record"));
+      if (rc != MDB_MAP_FULL) {
+        return internal::LmdbWriteStatus(rc, absl::StrCat(Where(), ": meta record"), tmp_path);
+      }
       PBGI_RETURN_IF_ERROR(GrowAndReplay());  // nothing pending: grows the map only
       mdb_txn_abort(txn);
       txn = nullptr;
@@ -348,11 +353,13 @@ absl::Status PageWriter::Finish(const StoreMeta& meta) {
   // The pages must be on disk before the record that makes them visible.
   const bool sync = w.options.sync;
   if (s.ok() && sync) {
-    s = LmdbStatus(mdb_env_sync(w.env, 1), absl::StrCat(w.Where(), ": syncing pages"));
+    s = internal::LmdbWriteStatus(mdb_env_sync(w.env, 1),
+                                  absl::StrCat(w.Where(), ": syncing pages"), w.tmp_path);
   }
   if (s.ok()) s = w.PutMeta(internal::EncodeMeta(m, /*complete=*/true));
   if (s.ok() && sync) {
-    s = LmdbStatus(mdb_env_sync(w.env, 1), absl::StrCat(w.Where(), ": syncing meta"));
+    s = internal::LmdbWriteStatus(mdb_env_sync(w.env, 1), absl::StrCat(w.Where(), ": syncing meta"),
+                                  w.tmp_path);
   }
   if (!s.ok()) return w.Fail(s);
   mdb_env_close(w.env);

@@ -122,7 +122,14 @@ absl::Status Run(const Args& a) {
   std::signal(SIGINT, prev_int);
   std::signal(SIGTERM, prev_term);
   progress->Done();
-  if (!st.ok()) return st.status();
+  if (!st.ok()) {
+    // Name the input file unless the message already does (PLY reader errors do).
+    if (st.status().message().find(a.input) == absl::string_view::npos) {
+      return absl::Status(st.status().code(),
+                          absl::StrFormat("%s: %s", a.input, st.status().message()));
+    }
+    return st.status();
+  }
   const BuildStats& s = *st;
   // The library's own VmHWM reading is taken after Finish; ours includes the PLY reader too.
   BuildStats shown = s;

@@ -7,6 +7,7 @@
 // Default sizes: 1M and 4M points; memory default: a quarter of the cloud's sort records, so
 // the sort spills. Counters: points/s, seconds per pass, peak RSS (VmHWM, reset per run),
 // bytes/point, runs spilled.
+#include <malloc.h>
 #include <unistd.h>
 
 #include <algorithm>
@@ -90,9 +91,23 @@ class GeneratedSource final : public SurfelSource {
   uint64_t i_ = 0;
 };
 
-void ResetPeakRss() {
+uint64_t CurrentRss() {
+  std::ifstream in("/proc/self/status");
+  std::string line;
+  while (std::getline(in, line)) {
+    if (line.rfind("VmRSS:", 0) == 0) return std::strtoull(line.c_str() + 6, nullptr, 10) * 1024;
+  }
+  return 0;
+}
+
+// Returns freed heap to the system (earlier benchmarks in this process) and restarts VmHWM at
+// the current RSS, which it returns.
+uint64_t ResetPeakRss() {
+  malloc_trim(0);
   std::ofstream f("/proc/self/clear_refs");
   f << "5";
+  f.close();
+  return CurrentRss();
 }
 
 std::string TmpDir() {
@@ -114,8 +129,9 @@ void BM_BuildOutOfCore(benchmark::State& state) {
   o.memory_bytes = MemoryFor(n);
   o.tmp_dir = dir;
   BuildStats st;
+  uint64_t before = 0;
   for (auto _ : state) {
-    ResetPeakRss();
+    before = ResetPeakRss();
     GeneratedSource src(n);
     auto r = BuildDatabase(src, dir + "/db", o);
     if (!r.ok()) {
@@ -132,6 +148,7 @@ void BM_BuildOutOfCore(benchmark::State& state) {
   state.counters["runs"] = double(st.runs_spilled);
   state.counters["budget_MiB"] = double(o.memory_bytes) / (1 << 20);
   state.counters["peak_rss_MiB"] = double(st.peak_rss_bytes) / (1 << 20);
+  state.counters["rss_before_MiB"] = double(before) / (1 << 20);
   state.counters["bytes_per_point"] = double(st.bytes_on_disk) / double(n);
   state.counters["node_fill"] = st.node_page_fill;
   std::filesystem::remove_all(dir);

@@ -43,6 +43,8 @@
 // - A pinned page costs its decoded size (about the page size) and cannot be evicted. When a
 //   Reader is made, the others shrink to their new share at their next miss, not at once.
 //   A budget smaller than a few pages still answers correctly, but thrashes.
+// - Besides the budget, each Reader owns fixed tables for its LRU (up to 16384 slots, about
+//   1.2 MB) and a 256-entry traversal stack.
 // - A corrupt page is reported as an error naming the store, the section and the page number;
 //   the gather stops there and `out` holds a partial result that must not be used.
 #ifndef PBGI_QUERY_H_
@@ -265,7 +267,8 @@ class Reader {
   Reader& operator=(const Reader&) = delete;
 
   // Gathers the cut for one receiver into `out` (cleared first; its capacity is reused).
-  // Adds its costs to `stats` when not null.
+  // Adds its costs to `stats` when not null. InvalidArgument for a non-finite position or a
+  // zero or non-finite normal.
   absl::Status Gather(const Receiver& receiver, const Cut& cut, Gathered* out,
                       QueryStats* stats = nullptr);
 

@@ -178,15 +178,15 @@ class PageStore {
 };
 
 // Writes a new store. One thread. Pages of each section must be appended with increasing page
-// numbers. The store is invisible to Open() until Finish() succeeds; a writer destroyed without
-// Finish() leaves a store that Open() refuses as incomplete.
+// numbers. The store is invisible to Open() until Finish() succeeds; a writer that is destroyed
+// or killed before Finish() never leaves a store that opens with missing pages.
 //
 // On disk: the writer builds `path`/data.mdb.tmp and Finish() renames it to `path`/data.mdb, so a
 // build that dies (even by SIGKILL) leaves the previous complete store, if there was one, intact;
 // without one, Open() reports the leftover data.mdb.tmp as an incomplete build. A writer
-// destroyed without Finish() removes its data.mdb.tmp. Finish() records the writer's page size and the
-// page counts that were actually written in the meta record (nonzero node_pages / point_pages
-// that disagree with them are an InvalidArgument error).
+// destroyed without Finish() removes its data.mdb.tmp. Finish() records the writer's page size
+// and the page counts that were actually written in the meta record (nonzero node_pages /
+// point_pages that disagree with them are an InvalidArgument error).
 //
 // Errors: a map that cannot grow past StoreOptions::max_map_size, a full disk or a file size
 // limit are ResourceExhausted; after any error the writer refuses further Append() calls.

@@ -2,11 +2,13 @@
 // independent brute-force octree (std::stable_sort + recursion), for every layout and both
 // channel sets, spilled and not; edge cases; SH of one disk against numerical integration.
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 #include <cstring>
 #include <memory>
 #include <numeric>
 #include <set>
+#include <string>
 #include <vector>
 
 #include "build/builder.h"
@@ -392,6 +394,41 @@ TEST(BuildEdgeTest, VerifyCatchesACorruptedAggregate) {
   absl::Status st = VerifyTreePages(b->meta, bad);
   ASSERT_FALSE(st.ok());
   EXPECT_NE(st.message().find("SH coefficient 4"), std::string::npos) << st;
+}
+
+TEST(BuildEdgeTest, CancelAndBadOptionsAreErrors) {
+  ScratchDir dir("cancel");
+  auto cloud = UniformCloud(1000, 61);
+  std::atomic<bool> cancel{true};
+  BuildOptions o;
+  o.cancel = &cancel;
+  auto c = BuildMem(cloud, o, dir.path());
+  ASSERT_FALSE(c.ok());
+  EXPECT_EQ(c.status().code(), absl::StatusCode::kCancelled);
+
+  BuildOptions small;
+  small.page_size = 1024;  // cannot hold a sibling group of 8 radiance records
+  auto p = BuildMem(cloud, small, dir.path());
+  ASSERT_FALSE(p.ok());
+  EXPECT_NE(p.status().message().find("page size 1024"), std::string::npos) << p.status();
+
+  BuildOptions zero;
+  zero.leaf_size = 0;
+  EXPECT_FALSE(BuildMem(cloud, zero, dir.path()).ok());
+}
+
+TEST(BuildEdgeTest, ProgressIsReportedForEveryPass) {
+  ScratchDir dir("progress");
+  auto cloud = UniformCloud(300000, 62);
+  std::set<std::string> passes;
+  BuildOptions o;
+  o.progress = [&](const BuildProgress& p) {
+    passes.insert(p.pass);
+    EXPECT_LE(p.points_done, 300000u);
+  };
+  auto b = BuildMem(cloud, o, dir.path());
+  ASSERT_TRUE(b.ok()) << b.status();
+  EXPECT_EQ(passes, (std::set<std::string>{"bounds", "sort", "merge+octree"}));
 }
 
 // c_i = integral over the sphere of A max(0, n.w) Y_i(w), by the midpoint rule.

@@ -1,5 +1,5 @@
 # cmake -P script behind the install_consumer test. Inputs: PBGI_BUILD_DIR, CONSUMER_SOURCE_DIR,
-# WORK_DIR, GENERATOR, CXX_COMPILER.
+# WORK_DIR, GENERATOR, CXX_COMPILER, and SAN_FLAGS (empty unless a sanitizer build).
 foreach(var PBGI_BUILD_DIR CONSUMER_SOURCE_DIR WORK_DIR GENERATOR CXX_COMPILER)
   if(NOT DEFINED ${var})
     message(FATAL_ERROR "run_install_test.cmake: ${var} is not set")
@@ -21,9 +21,13 @@ step("cmake --install" ${CMAKE_COMMAND} --install "${PBGI_BUILD_DIR}" --prefix "
 if(NOT EXISTS "${WORK_DIR}/prefix/include/pbgi/store.h")
   message(FATAL_ERROR "install_consumer: the public headers were not installed")
 endif()
+set(san_args "")
+if(SAN_FLAGS)
+  set(san_args "-DCMAKE_CXX_FLAGS=${SAN_FLAGS}" "-DCMAKE_EXE_LINKER_FLAGS=${SAN_FLAGS}")
+endif()
 step("configure consumer" ${CMAKE_COMMAND} -S "${CONSUMER_SOURCE_DIR}" -B "${WORK_DIR}/build"
      -G "${GENERATOR}" -DCMAKE_BUILD_TYPE=Release "-DCMAKE_CXX_COMPILER=${CXX_COMPILER}"
-     "-DCMAKE_PREFIX_PATH=${WORK_DIR}/prefix")
+     "-DCMAKE_PREFIX_PATH=${WORK_DIR}/prefix" ${san_args})
 step("build consumer" ${CMAKE_COMMAND} --build "${WORK_DIR}/build")
 step("run consumer" "${WORK_DIR}/build/pbgi_consumer" "${WORK_DIR}/db")
 if(NOT step_output MATCHES "consumer: ok")

@@ -98,7 +98,14 @@ INSTANTIATE_TEST_SUITE_P(
                                Channels::kRadiance},
                       DbConfig{Layout::kBreadthFirst, 2, EfficientPageSize(2), Channels::kRadiance},
                       DbConfig{Layout::kShuffled, 16, EfficientPageSize(1), Channels::kRadiance},
-                      DbConfig{Layout::kShuffled, 32, EfficientPageSize(2), Channels::kOcclusion}));
+                      DbConfig{Layout::kShuffled, 32, EfficientPageSize(2), Channels::kOcclusion}),
+    [](const ::testing::TestParamInfo<DbConfig>& info) {
+      std::string layout = LayoutName(info.param.layout);
+      layout.erase(std::remove(layout.begin(), layout.end(), '-'), layout.end());
+      return absl::StrFormat("%s_leaf%d_page%d_%s", layout, info.param.leaf_size,
+                             info.param.page_size,
+                             HasRadiance(info.param.channels) ? "radiance" : "occlusion");
+    });
 
 TEST(GatherDb, TinyCacheAndEightThreadsMatchOneThread) {
   BuildOptions b;

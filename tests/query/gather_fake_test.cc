@@ -4,8 +4,10 @@
 #include <atomic>
 #include <cstdlib>
 #include <cstring>
+#include <limits>
 #include <new>
 #include <set>
+#include <string>
 #include <thread>
 #include <tuple>
 #include <vector>
@@ -113,7 +115,12 @@ INSTANTIATE_TEST_SUITE_P(LeafAndPageSizes, GatherFakeTest,
                                            Config{8, 4096 - 16, Channels::kRadiance},
                                            Config{16, 2 * 4096 - 16, Channels::kOcclusion},
                                            Config{32, 1024, Channels::kOcclusion},
-                                           Config{4, 600, Channels::kRadiance}));
+                                           Config{4, 600, Channels::kRadiance}),
+                         [](const ::testing::TestParamInfo<Config>& info) {
+                           return "leaf" + std::to_string(info.param.leaf_size) + "_page" +
+                                  std::to_string(info.param.page_size) +
+                                  (HasRadiance(info.param.channels) ? "_radiance" : "_occlusion");
+                         });
 
 TEST(GatherFake, FarReceiverGathersFewClustersNearOneDescends) {
   std::vector<Surfel> input = testing::RandomSceneSurfels(2000, 3);
@@ -132,6 +139,24 @@ TEST(GatherFake, FarReceiverGathersFewClustersNearOneDescends) {
   // A receiver beyond max_distance of everything: nothing.
   ASSERT_TRUE((*reader)->Gather(far, Cut{0.03f, 5.0f}, &g).ok());
   EXPECT_EQ(g.size(), 0u);
+}
+
+TEST(GatherFake, BadReceiverIsAnError) {
+  FakeDb fake = BuildFakeDb(testing::RandomSceneSurfels(500, 3), {});
+  auto db = Open(fake);
+  auto reader = db->NewReader();
+  Gathered g;
+  EXPECT_EQ((*reader)->Gather({{0.5f, 0.5f, 0.5f}, {0, 0, 0}}, Cut{}, &g).code(),
+            absl::StatusCode::kInvalidArgument);
+  const float nan = std::numeric_limits<float>::quiet_NaN();
+  EXPECT_EQ((*reader)->Gather({{nan, 0.5f, 0.5f}, {0, 0, 1}}, Cut{}, &g).code(),
+            absl::StatusCode::kInvalidArgument);
+  // A normal that is not unit length is normalized.
+  Gathered unit;
+  ASSERT_TRUE((*reader)->Gather({{0.5f, 0.5f, -1.0f}, {0, 0, 5}}, Cut{}, &g).ok());
+  ASSERT_TRUE((*reader)->Gather({{0.5f, 0.5f, -1.0f}, {0, 0, 1}}, Cut{}, &unit).ok());
+  EXPECT_EQ(Digest(g), Digest(unit));
+  EXPECT_GT(g.size(), 0u);
 }
 
 TEST(GatherFake, RadianceClustersCarryPowerOcclusionOnesDoNot) {

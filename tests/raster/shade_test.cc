@@ -464,6 +464,42 @@ TEST(ShadeTest, ClampSaturatesOverlappingLayers) {
   EXPECT_NEAR(MustShade(g, Up(), o, &mb).occlusion, 0.5 + DiskFormFactor(1.0, 2.0), 0.01);
 }
 
+// Regression (hidden_surface_overcount): a nearer layer whose splats add up to more than 1 in a
+// pixel (here: a black disk given twice, as a surface and a coincident hidden copy, like a
+// floor that runs on under a box) kept its full sum even with a surface behind it, so the
+// pixel counted more than once. In `pbgi eval cornell` this over-occluded receivers that see
+// the floor under the blocks. With something behind, the first layer is now clamped at 1 too.
+TEST(ShadeTest, HiddenSurfaceOvercountRegression) {
+  // A black disk (form factor 0.5) twice over, in front of a bright disk of radius 6 at
+  // height 3 (form factor 0.8), which it partly hides: occlusion 0.8, irradiance pi (0.8 - 0.5).
+  const std::vector<Surfel> front = DiskAbove(1.0f, 1.0f, 0.02f, glm::vec3(0.0f));
+  Gathered g;
+  g.surfels = front;
+  g.surfels.insert(g.surfels.end(), front.begin(), front.end());
+  const std::vector<Surfel> back = DiskAbove(3.0f, 6.0f, 0.06f, glm::vec3(1.0f));
+  g.surfels.insert(g.surfels.end(), back.begin(), back.end());
+  MicroBuffer mb;
+  RasterOptions o;
+  const ShadeResult out = MustShade(g, Up(), o, &mb);
+  EXPECT_NEAR(out.occlusion, DiskFormFactor(6.0, 3.0), 0.015);
+  EXPECT_NEAR(out.irradiance.x, kPi * (DiskFormFactor(6.0, 3.0) - 0.5), 0.015 * kPi);
+  // The doubled disk alone, with nothing behind it, still adds up freely (the sum is the
+  // caller's input): occlusion twice its form factor, clamped at 1.
+  Gathered lone;
+  lone.surfels = front;
+  lone.surfels.insert(lone.surfels.end(), front.begin(), front.end());
+  EXPECT_NEAR(MustShade(lone, Up(), o, &mb).occlusion, 1.0, 0.01);
+  // The same with the front disk as clusters (a cut's view of it).
+  Gathered c;
+  const std::vector<Cluster> once = Clusters(front, 0.15f);
+  c.clusters = once;
+  c.clusters.insert(c.clusters.end(), once.begin(), once.end());
+  c.surfels = back;
+  const ShadeResult oc = MustShade(c, Up(), o, &mb);
+  EXPECT_NEAR(oc.occlusion, DiskFormFactor(6.0, 3.0), 0.02);
+  EXPECT_NEAR(oc.irradiance.x, kPi * (DiskFormFactor(6.0, 3.0) - 0.5), 0.03 * kPi);
+}
+
 TEST(ShadeTest, MaxDistanceAndBias) {
   Gathered g;
   g.surfels = DiskAbove(1.0f);

@@ -86,7 +86,7 @@ void KillWriterMidBuild(const std::string& path, int delay_ms) {
       << "the writer ended on its own before it was killed (status " << status << ")";
 }
 
-TEST(CrashTest, KilledFirstBuildLeavesAStoreThatOpenRefusesAsIncomplete) {
+TEST(StoreCrashTest, KilledFirstBuildLeavesAStoreThatOpenRefusesAsIncomplete) {
   ScratchDir dir;
   for (int delay_ms : {0, 3, 20}) {
     SCOPED_TRACE(delay_ms);
@@ -104,7 +104,7 @@ TEST(CrashTest, KilledFirstBuildLeavesAStoreThatOpenRefusesAsIncomplete) {
   }
 }
 
-TEST(CrashTest, KilledRebuildLeavesThePreviousCompleteStore) {
+TEST(StoreCrashTest, KilledRebuildLeavesThePreviousCompleteStore) {
   ScratchDir dir;
   const std::string path = dir.Sub("store");
   constexpr uint64_t kPages = 60;
@@ -151,7 +151,7 @@ std::vector<uint32_t> PageDigests(const PageStore& store, uint64_t seed) {
   return out;
 }
 
-TEST(CrashTest, EightThreadsAndTwoProcessesSeeIdenticalBytes) {
+TEST(StoreCrashTest, EightThreadsAndTwoProcessesSeeIdenticalBytes) {
   ScratchDir dir;
   const std::string path = dir.Sub("store");
   constexpr uint64_t kPages = 400;

@@ -56,7 +56,7 @@ void MakeStore(const std::string& path, const std::string& marker) {
   ASSERT_TRUE((*w)->Finish(m).ok());
 }
 
-TEST(ToolsTest, InfoPrintsTheMetaRecordAsTableAndJson) {
+TEST(StoreToolsTest, InfoPrintsTheMetaRecordAsTableAndJson) {
   ScratchDir dir;
   const std::string path = dir.Sub("db");
   MakeStore(path, "unused-marker");
@@ -79,7 +79,7 @@ TEST(ToolsTest, InfoPrintsTheMetaRecordAsTableAndJson) {
   EXPECT_THAT(missing.output, HasSubstr("does not exist"));
 }
 
-TEST(ToolsTest, VerifyPassesAGoodStoreAndNamesTheDamagedPage) {
+TEST(StoreToolsTest, VerifyPassesAGoodStoreAndNamesTheDamagedPage) {
   ScratchDir dir;
   const std::string path = dir.Sub("db");
   const std::string marker = "[[tools-test-marker-11]]";
