@@ -9,7 +9,7 @@
 
 #include "absl/strings/str_format.h"
 #include "build/external_sort.h"
-#include "build/morton.h"
+#include "store/morton.h"
 #include "build/node_packer.h"
 #include "build/octree_builder.h"
 #include "build/sort_record.h"

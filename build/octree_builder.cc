@@ -5,7 +5,7 @@
 #include <utility>
 
 #include "absl/strings/str_format.h"
-#include "build/morton.h"
+#include "store/morton.h"
 #include "pbgi/sh.h"
 #include "pbgi/status.h"
 

@@ -7,7 +7,7 @@
 
 #include "absl/strings/str_format.h"
 #include "build/builder.h"
-#include "build/morton.h"
+#include "store/morton.h"
 #include "pbgi/sh.h"
 #include "pbgi/status.h"
 #include "store/page_format.h"

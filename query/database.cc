@@ -13,6 +13,7 @@
 #include "query/front_cache.h"
 #include "query/page_cache.h"
 #include "query/page_source.h"
+#include "store/morton.h"
 #include "store/page_format.h"
 
 namespace pbgi {
@@ -431,32 +432,15 @@ absl::Status Reader::ReadPoints(uint64_t first, uint64_t count, std::vector<Surf
 // ---------------------------------------------------------------------------------------------
 // Z-order of receivers
 
-namespace {
-uint64_t Spread21(uint64_t x) {
-  x &= 0x1fffff;
-  x = (x | x << 32) & 0x1f00000000ffffull;
-  x = (x | x << 16) & 0x1f0000ff0000ffull;
-  x = (x | x << 8) & 0x100f00f00f00f00full;
-  x = (x | x << 4) & 0x10c30c30c30c30c3ull;
-  x = (x | x << 2) & 0x1249249249249249ull;
-  return x;
-}
-}  // namespace
-
+// Receivers are sorted by the same Morton key as the points on disk (store/morton.h), inside
+// their own bounds, so consecutive receivers walk neighbouring subtrees.
 std::vector<uint32_t> ZOrder(absl::Span<const Receiver> receivers) {
   Bounds b;
   for (const Receiver& r : receivers) b.Extend(r.position);
-  const glm::vec3 ext = b.Extent();
-  const float size = std::max(ext.x, std::max(ext.y, ext.z));
-  const float scale = size > 0 ? float((1u << 21) - 1) / size : 0.0f;
+  const internal::MortonQuantizer quantizer(b);
   std::vector<std::pair<uint64_t, uint32_t>> keyed(receivers.size());
   for (size_t i = 0; i < receivers.size(); ++i) {
-    const glm::vec3 q = (receivers[i].position - b.lo) * scale;
-    const auto cell = [](float v) {
-      return static_cast<uint64_t>(std::clamp(v, 0.0f, float((1u << 21) - 1)));
-    };
-    keyed[i] = {Spread21(cell(q.x)) << 2 | Spread21(cell(q.y)) << 1 | Spread21(cell(q.z)),
-                static_cast<uint32_t>(i)};
+    keyed[i] = {quantizer.Key(receivers[i].position), static_cast<uint32_t>(i)};
   }
   std::sort(keyed.begin(), keyed.end());
   std::vector<uint32_t> order(receivers.size());

@@ -49,8 +49,9 @@ class Rasterizer {
   // Adds a fragment of coverage `cov` to pixel p. With clamp, fragments arrive front to back:
   // one that overlaps the open layer in depth joins it (the splats of one surface tile it, and
   // their round footprints overlap and leave gaps that cancel only if they add up freely); one
-  // wholly behind closes the layer first. The first layer counts in full, later ones only fill
-  // what is left below 1: nearer surfaces hide farther ones (the depth test).
+  // wholly behind closes the layer first. The first layer counts in full only if nothing lies
+  // behind it; otherwise it, like every later one, only fills what is left below 1: nearer
+  // surfaces hide farther ones (the depth test), see Close().
   void Emit(uint32_t p, float cov, const PreparedSplat& s) {
     PixelState& px = px_[p];
     px.depth = std::min(px.depth, s.depth);

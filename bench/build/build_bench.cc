@@ -23,7 +23,7 @@
 #include "benchmark/benchmark.h"
 #include "build/builder.h"
 #include "build/external_sort.h"
-#include "build/morton.h"
+#include "store/morton.h"
 #include "build/node_packer.h"
 #include "build/octree_builder.h"
 #include "build/sort_record.h"

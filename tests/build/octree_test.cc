@@ -12,7 +12,7 @@
 #include <vector>
 
 #include "build/builder.h"
-#include "build/morton.h"
+#include "store/morton.h"
 #include "build/page_sink.h"
 #include "gtest/gtest.h"
 #include "pbgi/build.h"

@@ -5,7 +5,7 @@
 #include <vector>
 
 #include "build/external_sort.h"
-#include "build/morton.h"
+#include "store/morton.h"
 #include "gtest/gtest.h"
 #include "tests/build/test_clouds.h"
 
