@@ -277,9 +277,8 @@ absl::Status Reader::Impl::Gather(const Receiver& receiver, const Cut& cut, Gath
       ++q.nodes_culled;
       continue;
     }
-    const bool inside = p.x >= node.lo.x && p.y >= node.lo.y && p.z >= node.lo.z &&
-                        p.x <= node.hi.x && p.y <= node.hi.y && p.z <= node.hi.z;
-    if (!inside && NodeSolidAngle(node.lo, node.hi, node.sh_area, p) < max_sa) {
+    if (!NodeNearField(node.lo, node.hi, node.reach, p) &&
+        NodeSolidAngle(node.lo, node.hi, node.sh_area, p) < max_sa) {
       Cluster& c = out->clusters.emplace_back();
       c.bounds.lo = node.lo;
       c.bounds.hi = node.hi;

@@ -89,7 +89,9 @@ absl::Status CheckValidCut(const Gathered& result, absl::Span<const Surfel> surf
     const std::string name = absl::StrFormat("cluster %d (points [%d, +%d), depth %d)", c,
                                              cl.first_point, cl.point_count, cl.depth);
     if (cl.point_count == 0) return fail(name + " is empty");
-    if (cl.bounds.Contains(p)) return fail(name + " contains the receiver (near-field rule)");
+    if (NodeNearField(cl.bounds.lo, cl.bounds.hi, NodeReach(cl.area), p)) {
+      return fail(name + " has the receiver in its near field (near-field rule)");
+    }
     const float sa = ClusterSolidAngle(cl, receiver);
     if (!(sa < cut.max_solid_angle)) {
       return fail(absl::StrFormat("%s subtends %g sr, not below the cut", name, sa));

@@ -213,9 +213,15 @@ absl::Status RunEval(const EvalArgs& a) {
                 r.setting.c_str(), r.seconds_per_receiver * 1e6, r.err.mae, r.err.rmse,
                 r.err.max, r.clusters, r.surfels);
   }
-  std::printf("default (msa 0.03, res 12): MAE %.5f at %.2f us/receiver; the reference needs "
-              "%.1fx the time for the same MAE\n",
-              def.err.mae, def.seconds_per_receiver * 1e6, ratio);
+  if (ratio > 0) {
+    std::printf("default (msa 0.03, res 12): MAE %.5f at %.2f us/receiver; the reference needs "
+                "%.2fx that time for the same MAE\n",
+                def.err.mae, def.seconds_per_receiver * 1e6, ratio);
+  } else {
+    std::printf("default (msa 0.03, res 12): MAE %.5f at %.2f us/receiver; the reference is "
+                "exact here at every ray count (e.g. a closed box), so no ratio\n",
+                def.err.mae, def.seconds_per_receiver * 1e6);
+  }
 
   // JSON and chart.
   const std::string json_path = a.out_dir + "/eval.json";

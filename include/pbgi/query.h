@@ -21,7 +21,9 @@
 //    tangent plane, or wholly farther than max_distance. Node bounds hold surfel centres; a
 //    surfel's disk can reach its radius further, and any surfel radius below a node is at most
 //    sqrt(area / pi) (pi r_i^2 <= sum_j pi r_j^2), so the test never drops a surfel in front.
-// 2. Accept it as a cluster if the receiver is outside its bounds (the near-field rule) and
+// 2. Accept it as a cluster if the receiver is outside its near field (NodeNearField: the
+//    bounding sphere of its bounds, grown by its disk reach; a box alone fails for a flat
+//    patch, whose zero-thickness box a receiver just off the patch is "outside") and
 //    ClusterSolidAngle() < max_solid_angle: the projected-area SH evaluated toward the
 //    receiver from the bounds centre, clamped at 0, over the squared distance to the centre
 //    (RenderMan's `maxsolidangle`, default 0.03).
@@ -122,6 +124,18 @@ inline float ClusterSolidAngle(const Cluster& c, const Receiver& r) {
 // A conservative bound of how far a disk of a node reaches beyond its bounds: sqrt(area / pi).
 inline float NodeReach(float area) {
   return std::sqrt(std::max(0.0f, area) * float(1.0 / sh::kPi));
+}
+
+// The near-field rule: a receiver within the bounding sphere of a node's bounds, grown by its
+// disk reach, always descends into the node rather than taking it as one cluster. (A flat patch
+// seen edge-on from a receiver just off its plane subtends a tiny solid angle from its centre,
+// yet covers half the receiver's view: testing the box alone splatted it as a speck.)
+inline bool NodeNearField(const glm::vec3& lo, const glm::vec3& hi, float reach,
+                          const glm::vec3& p) {
+  const glm::vec3 half = 0.5f * (hi - lo);
+  const float r = glm::length(half) + reach;
+  const glm::vec3 d = p - (lo + half);
+  return glm::dot(d, d) <= r * r;
 }
 
 // Whether a node (bounds of surfel centres, disk reach) lies wholly behind the tangent plane
