@@ -121,7 +121,7 @@ absl::Status RunDemo(const DemoArgs& a) {
               static_cast<unsigned long long>(bs.points), FormatBytes(bs.bytes_on_disk).c_str(),
               bs.points ? double(bs.bytes_on_disk) / double(bs.points) : 0.0);
   std::printf("  build          %.1f s (%.2f M points/s incl. sampling and baking), %llu nodes, "
-              "%llu runs spilled, memory cap %s\n",
+              "%llu runs spilled, build memory cap %s\n",
               build_seconds, double(bs.points) / build_seconds / 1e6,
               static_cast<unsigned long long>(bs.nodes),
               static_cast<unsigned long long>(bs.runs_spilled), FormatBytes(memory).c_str());
