@@ -9,11 +9,11 @@
 
 #include "absl/strings/str_format.h"
 #include "build/external_sort.h"
-#include "store/morton.h"
 #include "build/node_packer.h"
 #include "build/octree_builder.h"
 #include "build/sort_record.h"
 #include "pbgi/status.h"
+#include "store/morton.h"
 #include "store/page_format.h"
 
 namespace pbgi {

@@ -5,9 +5,9 @@
 #include <utility>
 
 #include "absl/strings/str_format.h"
-#include "store/morton.h"
 #include "pbgi/sh.h"
 #include "pbgi/status.h"
+#include "store/morton.h"
 
 namespace pbgi::internal {
 

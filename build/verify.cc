@@ -7,9 +7,9 @@
 
 #include "absl/strings/str_format.h"
 #include "build/builder.h"
-#include "store/morton.h"
 #include "pbgi/sh.h"
 #include "pbgi/status.h"
+#include "store/morton.h"
 #include "store/page_format.h"
 
 namespace pbgi::internal {

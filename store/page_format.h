@@ -41,9 +41,9 @@ struct NodeRecordCommon {
   uint64_t children;     // interior: NodeRef of the first child; leaf: kNoNodeRef
   uint64_t first_point;  // the subtree's points are [first_point, first_point + point_count)
   uint64_t point_count;
-  float area;            // total surfel area
-  uint32_t depth;        // root = 0
-  float sh_area[9];      // projected area SH
+  float area;        // total surfel area
+  uint32_t depth;    // root = 0
+  float sh_area[9];  // projected area SH
   uint32_t pad;
 };
 static_assert(sizeof(NodeRecordCommon) == 104);

@@ -13,7 +13,7 @@ namespace pbgi::tools {
 struct ChartSeries {
   std::string name;
   glm::vec3 color{1.0f};
-  bool connect = false;  // draw lines between consecutive points
+  bool connect = false;      // draw lines between consecutive points
   std::vector<double> x, y;  // both > 0 (log axes)
 };
 

@@ -42,8 +42,7 @@ absl::Status RunDemo(const DemoArgs& a) {
   std::error_code ec;
   std::filesystem::create_directories(a.out_dir, ec);
   if (ec) {
-    return absl::UnavailableError(
-        absl::StrFormat("cannot create %s: %s", a.out_dir, ec.message()));
+    return absl::UnavailableError(absl::StrFormat("cannot create %s: %s", a.out_dir, ec.message()));
   }
   const auto t_all = Clock::now();
   const bool tty = StderrIsTerminal();
@@ -110,8 +109,8 @@ absl::Status RunDemo(const DemoArgs& a) {
               {"composite", &view.composite, 1.0f}};
   for (const Out& o : outs) {
     PBGI_RETURN_IF_ERROR(WriteExr(absl::StrFormat("%s_%s.exr", base, o.name), *o.image));
-    PBGI_RETURN_IF_ERROR(WritePng(absl::StrFormat("%s_%s.png", base, o.name), *o.image,
-                                  o.exposure, std::string(o.name) != "occlusion"));
+    PBGI_RETURN_IF_ERROR(WritePng(absl::StrFormat("%s_%s.png", base, o.name), *o.image, o.exposure,
+                                  std::string(o.name) != "occlusion"));
   }
 
   const CacheStats& cs = view.shade.cache;
@@ -120,27 +119,31 @@ absl::Status RunDemo(const DemoArgs& a) {
   std::printf("  surfels        %llu (%s on disk, %.1f bytes/point)\n",
               static_cast<unsigned long long>(bs.points), FormatBytes(bs.bytes_on_disk).c_str(),
               bs.points ? double(bs.bytes_on_disk) / double(bs.points) : 0.0);
-  std::printf("  build          %.1f s (%.2f M points/s incl. sampling and baking), %llu nodes, "
-              "%llu runs spilled, build memory cap %s\n",
-              build_seconds, double(bs.points) / build_seconds / 1e6,
-              static_cast<unsigned long long>(bs.nodes),
-              static_cast<unsigned long long>(bs.runs_spilled), FormatBytes(memory).c_str());
-  std::printf("  shade          %.1f s: %llu receivers (%dx%d), %.1f us/receiver on %d threads, "
-              "trace %.2f s\n",
-              shade_seconds, static_cast<unsigned long long>(view.receivers), a.width, a.height,
-              view.shade.seconds * 1e6 / double(std::max<uint64_t>(1, view.receivers)),
-              a.threads > 0 ? a.threads : DefaultThreads(), view.trace_seconds);
-  std::printf("  cache          %s cap, reader hits %.2f%%, shared hits %.2f%%, %llu pages read "
-              "(%s)\n",
-              FormatBytes(cache).c_str(),
-              lookups ? 100.0 * double(cs.reader.hits) / double(lookups) : 100.0,
-              100.0 * cs.shared.HitRate(), static_cast<unsigned long long>(cs.shared.pages_read),
-              FormatBytes(cs.shared.bytes_read).c_str());
-  std::printf("  cut            max_solid_angle %.3g, raster %d^2 x 6, %.1f clusters + %.1f "
-              "surfels per receiver\n",
-              a.max_solid_angle, a.raster_res,
-              double(view.shade.query.clusters) / double(std::max<uint64_t>(1, view.receivers)),
-              double(view.shade.query.surfels) / double(std::max<uint64_t>(1, view.receivers)));
+  std::printf(
+      "  build          %.1f s (%.2f M points/s incl. sampling and baking), %llu nodes, "
+      "%llu runs spilled, build memory cap %s\n",
+      build_seconds, double(bs.points) / build_seconds / 1e6,
+      static_cast<unsigned long long>(bs.nodes), static_cast<unsigned long long>(bs.runs_spilled),
+      FormatBytes(memory).c_str());
+  std::printf(
+      "  shade          %.1f s: %llu receivers (%dx%d), %.1f us/receiver on %d threads, "
+      "trace %.2f s\n",
+      shade_seconds, static_cast<unsigned long long>(view.receivers), a.width, a.height,
+      view.shade.seconds * 1e6 / double(std::max<uint64_t>(1, view.receivers)),
+      a.threads > 0 ? a.threads : DefaultThreads(), view.trace_seconds);
+  std::printf(
+      "  cache          %s cap, reader hits %.2f%%, shared hits %.2f%%, %llu pages read "
+      "(%s)\n",
+      FormatBytes(cache).c_str(),
+      lookups ? 100.0 * double(cs.reader.hits) / double(lookups) : 100.0,
+      100.0 * cs.shared.HitRate(), static_cast<unsigned long long>(cs.shared.pages_read),
+      FormatBytes(cs.shared.bytes_read).c_str());
+  std::printf(
+      "  cut            max_solid_angle %.3g, raster %d^2 x 6, %.1f clusters + %.1f "
+      "surfels per receiver\n",
+      a.max_solid_angle, a.raster_res,
+      double(view.shade.query.clusters) / double(std::max<uint64_t>(1, view.receivers)),
+      double(view.shade.query.surfels) / double(std::max<uint64_t>(1, view.receivers)));
   std::printf("  total          %.1f s, peak memory %s\n", Since(t_all),
               FormatBytes(PeakRssBytes()).c_str());
   std::printf("  database       %s\n", db_path.c_str());

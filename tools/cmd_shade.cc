@@ -2,10 +2,10 @@
 // receivers (RenderMan's ptfilter workflow) or for the pixels of a camera view of a scene.
 #include <algorithm>
 #include <cerrno>
-#include <cstring>
-#include <limits>
 #include <chrono>
 #include <cstdio>
+#include <cstring>
+#include <limits>
 #include <memory>
 #include <string>
 #include <vector>
@@ -52,7 +52,7 @@ enum class Mode { kOcclusion, kIrradiance, kGlossy };
 class ResultPlyWriter {
  public:
   static absl::StatusOr<std::unique_ptr<ResultPlyWriter>> Create(const std::string& path,
-                                                                  Mode mode) {
+                                                                 Mode mode) {
     auto w = std::unique_ptr<ResultPlyWriter>(new ResultPlyWriter());
     w->path_ = path;
     w->mode_ = mode;
@@ -83,8 +83,8 @@ class ResultPlyWriter {
     if (file_ != nullptr) std::fclose(file_);
   }
   absl::Status Write(const Surfel& s, const ShadeResult& r) {
-    float v[11] = {s.position.x, s.position.y, s.position.z, s.normal.x, s.normal.y,
-                   s.normal.z,   s.radius,     r.occlusion};
+    float v[11] = {s.position.x, s.position.y, s.position.z, s.normal.x,
+                   s.normal.y,   s.normal.z,   s.radius,     r.occlusion};
     int n = 8;
     if (mode_ != Mode::kOcclusion) {
       const glm::vec3 c = mode_ == Mode::kGlossy ? r.glossy : r.irradiance;
@@ -127,26 +127,27 @@ void PrintSummary(const char* what, uint64_t receivers, const ShadeJobStats& s, 
               static_cast<unsigned long long>(receivers), what, s.seconds,
               double(receivers) / std::max(1e-9, s.seconds),
               s.seconds * 1e6 / double(std::max<uint64_t>(1, receivers)), threads);
-  std::printf("  gather %.1f us, raster %.1f us per receiver (CPU time); %.1f clusters + %.1f "
-              "surfels, %.1f nodes visited per receiver\n",
-              s.gather_seconds * 1e6 / double(std::max<uint64_t>(1, receivers)),
-              s.raster_seconds * 1e6 / double(std::max<uint64_t>(1, receivers)),
-              double(s.query.clusters) / double(std::max<uint64_t>(1, receivers)),
-              double(s.query.surfels) / double(std::max<uint64_t>(1, receivers)),
-              double(s.query.nodes_visited) / double(std::max<uint64_t>(1, receivers)));
-  std::printf("  cache %s: reader hits %.2f%%, shared hits %.2f%%, %llu pages read (%s); peak "
-              "memory %s\n",
-              FormatBytes(cache).c_str(),
-              lookups ? 100.0 * double(cs.reader.hits) / double(lookups) : 100.0,
-              100.0 * cs.shared.HitRate(), static_cast<unsigned long long>(cs.shared.pages_read),
-              FormatBytes(cs.shared.bytes_read).c_str(), FormatBytes(PeakRssBytes()).c_str());
+  std::printf(
+      "  gather %.1f us, raster %.1f us per receiver (CPU time); %.1f clusters + %.1f "
+      "surfels, %.1f nodes visited per receiver\n",
+      s.gather_seconds * 1e6 / double(std::max<uint64_t>(1, receivers)),
+      s.raster_seconds * 1e6 / double(std::max<uint64_t>(1, receivers)),
+      double(s.query.clusters) / double(std::max<uint64_t>(1, receivers)),
+      double(s.query.surfels) / double(std::max<uint64_t>(1, receivers)),
+      double(s.query.nodes_visited) / double(std::max<uint64_t>(1, receivers)));
+  std::printf(
+      "  cache %s: reader hits %.2f%%, shared hits %.2f%%, %llu pages read (%s); peak "
+      "memory %s\n",
+      FormatBytes(cache).c_str(),
+      lookups ? 100.0 * double(cs.reader.hits) / double(lookups) : 100.0,
+      100.0 * cs.shared.HitRate(), static_cast<unsigned long long>(cs.shared.pages_read),
+      FormatBytes(cs.shared.bytes_read).c_str(), FormatBytes(PeakRssBytes()).c_str());
 }
 
 absl::Status ShadePoints(const ShadeArgs& a, Database& db, const ShadeJobOptions& so, Mode mode,
                          uint64_t cache) {
   PBGI_ASSIGN_OR_RETURN(std::unique_ptr<SurfelSource> in, OpenPly(a.receivers));
-  PBGI_ASSIGN_OR_RETURN(std::unique_ptr<ResultPlyWriter> out,
-                        ResultPlyWriter::Create(a.out, mode));
+  PBGI_ASSIGN_OR_RETURN(std::unique_ptr<ResultPlyWriter> out, ResultPlyWriter::Create(a.out, mode));
   // Receivers stream through in chunks (Z-ordered within each chunk), so a receiver file of any
   // size shades inside the cache budget plus one chunk.
   std::vector<Surfel> chunk(static_cast<size_t>(a.chunk));
@@ -202,8 +203,8 @@ absl::Status ShadeCamera(const ShadeArgs& a, Database& db, const ShadeJobOptions
   PBGI_RETURN_IF_ERROR(WriteExr(exr, *image));
   PBGI_RETURN_IF_ERROR(WritePng(png, *image, 1.0f, mode != Mode::kOcclusion));
   std::printf("traced %dx%d primary rays in %.2f s\n", a.width, a.height, view.trace_seconds);
-  PrintSummary("pixels", view.receivers, view.shade,
-               so.threads > 0 ? so.threads : DefaultThreads(), cache);
+  PrintSummary("pixels", view.receivers, view.shade, so.threads > 0 ? so.threads : DefaultThreads(),
+               cache);
   std::printf("  wrote %s and %s\n", exr.c_str(), png.c_str());
   return absl::OkStatus();
 }
@@ -213,8 +214,10 @@ absl::Status RunShade(const ShadeArgs& a) {
     return absl::InvalidArgumentError("give either --receivers IN.ply or --scene SCENE");
   }
   Mode mode = Mode::kIrradiance;
-  if (a.mode == "occlusion") mode = Mode::kOcclusion;
-  else if (a.mode == "glossy") mode = Mode::kGlossy;
+  if (a.mode == "occlusion")
+    mode = Mode::kOcclusion;
+  else if (a.mode == "glossy")
+    mode = Mode::kGlossy;
   else if (a.mode != "irradiance") {
     return absl::InvalidArgumentError(
         absl::StrFormat("--mode %s: use occlusion, irradiance or glossy", a.mode));
@@ -287,6 +290,5 @@ CommandSetup Setup() {
 
 }  // namespace
 PBGI_REGISTER_COMMAND(shade, "shade",
-                      "Shade receivers (PLY) or a camera view of a scene from a database",
-                      Setup());
+                      "Shade receivers (PLY) or a camera view of a scene from a database", Setup());
 }  // namespace pbgi::tools

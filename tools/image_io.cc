@@ -41,8 +41,7 @@ absl::Status WriteExr(const std::string& path, const Image& image) {
   return absl::OkStatus();
 }
 
-absl::Status WritePng(const std::string& path, const Image& image, float exposure,
-                      bool tonemap) {
+absl::Status WritePng(const std::string& path, const Image& image, float exposure, bool tonemap) {
   std::vector<uint8_t> rgb(image.pixels.size() * 3);
   for (size_t i = 0; i < image.pixels.size(); ++i) {
     for (int c = 0; c < 3; ++c) {

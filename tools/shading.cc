@@ -2,17 +2,17 @@
 
 #include <algorithm>
 #include <atomic>
-#include <cmath>
 #include <chrono>
+#include <cmath>
 #include <memory>
 #include <mutex>
 #include <thread>
 
 #include "absl/strings/str_format.h"
-#include "pbgi/status.h"
 #include "oneapi/tbb/enumerable_thread_specific.h"
 #include "oneapi/tbb/parallel_for.h"
 #include "oneapi/tbb/task_arena.h"
+#include "pbgi/status.h"
 
 namespace pbgi::tools {
 namespace {
@@ -39,13 +39,11 @@ struct Worker {
 int DefaultThreads() { return std::max(1u, std::thread::hardware_concurrency()); }
 
 absl::Status ShadeReceivers(Database& db, absl::Span<const Receiver> receivers,
-                            absl::Span<const glm::vec3> reflections,
-                            const ShadeJobOptions& options, std::vector<ShadeResult>* results,
-                            ShadeJobStats* stats) {
+                            absl::Span<const glm::vec3> reflections, const ShadeJobOptions& options,
+                            std::vector<ShadeResult>* results, ShadeJobStats* stats) {
   if (!reflections.empty() && reflections.size() != receivers.size()) {
-    return absl::InvalidArgumentError(
-        absl::StrFormat("%d reflection directions for %d receivers", reflections.size(),
-                        receivers.size()));
+    return absl::InvalidArgumentError(absl::StrFormat("%d reflection directions for %d receivers",
+                                                      reflections.size(), receivers.size()));
   }
   if (!(options.cut.max_solid_angle >= 0.0f)) {
     return absl::InvalidArgumentError("max_solid_angle must be >= 0");
@@ -120,8 +118,8 @@ absl::Status ShadeReceivers(Database& db, absl::Span<const Receiver> receivers,
             s = Shade(w.gathered, sr, options.raster, &w.buffer, &(*results)[i]);
             const auto t2 = Clock::now();
             if (!s.ok()) {
-              return fail(absl::Status(s.code(), absl::StrFormat("receiver %d: %s", i,
-                                                                  s.message())));
+              return fail(
+                  absl::Status(s.code(), absl::StrFormat("receiver %d: %s", i, s.message())));
             }
             w.gather_seconds += Seconds(t0, t1);
             w.raster_seconds += Seconds(t1, t2);

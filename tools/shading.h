@@ -29,8 +29,8 @@ struct ShadeJobOptions {
 struct ShadeJobStats {
   uint64_t receivers = 0;
   double seconds = 0;
-  QueryStats query;   // summed over threads
-  CacheStats cache;   // the readers' counters, summed
+  QueryStats query;           // summed over threads
+  CacheStats cache;           // the readers' counters, summed
   double gather_seconds = 0;  // summed over threads (CPU time in Gather)
   double raster_seconds = 0;  // summed over threads (CPU time in Shade)
 };
@@ -38,9 +38,8 @@ struct ShadeJobStats {
 // Shades every receiver; results[i] belongs to receivers[i]. `reflections` (optional, same size
 // as receivers) are the glossy lobes' centres.
 absl::Status ShadeReceivers(Database& db, absl::Span<const Receiver> receivers,
-                            absl::Span<const glm::vec3> reflections,
-                            const ShadeJobOptions& options, std::vector<ShadeResult>* results,
-                            ShadeJobStats* stats);
+                            absl::Span<const glm::vec3> reflections, const ShadeJobOptions& options,
+                            std::vector<ShadeResult>* results, ShadeJobStats* stats);
 
 // Default worker count: the number of cores.
 int DefaultThreads();

@@ -23,7 +23,6 @@
 #include "benchmark/benchmark.h"
 #include "build/builder.h"
 #include "build/external_sort.h"
-#include "store/morton.h"
 #include "build/node_packer.h"
 #include "build/octree_builder.h"
 #include "build/sort_record.h"
@@ -31,6 +30,7 @@
 #include "pbgi/ply.h"
 #include "pbgi/sh.h"
 #include "pbgi/store.h"
+#include "store/morton.h"
 #include "store/page_format.h"
 
 namespace pbgi {

@@ -24,8 +24,9 @@
 //    their round footprints overlap and leave gaps that cancel only if they add up); an element
 //    wholly behind closes the layer. The first layer counts in full only while nothing lies
 //    behind it in that pixel; once a fragment behind it arrives it is clamped at 1, and each
-//    later layer only fills what the nearer ones left below 1 (the depth test). Surfaces closer in depth than a pixel's
-//    footprint spans (about depth * slope * pixel angle) merge into one layer and add up.
+//    later layer only fills what the nearer ones left below 1 (the depth test). Surfaces closer in
+//    depth than a pixel's footprint spans (about depth * slope * pixel angle) merge into one layer
+//    and add up.
 //  - Pixel solid angles are exact for their place on the face (closed form for a rectangle on a
 //    cube face), and each pixel's cosine weight is the exact projected solid angle of the part
 //    of the pixel above the horizon (Lambert's polygon formula), so the weights sum to pi.

@@ -10,10 +10,10 @@
 #define PBGI_STATUS_CONCAT_(a, b) PBGI_STATUS_CONCAT_INNER_(a, b)
 
 // Returns from the enclosing function when `expr` (an absl::Status) is not OK.
-#define PBGI_RETURN_IF_ERROR(expr)                \
-  do {                                            \
-    ::absl::Status _pbgi_status = (expr);         \
-    if (!_pbgi_status.ok()) return _pbgi_status;  \
+#define PBGI_RETURN_IF_ERROR(expr)               \
+  do {                                           \
+    ::absl::Status _pbgi_status = (expr);        \
+    if (!_pbgi_status.ok()) return _pbgi_status; \
   } while (0)
 
 // PBGI_ASSIGN_OR_RETURN(auto x, MakeX()): declares x from an absl::StatusOr, or returns its error.

@@ -55,11 +55,11 @@ enum class PageKind : uint16_t { kNode = 1, kPoint = 2 };
 // checksum field (bytes [4, page_size)).
 struct PageHeader {
   uint32_t checksum;
-  uint16_t kind;          // PageKind
-  uint16_t format;        // kStoreFormatVersion
-  uint32_t record_count;  // records in this page
-  uint32_t payload_bytes; // bytes used after the header
-  uint64_t page_no;       // the page's own number (key), to catch misplaced pages
+  uint16_t kind;           // PageKind
+  uint16_t format;         // kStoreFormatVersion
+  uint32_t record_count;   // records in this page
+  uint32_t payload_bytes;  // bytes used after the header
+  uint64_t page_no;        // the page's own number (key), to catch misplaced pages
   uint64_t reserved;
 };
 static_assert(sizeof(PageHeader) == 32);
@@ -72,12 +72,12 @@ struct StoreMeta {
   Channels channels = Channels::kRadiance;
   uint32_t sh_order = 2;
   uint32_t leaf_size = 16;
-  Bounds bounds;                 // of all surfel positions
+  Bounds bounds;  // of all surfel positions
   uint64_t point_count = 0;
   uint64_t node_count = 0;
   uint64_t node_pages = 0;
   uint64_t point_pages = 0;
-  uint64_t root = 0;             // NodeRef of the root node (see store/page_format.h)
+  uint64_t root = 0;  // NodeRef of the root node (see store/page_format.h)
   uint32_t max_depth = 0;
   std::string layout = "coherent";
   // Free-form build statistics (name -> value as text): timings, peak memory, ...
@@ -120,7 +120,7 @@ struct StoreCheckReport {
   };
   SectionCounts nodes;
   SectionCounts points;
-  uint64_t bad_pages = 0;   // pages that failed their own check (checksum, kind, number, size)
+  uint64_t bad_pages = 0;    // pages that failed their own check (checksum, kind, number, size)
   absl::Status first_error;  // OK when the store is consistent; else the first problem found
   bool ok() const { return first_error.ok(); }
 };

@@ -13,8 +13,8 @@
 
 #include "absl/status/statusor.h"
 #include "absl/types/span.h"
-#include "glm/vec3.hpp"
 #include "glm/geometric.hpp"
+#include "glm/vec3.hpp"
 
 namespace pbgi {
 
@@ -52,8 +52,7 @@ struct Bounds {
     hi = glm::max(hi, b.hi);
   }
   bool Contains(const glm::vec3& p) const {
-    return p.x >= lo.x && p.y >= lo.y && p.z >= lo.z && p.x <= hi.x && p.y <= hi.y &&
-           p.z <= hi.z;
+    return p.x >= lo.x && p.y >= lo.y && p.z >= lo.z && p.x <= hi.x && p.y <= hi.y && p.z <= hi.z;
   }
   glm::vec3 Center() const { return 0.5f * (lo + hi); }
   glm::vec3 Extent() const { return hi - lo; }
@@ -112,11 +111,11 @@ using Sh9 = std::array<float, 9>;
 // An octree node standing in for all the surfels below it.
 struct Cluster {
   Bounds bounds;
-  float area = 0.0f;          // total surfel area
-  Sh9 sh_area{};              // projected area A(w) = sum A_i max(0, n_i.w)
+  float area = 0.0f;              // total surfel area
+  Sh9 sh_area{};                  // projected area A(w) = sum A_i max(0, n_i.w)
   std::array<Sh9, 3> sh_power{};  // emitted power per colour P(w) = sum A_i L_i max(0, n_i.w);
                                   // zero when the database has no radiance channel
-  uint32_t depth = 0;         // depth in the octree (root = 0)
+  uint32_t depth = 0;             // depth in the octree (root = 0)
   // The surfels below this node are the contiguous range [first_point, first_point+point_count)
   // of global point indices (rank in Morton order): the test harness checks cuts with it.
   uint64_t first_point = 0;

@@ -12,11 +12,11 @@
 #include <vector>
 
 #include "build/builder.h"
-#include "store/morton.h"
 #include "build/page_sink.h"
 #include "gtest/gtest.h"
 #include "pbgi/build.h"
 #include "pbgi/sh.h"
+#include "store/morton.h"
 #include "store/page_format.h"
 #include "tests/build/test_clouds.h"
 

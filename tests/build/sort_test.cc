@@ -5,8 +5,8 @@
 #include <vector>
 
 #include "build/external_sort.h"
-#include "store/morton.h"
 #include "gtest/gtest.h"
+#include "store/morton.h"
 #include "tests/build/test_clouds.h"
 
 namespace pbgi::internal {
