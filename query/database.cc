@@ -4,8 +4,11 @@
 #include <atomic>
 #include <cmath>
 #include <cstring>
+#include <mutex>
 #include <utility>
+#include <vector>
 
+#include "absl/base/thread_annotations.h"
 #include "absl/strings/str_format.h"
 #include "pbgi/query.h"
 #include "pbgi/status.h"
@@ -59,9 +62,23 @@ uint64_t QueryStats::TotalSharedMisses() const { return Sum(shared_misses); }
 // ---------------------------------------------------------------------------------------------
 // Database
 
+// Counters of all Readers, exact whenever asked: each live Reader publishes its own on a cache
+// line of its own (single writer, relaxed stores, nothing shared on the gather path), and a
+// Reader adds its final counters to `retired` when it goes.
 struct Database::Totals {
-  std::atomic<uint64_t> v[10] = {};
+  std::mutex mu;
+  uint64_t retired[10] ABSL_GUARDED_BY(mu) = {};
+  std::vector<const std::atomic<uint64_t>*> live ABSL_GUARDED_BY(mu);
 };
+
+namespace {
+void CountersToArray(const CacheStats& s, uint64_t v[10]) {
+  const uint64_t a[10] = {
+      s.reader.hits, s.reader.misses, s.reader.pages_read, s.reader.bytes_read, s.reader.evictions,
+      s.shared.hits, s.shared.misses, s.shared.pages_read, s.shared.bytes_read, s.shared.evictions};
+  std::memcpy(v, a, sizeof(a));
+}
+}  // namespace
 
 Database::Database(std::unique_ptr<internal::PageSource> source, const DatabaseOptions& options)
     : source_(std::move(source)), options_(options), totals_(new Totals) {
@@ -95,20 +112,25 @@ const StoreMeta& Database::meta() const { return source_->meta(); }
 const std::string& Database::path() const { return source_->name(); }
 uint64_t Database::FileBytes() const { return source_->FileBytes(); }
 uint64_t Database::CacheUsageBytes() const { return cache_->usage(); }
+absl::StatusOr<uint64_t> Database::MapResidentBytes() const { return source_->MapResidentBytes(); }
 void Database::DropCache() { cache_->Prune(); }
 
 void Database::AddTotals(const CacheStats& s) {
-  const uint64_t add[10] = {
-      s.reader.hits, s.reader.misses, s.reader.pages_read, s.reader.bytes_read, s.reader.evictions,
-      s.shared.hits, s.shared.misses, s.shared.pages_read, s.shared.bytes_read, s.shared.evictions};
-  for (int i = 0; i < 10; ++i) {
-    if (add[i] != 0) totals_->v[i].fetch_add(add[i], std::memory_order_relaxed);
-  }
+  uint64_t add[10];
+  CountersToArray(s, add);
+  std::lock_guard<std::mutex> l(totals_->mu);
+  for (int i = 0; i < 10; ++i) totals_->retired[i] += add[i];
 }
 
 CacheStats Database::TotalStats() const {
   uint64_t v[10];
-  for (int i = 0; i < 10; ++i) v[i] = totals_->v[i].load(std::memory_order_relaxed);
+  {
+    std::lock_guard<std::mutex> l(totals_->mu);
+    for (int i = 0; i < 10; ++i) v[i] = totals_->retired[i];
+    for (const std::atomic<uint64_t>* c : totals_->live) {
+      for (int i = 0; i < 10; ++i) v[i] += c[i].load(std::memory_order_relaxed);
+    }
+  }
   CacheStats s;
   s.reader = {v[0], v[1], v[2], v[3], v[4]};
   s.shared = {v[5], v[6], v[7], v[8], v[9]};
@@ -122,8 +144,18 @@ CacheStats Database::TotalStats() const {
 namespace {
 // DFS stack: a node pushes at most 8 children and pops one, so depth * 7 + 1 entries suffice.
 constexpr int kStackSize = kMaxTreeDepth * 8;
-constexpr int kFlushEvery = 64;
 }  // namespace
+
+// Whether NodeSolidAngleFrom(node.centre, node.sh_area, p) < max_sa holds whatever the
+// direction, from the node's bound of its projected area (ProjectedAreaBound): E <= bound, so
+// E / d2 <= bound / d2 < max_sa * (1 - 1e-4), far enough below max_sa that the float division
+// of the exact test rounds below it too. False says nothing (the exact test decides): the cut
+// is the same, bit for bit, only cheaper for clusters that are small from every side.
+inline bool ClearlyBelowCut(const NodeHot& node, const glm::vec3& p, float max_sa) {
+  const glm::vec3 v = p - node.centre;
+  const float d2 = glm::dot(v, v);
+  return node.area_bound < (max_sa * d2) * (1.0f - 1e-4f);
+}
 
 struct Reader::Impl {
   struct StackEntry {
@@ -142,8 +174,15 @@ struct Reader::Impl {
   inline absl::Status Fetch(Section section, uint64_t page_no, int level, const DecodedPage** out) {
     const uint64_t key = PageKey(section, page_no);
     ++q.pages_touched[level];
+    Memo& m = memo[MemoSlot(key)];
+    if (m.key == key) {
+      ++q.reader_hits[level];
+      *out = m.page;
+      return absl::OkStatus();
+    }
     if (const DecodedPage* p = front.Find(key)) {
       ++q.reader_hits[level];
+      m = {key, p};
       *out = p;
       return absl::OkStatus();
     }
@@ -158,14 +197,39 @@ struct Reader::Impl {
                               const glm::vec3& n, float max_distance, bool check_distance,
                               Gathered* out);
 
+  // A few pages this gather already found in the front cache, so that going back and forth
+  // between a parent's page and its children's pages skips the hash lookup and the LRU relink.
+  // Pointers in it are valid while the front cache evicts nothing (FetchSlow clears it when it
+  // does); Gather clears it first so that every page it uses is still made most recent in the
+  // front cache once per gather.
+  struct Memo {
+    uint64_t key = ~uint64_t{0};
+    const DecodedPage* page = nullptr;
+  };
+  static constexpr int kMemoBits = 4;
+  static int MemoSlot(uint64_t key) {
+    return static_cast<int>((key * 0x9e3779b97f4a7c15ull) >> (64 - kMemoBits));
+  }
+  void ClearMemo() {
+    for (Memo& m : memo) m = Memo{};
+  }
+
   Database* db;
   const StoreMeta& meta;
   std::unique_ptr<internal::PageReader> source;
   internal::FrontCache front;
   const uint64_t points_per_page;
-  QueryStats q;  // counters of the current query
+  // This Reader's CacheStats as Database::TotalStats() reads them (CountersToArray order), on
+  // cache lines of their own: the other thread never shares a line that a gather writes.
+  alignas(64) std::atomic<uint64_t> published[10] = {};
+  void Publish(const CacheStats& s) {
+    uint64_t v[10];
+    CountersToArray(s, v);
+    for (int i = 0; i < 10; ++i) published[i].store(v[i], std::memory_order_relaxed);
+  }
+  alignas(64) QueryStats q;  // counters of the current query
+  Memo memo[1 << kMemoBits];
   StackEntry stack[kStackSize];
-  int since_flush = 0;
 };
 
 absl::Status Reader::Impl::FetchSlow(Section section, uint64_t page_no, uint64_t key, int level,
@@ -195,7 +259,10 @@ absl::Status Reader::Impl::FetchSlow(Section section, uint64_t page_no, uint64_t
   } else {
     ++q.shared_hits[level];
   }
+  const uint64_t evictions_before = front.evictions();
   *out = front.Insert(key, std::move(*handle));
+  if (front.evictions() != evictions_before) ClearMemo();
+  memo[MemoSlot(key)] = {key, *out};
   return absl::OkStatus();
 }
 
@@ -227,6 +294,7 @@ absl::Status Reader::Impl::EmitLeafPoints(uint64_t first, uint64_t count, const 
 absl::Status Reader::Impl::Gather(const Receiver& receiver, const Cut& cut, Gathered* out) {
   out->Clear();
   ++q.queries;
+  ClearMemo();
   if (meta.point_count == 0 || meta.root == internal::kNoNodeRef) return absl::OkStatus();
   const glm::vec3 p = receiver.position;
   const float nlen = glm::length(receiver.normal);
@@ -241,6 +309,9 @@ absl::Status Reader::Impl::Gather(const Receiver& receiver, const Cut& cut, Gath
   const float max_sa = cut.max_solid_angle;
   const float max_d = cut.max_distance;
   const bool check_distance = std::isfinite(max_d);
+  const float p_abs_max = AbsMax(p);
+  // The corner of every node farthest along n (NodeWhollyBehindMargin's choice, as indices).
+  const uint32_t far_word[3] = {n.x > 0 ? 4u : 0u, n.y > 0 ? 5u : 1u, n.z > 0 ? 6u : 2u};
 
   int sp = 0;
   stack[sp++] = {meta.root, 0};
@@ -267,31 +338,32 @@ absl::Status Reader::Impl::Gather(const Receiver& receiver, const Cut& cut, Gath
     if (node.depth != e.depth) {
       return absl::DataLossError(
           absl::StrFormat("%s: nodes page %d is corrupt: node %d has depth %d, its parent says %d",
-                          db->path(), page_no, slot, node.depth, e.depth));
+                          db->path(), page_no, slot, static_cast<int>(node.depth), e.depth));
     }
     ++q.nodes_visited;
     ++q.nodes[level];
 
-    if (NodeWhollyBehind(node.lo, node.hi, node.reach, p, n) ||
-        (check_distance && NodeBeyond(node.lo, node.hi, node.reach, p, max_d))) {
+    // The public tests of query.h with the node's terms precomputed in its decoded page.
+    const float margin = NodeMarginOf(node.abs_max, p_abs_max);
+    if (NodeWhollyBehindFar(internal::NodeCorner(node, far_word), node.reach, p, n, margin) ||
+        (check_distance && NodeBeyondMargin(node.lo, node.hi, node.reach, p, max_d, margin))) {
       ++q.nodes_culled;
       continue;
     }
-    if (!NodeNearField(node.lo, node.hi, node.reach, p) &&
-        NodeSolidAngle(node.lo, node.hi, node.sh_area, p) < max_sa) {
-      Cluster& c = out->clusters.emplace_back();
-      c.bounds.lo = node.lo;
-      c.bounds.hi = node.hi;
-      c.area = node.area;
-      std::memcpy(c.sh_area.data(), node.sh_area, sizeof(node.sh_area));
+    if (!NodeNearFieldSphere(node.near_centre, node.near_radius2, p) &&
+        (ClearlyBelowCut(node, p, max_sa) ||
+         NodeSolidAngleFrom(node.centre, node.sh_area.data(), p) < max_sa)) {
+      // Built in place (C++20 aggregate initialization): no zeroing of ~200 bytes first.
+      const float area = page->areas[slot];
       if (page->power) {
-        c.sh_power = page->power[slot];
+        out->clusters.emplace_back(Bounds{node.lo, node.hi}, area, node.sh_area,
+                                   page->power[slot], uint32_t{node.depth}, node.first_point,
+                                   node.point_count);
       } else {
-        c.sh_power = {};
+        out->clusters.emplace_back(Bounds{node.lo, node.hi}, area, node.sh_area,
+                                   std::array<Sh9, 3>{}, uint32_t{node.depth}, node.first_point,
+                                   node.point_count);
       }
-      c.depth = node.depth;
-      c.first_point = node.first_point;
-      c.point_count = node.point_count;
       ++q.clusters;
       continue;
     }
@@ -321,14 +393,12 @@ absl::Status Reader::Impl::Gather(const Receiver& receiver, const Cut& cut, Gath
 Reader::Reader(Database* db, std::unique_ptr<Impl> impl) : db_(db), impl_(std::move(impl)) {}
 
 Reader::~Reader() {
-  db_->AddTotals(CacheStats{
-      {stats_.reader.hits - flushed_.reader.hits, stats_.reader.misses - flushed_.reader.misses,
-       stats_.reader.pages_read - flushed_.reader.pages_read,
-       stats_.reader.bytes_read - flushed_.reader.bytes_read,
-       stats_.reader.evictions - flushed_.reader.evictions},
-      {stats_.shared.hits - flushed_.shared.hits, stats_.shared.misses - flushed_.shared.misses,
-       stats_.shared.pages_read - flushed_.shared.pages_read,
-       stats_.shared.bytes_read - flushed_.shared.bytes_read, 0}});
+  {
+    std::lock_guard<std::mutex> l(db_->totals_->mu);
+    auto& live = db_->totals_->live;
+    live.erase(std::find(live.begin(), live.end(), impl_->published));
+  }
+  db_->AddTotals(stats_);
   impl_.reset();  // unpins before the Database can go
   db_->live_readers_.fetch_sub(1, std::memory_order_relaxed);
 }
@@ -349,6 +419,10 @@ absl::StatusOr<std::unique_ptr<Reader>> Database::NewReader() {
   const uint64_t entries = std::clamp<uint64_t>(most / (page_charge_ / 2) + 2, 2, 1u << 14);
   auto impl = std::make_unique<Reader::Impl>(this, std::move(*r), ReaderCacheBytes(),
                                              static_cast<uint32_t>(entries));
+  {
+    std::lock_guard<std::mutex> l(totals_->mu);
+    totals_->live.push_back(impl->published);
+  }
   return std::unique_ptr<Reader>(new Reader(this, std::move(impl)));
 }
 
@@ -371,21 +445,7 @@ absl::Status Reader::Gather(const Receiver& receiver, const Cut& cut, Gathered* 
   stats_.shared.pages_read += q.pages_read;
   stats_.shared.bytes_read += q.bytes_read;
   if (stats != nullptr) stats->Add(q);
-  if (++im.since_flush >= kFlushEvery) {
-    im.since_flush = 0;
-    CacheStats delta;
-    delta.reader = {stats_.reader.hits - flushed_.reader.hits,
-                    stats_.reader.misses - flushed_.reader.misses,
-                    stats_.reader.pages_read - flushed_.reader.pages_read,
-                    stats_.reader.bytes_read - flushed_.reader.bytes_read,
-                    stats_.reader.evictions - flushed_.reader.evictions};
-    delta.shared = {stats_.shared.hits - flushed_.shared.hits,
-                    stats_.shared.misses - flushed_.shared.misses,
-                    stats_.shared.pages_read - flushed_.shared.pages_read,
-                    stats_.shared.bytes_read - flushed_.shared.bytes_read, 0};
-    db_->AddTotals(delta);
-    flushed_ = stats_;
-  }
+  im.Publish(stats_);
   return status;
 }
 
@@ -414,6 +474,7 @@ absl::Status Reader::ReadPoints(uint64_t first, uint64_t count, std::vector<Surf
                                                  db_->path(), first, count, m.point_count));
   }
   impl_->q.Clear();
+  impl_->ClearMemo();
   uint64_t i = first;
   const uint64_t end = first + count;
   const uint64_t ppp = impl_->points_per_page;

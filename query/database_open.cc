@@ -8,7 +8,7 @@ namespace pbgi {
 absl::StatusOr<std::unique_ptr<Database>> Database::Open(const std::string& path,
                                                          const DatabaseOptions& options) {
   absl::StatusOr<std::unique_ptr<internal::PageSource>> source =
-      internal::OpenLmdbPageSource(path, options.verify_checksums);
+      internal::OpenLmdbPageSource(path, options.verify_checksums, options.copy_pages);
   if (!source.ok()) return source.status();
   return OpenSource(std::move(*source), options);
 }

@@ -23,9 +23,18 @@ bool Finite3(const float* v) {
 
 }  // namespace
 
+float ProjectedAreaBound(const float* c) {
+  auto sq = [&](int i) { return double{c[i]} * double{c[i]}; };
+  const double band0 = std::abs(double{c[0]}) * 0.282094791773878;
+  const double band1 = std::sqrt(sq(1) + sq(2) + sq(3)) * std::sqrt(3.0 / (4.0 * sh::kPi));
+  const double band2 =
+      std::sqrt(sq(4) + sq(5) + sq(6) + sq(7) + sq(8)) * std::sqrt(5.0 / (4.0 * sh::kPi));
+  return static_cast<float>((band0 + band1 + band2) * (1.0 + 1e-5) + 1e-30);
+}
+
 uint64_t DecodedPage::Charge() const {
   uint64_t bytes = sizeof(DecodedPage);
-  if (nodes) bytes += uint64_t{count} * sizeof(NodeHot);
+  if (nodes) bytes += uint64_t{count} * (sizeof(NodeHot) + sizeof(float));
   if (power) bytes += uint64_t{count} * sizeof(std::array<Sh9, 3>);
   if (points) bytes += uint64_t{count} * sizeof(Surfel);
   return bytes;
@@ -56,6 +65,7 @@ absl::StatusOr<std::unique_ptr<DecodedPage>> DecodePage(const PageView& view, Se
                      h.record_count, rec, view.payload.size());
     }
     page->nodes.reset(new NodeHot[h.record_count]);
+    page->areas.reset(new float[h.record_count]);
     if (HasRadiance(meta.channels)) page->power.reset(new std::array<Sh9, 3>[h.record_count]);
     for (uint32_t i = 0; i < h.record_count; ++i) {
       NodeRecordCommon r;
@@ -82,15 +92,21 @@ absl::StatusOr<std::unique_ptr<DecodedPage>> DecodePage(const PageView& view, Se
       NodeHot& n = page->nodes[i];
       n.lo = {r.lo[0], r.lo[1], r.lo[2]};
       n.hi = {r.hi[0], r.hi[1], r.hi[2]};
-      n.child_count = leaf ? 0 : r.child_count;
-      n.depth = r.depth;
+      n.abs_max = AbsMax(n.lo, n.hi);
+      page->areas[i] = r.area;
+      n.area_bound = ProjectedAreaBound(r.sh_area);
+      n.reach = NodeReach(r.area);
+      n.centre = 0.5f * (n.lo + n.hi);
+      const NearSphere near = NodeNearSphere(n.lo, n.hi, n.reach);
+      n.near_centre = near.centre;
+      n.near_radius2 = near.radius2;
+      std::memcpy(n.sh_area.data(), r.sh_area, sizeof(n.sh_area));
+      n.depth = static_cast<uint8_t>(r.depth);
+      n.child_count = static_cast<uint8_t>(leaf ? 0 : r.child_count);
+      n.pad = 0;
       n.children = leaf ? kNoNodeRef : r.children;
       n.first_point = r.first_point;
       n.point_count = r.point_count;
-      n.area = r.area;
-      n.reach = NodeReach(r.area);
-      std::memcpy(n.sh_area, r.sh_area, sizeof(n.sh_area));
-      n.pad[0] = n.pad[1] = n.pad[2] = 0;
       if (page->power) {
         NodeRecordRadiance rr;
         std::memcpy(&rr, data + size_t{i} * rec, sizeof(rr));

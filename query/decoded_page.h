@@ -9,6 +9,7 @@
 #define PBGI_QUERY_DECODED_PAGE_H_
 
 #include <array>
+#include <cstddef>
 #include <cstdint>
 #include <memory>
 #include <string>
@@ -22,19 +23,34 @@
 
 namespace pbgi::internal {
 
-struct alignas(16) NodeHot {
+// What every visit of a node reads, with the per-node terms of the cut precomputed at decode
+// time (the traversal then evaluates exactly the bits of the public inline tests in
+// pbgi/query.h, minus their per-node setup). 128 bytes: two cache lines, never three.
+struct alignas(64) NodeHot {
   glm::vec3 lo;
-  uint32_t child_count;  // 0 for a leaf
+  float abs_max;  // AbsMax(lo, hi): the node's part of NodeMargin
   glm::vec3 hi;
-  uint32_t depth;
+  float reach;  // NodeReach(area)
+  glm::vec3 centre;  // 0.5f * (lo + hi): the solid angle is measured from here
+  float area_bound;  // ProjectedAreaBound(sh_area): no direction sees more projected area
+  glm::vec3 near_centre;  // NodeNearSphere(lo, hi, reach)
+  float near_radius2;
+  Sh9 sh_area;
+  uint8_t depth;
+  uint8_t child_count;  // 0 for a leaf
+  uint16_t pad;
   uint64_t children;  // NodeRef of the first child (interior)
   uint64_t first_point;
   uint64_t point_count;
-  float area;
-  float reach;  // NodeReach(area)
-  float sh_area[9];
-  uint32_t pad[3];
 };
+static_assert(sizeof(NodeHot) == 128);
+// lo and hi as one array of floats: corner coordinate `axis` of lo is word axis, of hi word
+// axis + 4 (the traversal picks the far corner of a node by index, without branches).
+static_assert(offsetof(NodeHot, lo) == 0 && offsetof(NodeHot, hi) == 4 * sizeof(float));
+inline glm::vec3 NodeCorner(const NodeHot& node, const uint32_t (&word)[3]) {
+  const float* f = reinterpret_cast<const float*>(&node);
+  return {f[word[0]], f[word[1]], f[word[2]]};
+}
 
 // Cache key of a page: the page number and one bit for the section.
 inline uint64_t PageKey(Section section, uint64_t page_no) {
@@ -47,11 +63,20 @@ class DecodedPage final : public CacheValue {
   uint64_t page_no = 0;
   uint32_t count = 0;                           // records
   std::unique_ptr<NodeHot[]> nodes;             // node pages
+  std::unique_ptr<float[]> areas;               // node pages: total surfel area (clusters)
   std::unique_ptr<std::array<Sh9, 3>[]> power;  // node pages of radiance databases
   std::unique_ptr<Surfel[]> points;             // point pages
 
   uint64_t Charge() const;
 };
+
+// An upper bound, over all unit directions w, of ProjectedAreaToward(c, w) as computed in
+// float (pbgi/query.h): per SH band, |c_band| * max |Y_band(w)| (Cauchy-Schwarz; the addition
+// theorem gives sum_m Y_lm(w)^2 = (2l + 1) / (4 pi)), summed in double and grown by 1e-5 to
+// cover float rounding. Infinity or NaN when a coefficient is not finite (the traversal then
+// evaluates the exact value). A node whose bound over its squared distance is clearly below
+// max_solid_angle is a cluster whichever way it is seen, without the SH evaluation.
+float ProjectedAreaBound(const float* c);
 
 // Checks and decodes one page. DataLoss naming `store_name`, the section and the page when the
 // header or a record is inconsistent (wrong kind or number, too many records, a child link out

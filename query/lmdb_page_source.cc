@@ -30,6 +30,9 @@ class LmdbPageSource final : public PageSource {
     return std::unique_ptr<PageReader>(new LmdbPageReader(std::move(*txn)));
   }
   uint64_t FileBytes() const override { return store_->FileBytes(); }
+  absl::StatusOr<uint64_t> MapResidentBytes() const override {
+    return store_->MapResidentBytes();
+  }
 
  private:
   std::unique_ptr<PageStore> store_;
@@ -38,9 +41,11 @@ class LmdbPageSource final : public PageSource {
 }  // namespace
 
 absl::StatusOr<std::unique_ptr<PageSource>> OpenLmdbPageSource(const std::string& path,
-                                                               bool verify_checksums) {
+                                                               bool verify_checksums,
+                                                               bool copy_pages) {
   StoreOptions options;
   options.verify_checksums = verify_checksums;
+  options.copy_pages = copy_pages;
   absl::StatusOr<std::unique_ptr<PageStore>> store = PageStore::Open(path, options);
   if (!store.ok()) return store.status();
   return std::unique_ptr<PageSource>(new LmdbPageSource(std::move(*store)));

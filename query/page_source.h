@@ -41,11 +41,14 @@ class PageSource {
   virtual absl::StatusOr<std::unique_ptr<PageReader>> NewReader() const = 0;
   // Bytes of the store on disk (0 when not a file).
   virtual uint64_t FileBytes() const { return 0; }
+  // Resident bytes of the store's memory map in this process (0 when there is none).
+  virtual absl::StatusOr<uint64_t> MapResidentBytes() const { return 0; }
 };
 
-// Opens an LMDB store (pbgi::PageStore) as a page source.
+// Opens an LMDB store (pbgi::PageStore) as a page source; `copy_pages` as in StoreOptions.
 absl::StatusOr<std::unique_ptr<PageSource>> OpenLmdbPageSource(const std::string& path,
-                                                               bool verify_checksums);
+                                                               bool verify_checksums,
+                                                               bool copy_pages = true);
 
 // An in-memory store for tests. Fill it (PutPage) before any reader reads; after that it is safe
 // to read from many threads. Faults can be injected per page (FailPage, MutablePage) and every

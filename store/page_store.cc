@@ -1,8 +1,13 @@
 // PageStore (read-only opening of a finished store) and ReadTxn.
 #include <lmdb.h>
+#include <sys/mman.h>
 #include <sys/stat.h>
+#include <sys/sysmacros.h>
+#include <unistd.h>
 
 #include <cerrno>
+#include <cstdio>
+#include <cstdlib>
 #include <cstring>
 #include <memory>
 #include <string>
@@ -70,6 +75,75 @@ absl::Status CheckPage(const std::string& path, Section section, uint64_t page_n
   return absl::OkStatus();
 }
 
+absl::Status ReadFully(int fd, void* out, size_t size, uint64_t offset, const std::string& file) {
+  auto* p = static_cast<uint8_t*>(out);
+  while (size > 0) {
+    const ssize_t n = pread(fd, p, size, static_cast<off_t>(offset));
+    if (n < 0 && errno == EINTR) continue;
+    if (n < 0) return LmdbStatus(errno, absl::StrFormat("reading %s at offset %d", file, offset));
+    if (n == 0) {
+      return absl::DataLossError(absl::StrFormat(
+          "reading %s at offset %d: the file ends %d bytes early", file, offset, size));
+    }
+    p += n, size -= static_cast<size_t>(n), offset += static_cast<uint64_t>(n);
+  }
+  return absl::OkStatus();
+}
+
+// Where LMDB mapped data.mdb. mdb_env_info's me_mapaddr is only filled in with MDB_FIXEDMAP,
+// so the map is found in /proc/self/maps: the mapping of this file (device and inode) that
+// holds `inside`, a pointer LMDB returned into it.
+absl::StatusOr<FileMapping> FindFileMapping(const struct stat& file, const void* inside,
+                                            const std::string& file_name) {
+  std::FILE* f = std::fopen("/proc/self/maps", "r");
+  if (f == nullptr) {
+    return absl::UnavailableError(absl::StrFormat(
+        "cannot read /proc/self/maps to find the map of %s (is /proc mounted?)", file_name));
+  }
+  const auto want = reinterpret_cast<uintptr_t>(inside);
+  char line[4096];
+  absl::StatusOr<FileMapping> result = absl::InternalError(
+      absl::StrFormat("no mapping of %s holds LMDB's pointer %p", file_name, inside));
+  while (std::fgets(line, sizeof(line), f) != nullptr) {
+    unsigned long start = 0, end = 0, offset = 0, inode = 0;
+    unsigned dev_major = 0, dev_minor = 0;
+    char perms[8];
+    if (std::sscanf(line, "%lx-%lx %7s %lx %x:%x %lu", &start, &end, perms, &offset, &dev_major,
+                    &dev_minor, &inode) != 7) {
+      continue;
+    }
+    if (inode != file.st_ino || makedev(dev_major, dev_minor) != file.st_dev) continue;
+    if (offset != 0 || want < start || want >= end) continue;
+    result = FileMapping{reinterpret_cast<const uint8_t*>(start), end - start};
+    break;
+  }
+  std::fclose(f);
+  return result;
+}
+
+absl::StatusOr<uint64_t> MappingRssBytes(const void* start) {
+  std::FILE* f = std::fopen("/proc/self/smaps", "r");
+  if (f == nullptr) {
+    return absl::UnavailableError("cannot read /proc/self/smaps (is /proc mounted?)");
+  }
+  const std::string want = absl::StrFormat("%x-", reinterpret_cast<uintptr_t>(start));
+  char line[512];
+  bool in_mapping = false;
+  absl::StatusOr<uint64_t> result =
+      absl::NotFoundError(absl::StrFormat("no mapping at %p in /proc/self/smaps", start));
+  while (std::fgets(line, sizeof(line), f) != nullptr) {
+    // A mapping's header line starts with "start-end"; its fields follow, one per line.
+    if (std::strncmp(line, want.c_str(), want.size()) == 0) {
+      in_mapping = true;
+    } else if (in_mapping && std::strncmp(line, "Rss:", 4) == 0) {
+      result = uint64_t{std::strtoull(line + 4, nullptr, 10)} * 1024;
+      break;
+    }
+  }
+  std::fclose(f);
+  return result;
+}
+
 }  // namespace internal
 
 // ---------------------------------------------------------------------------------------------
@@ -79,6 +153,7 @@ struct ReadTxn::Impl {
   const PageStore::Impl* store = nullptr;
   MDB_txn* txn = nullptr;
   bool active = false;
+  std::unique_ptr<uint64_t[]> buffer;  // copy_pages: one page, 8-byte aligned
   ~Impl() {
     if (txn != nullptr) mdb_txn_abort(txn);
   }
@@ -108,12 +183,39 @@ absl::StatusOr<PageView> ReadTxn::Get(Section section, uint64_t page_no) {
     return internal::LmdbStatus(
         rc, absl::StrFormat("store %s: reading %s page %d", s.path, SectionName(section), page_no));
   }
-  PBGI_RETURN_IF_ERROR(internal::CheckPage(s.path, section, page_no, val.mv_data, val.mv_size,
+  const void* data = val.mv_data;
+  if (s.options.copy_pages) {
+    // LMDB found the value without touching it (an overflow run is located by its page number
+    // alone); read it from the file rather than the map, so it never becomes resident here.
+    const auto* at = static_cast<const uint8_t*>(val.mv_data);
+    if (at < s.map_addr || val.mv_size > s.file_bytes ||
+        static_cast<uint64_t>(at - s.map_addr) > s.file_bytes - val.mv_size) {
+      return absl::DataLossError(
+          absl::StrFormat("store %s: %s page %d lies outside %s (%d bytes at offset %d of %d)",
+                          s.path, SectionName(section), page_no, internal::kDataFile, val.mv_size,
+                          at - s.map_addr, s.file_bytes));
+    }
+    if (val.mv_size != s.meta.page_size) {
+      return internal::CheckPage(s.path, section, page_no, val.mv_data, val.mv_size,
+                                 s.meta.page_size, false);  // names the size mismatch
+    }
+    if (impl_->buffer == nullptr) impl_->buffer.reset(new uint64_t[(val.mv_size + 7) / 8]);
+    PBGI_RETURN_IF_ERROR(internal::ReadFully(s.fd, impl_->buffer.get(), val.mv_size,
+                                             static_cast<uint64_t>(at - s.map_addr), s.data_path));
+    data = impl_->buffer.get();
+    const uint32_t every = s.options.trim_map_every;
+    if (every != 0 && (s.copied_reads.fetch_add(1, std::memory_order_relaxed) + 1) % every == 0) {
+      // Clean, shared file pages: dropping them from the map loses nothing, and is safe while
+      // other threads read through it (they fault the pages back in from the page cache).
+      madvise(const_cast<uint8_t*>(s.map_addr), s.map_size, MADV_DONTNEED);
+    }
+  }
+  PBGI_RETURN_IF_ERROR(internal::CheckPage(s.path, section, page_no, data, val.mv_size,
                                            s.meta.page_size, s.options.verify_checksums));
   PageView v;
-  v.header = static_cast<const PageHeader*>(val.mv_data);
-  v.payload = absl::Span<const uint8_t>(
-      static_cast<const uint8_t*>(val.mv_data) + sizeof(PageHeader), v.header->payload_bytes);
+  v.header = static_cast<const PageHeader*>(data);
+  v.payload = absl::Span<const uint8_t>(static_cast<const uint8_t*>(data) + sizeof(PageHeader),
+                                        v.header->payload_bytes);
   return v;
 }
 
@@ -142,6 +244,9 @@ const StoreMeta& PageStore::meta() const { return impl_->meta; }
 const std::string& PageStore::path() const { return impl_->path; }
 uint64_t PageStore::FileBytes() const { return impl_->file_bytes; }
 const StoreOptions& PageStore::options() const { return impl_->options; }
+absl::StatusOr<uint64_t> PageStore::MapResidentBytes() const {
+  return internal::MappingRssBytes(impl_->map_addr);
+}
 
 absl::StatusOr<ReadTxn> PageStore::BeginRead() const {
   auto t = std::make_unique<ReadTxn::Impl>();
@@ -213,6 +318,7 @@ absl::StatusOr<std::unique_ptr<PageStore>> PageStore::Open(const std::string& pa
   PBGI_RETURN_IF_ERROR(LmdbStatus(mdb_env_info(impl->env, &info), where));
   PBGI_RETURN_IF_ERROR(LmdbStatus(mdb_env_stat(impl->env, &est), where));
   const uint64_t needed = (static_cast<uint64_t>(info.me_last_pgno) + 1) * est.ms_psize;
+  PBGI_RETURN_IF_ERROR(LmdbStatus(mdb_env_get_fd(impl->env, &impl->fd), where));
   if (impl->file_bytes < needed) {
     return absl::DataLossError(absl::StrFormat(
         "store %s: %s is truncated: it has %d bytes but its last page ends at byte %d", path,
@@ -256,6 +362,12 @@ absl::StatusOr<std::unique_ptr<PageStore>> PageStore::Open(const std::string& pa
         absl::StrFormat("store %s: the nodes or points section is missing", path)));
   }
   if (rc != MDB_SUCCESS) return abort(LmdbStatus(rc, absl::StrCat(where, ": sections")));
+  // Any value LMDB hands out points into its map; the meta record does, so it finds the map.
+  // (Only the map's address is needed: copy_pages turns pointers into file offsets with it.)
+  absl::StatusOr<internal::FileMapping> map = internal::FindFileMapping(st, val.mv_data, data_path);
+  if (!map.ok()) return abort(map.status());
+  impl->map_addr = map->start;
+  impl->map_size = map->bytes;
   // Committing (not aborting) a read transaction keeps the opened section handles.
   PBGI_RETURN_IF_ERROR(LmdbStatus(mdb_txn_commit(txn), where));
   return std::unique_ptr<PageStore>(new PageStore(std::move(impl)));

@@ -4,11 +4,14 @@
 #define PBGI_STORE_STORE_INTERNAL_H_
 
 #include <lmdb.h>
+#include <sys/stat.h>
 
+#include <atomic>
 #include <cstdint>
 #include <string>
 
 #include "absl/status/status.h"
+#include "absl/status/statusor.h"
 #include "pbgi/store.h"
 
 namespace pbgi::internal {
@@ -47,6 +50,20 @@ inline PageKind KindOf(Section s) {
 absl::Status CheckPage(const std::string& path, Section section, uint64_t page_no, const void* data,
                        size_t size, uint32_t page_size, bool verify_checksum);
 
+// pread()s exactly `size` bytes at `offset` (retrying short reads); errors name `file`.
+absl::Status ReadFully(int fd, void* out, size_t size, uint64_t offset, const std::string& file);
+
+// The mapping of `file` (at file offset 0) that holds `inside`, from /proc/self/maps.
+struct FileMapping {
+  const uint8_t* start = nullptr;
+  uint64_t bytes = 0;
+};
+absl::StatusOr<FileMapping> FindFileMapping(const struct stat& file, const void* inside,
+                                            const std::string& file_name);
+
+// Rss of the mapping that starts at `start`, from /proc/self/smaps.
+absl::StatusOr<uint64_t> MappingRssBytes(const void* start);
+
 // CRC-32C of a page as stored in its header: bytes [4, page_size).
 uint32_t PageChecksum(const void* page, uint32_t page_size);
 
@@ -63,6 +80,11 @@ struct PageStore::Impl {
   MDB_dbi nodes = 0;
   MDB_dbi points = 0;
   uint64_t file_bytes = 0;
+  const uint8_t* map_addr = nullptr;  // LMDB's read-only map of data.mdb
+  uint64_t map_size = 0;              // its length
+  // copy_pages: reads since open, for StoreOptions::trim_map_every.
+  mutable std::atomic<uint64_t> copied_reads{0};
+  int fd = -1;  // LMDB's descriptor of data.mdb (copy_pages reads through it)
 
   MDB_dbi Dbi(Section s) const { return s == Section::kNodes ? nodes : points; }
   ~Impl() {

@@ -6,6 +6,8 @@
 //
 //   gather_bench [--db=PATH] [--points=N] [--receivers=N] [--page_size=BYTES]
 //                [--leaf_size=N] [--reader_share=F] [--work_dir=DIR] [benchmark flags]
+//   gather_bench [--db=PATH] --profile_gathers=N   (under valgrind --tool=callgrind
+//                --instr-atstart=no: instructions of N warm gathers, nothing else)
 // --db studies an existing database (one layout: its own); otherwise the benchmark builds one
 // database per layout from a random scene under --work_dir (kept and reused across runs).
 #include <fcntl.h>
@@ -28,6 +30,7 @@
 
 #include "absl/strings/str_format.h"
 #include "benchmark/benchmark.h"
+#include "valgrind/callgrind.h"
 #include "pbgi/build.h"
 #include "pbgi/query.h"
 #include "pbgi/testing.h"
@@ -46,6 +49,9 @@ struct Flags {
   uint32_t leaf_size = 16;
   // Each Reader's own LRU as a fraction of the budget (0: the library default, 1/16).
   double reader_share = 0;
+  // > 0: no benchmarks; gather every receiver once (warm-up), then the first N receivers in
+  // Z-order again with callgrind's instrumentation on (CALLGRIND_START_INSTRUMENTATION).
+  uint64_t profile_gathers = 0;
 };
 Flags g_flags;
 
@@ -284,6 +290,42 @@ void RegisterWarm(const Subject& subj, std::shared_ptr<const std::vector<Receive
   }
 }
 
+// Instructions per warm gather: the cache holds every page the receivers need, so callgrind sees
+// the traversal alone. Prints a checksum of the results so that two builds can be compared.
+int ProfileWarmGathers(const std::string& path, const std::vector<Receiver>& recv, uint64_t n) {
+  DatabaseOptions o;
+  o.cache_bytes = uint64_t{1} << 40;
+  auto db = Database::Open(path, o);
+  if (!db.ok()) {
+    std::fprintf(stderr, "%s\n", std::string(db.status().message()).c_str());
+    return 1;
+  }
+  auto reader = (*db)->NewReader();
+  if (!reader.ok()) return 1;
+  const std::vector<uint32_t> order = ZOrder(recv);
+  n = std::min<uint64_t>(n, order.size());
+  Gathered g;
+  for (uint32_t i : order) {
+    if (!(*reader)->Gather(recv[i], Cut{}, &g).ok()) return 1;
+  }
+  uint64_t elems = 0, nodes = 0, ids = 0;
+  double sum = 0;
+  QueryStats stats;
+  CALLGRIND_START_INSTRUMENTATION;
+  for (uint64_t k = 0; k < n; ++k) {
+    if (!(*reader)->Gather(recv[order[k]], Cut{}, &g, &stats).ok()) return 1;
+    elems += g.size();
+    for (const Cluster& c : g.clusters) sum += c.sh_area[0] + c.sh_power[2][8] + c.bounds.lo.x;
+    for (uint64_t id : g.surfel_ids) ids += id;
+  }
+  CALLGRIND_STOP_INSTRUMENTATION;
+  nodes = stats.nodes_visited;
+  std::printf("profiled %llu warm gathers: %.1f nodes, %.1f elements per gather; checksums %.9g %llu\n",
+              static_cast<unsigned long long>(n), static_cast<double>(nodes) / double(n),
+              static_cast<double>(elems) / double(n), sum, static_cast<unsigned long long>(ids));
+  return 0;
+}
+
 absl::StatusOr<std::string> EnsureDatabase(Layout layout) {
   const std::string dir = absl::StrFormat("%s/%s-%d-p%d-l%d", g_flags.work_dir, LayoutName(layout),
                                           g_flags.points, g_flags.page_size, g_flags.leaf_size);
@@ -332,6 +374,8 @@ int main(int argc, char** argv) {
       g_flags.page_size = static_cast<uint32_t>(std::strtoul(v.c_str(), nullptr, 10));
     } else if (pbgi::ParseFlag(argv[i], "--reader_share", &v)) {
       g_flags.reader_share = std::strtod(v.c_str(), nullptr);
+    } else if (pbgi::ParseFlag(argv[i], "--profile_gathers", &v)) {
+      g_flags.profile_gathers = std::strtoull(v.c_str(), nullptr, 10);
     } else if (pbgi::ParseFlag(argv[i], "--leaf_size", &v)) {
       g_flags.leaf_size = static_cast<uint32_t>(std::strtoul(v.c_str(), nullptr, 10));
     } else {
@@ -367,6 +411,9 @@ int main(int argc, char** argv) {
   if (recv->empty()) {
     std::fprintf(stderr, "no receivers (empty database?)\n");
     return 1;
+  }
+  if (g_flags.profile_gathers > 0) {
+    return pbgi::ProfileWarmGathers(subjects[0].path, *recv, g_flags.profile_gathers);
   }
   for (const auto& s : subjects) pbgi::Register(s, recv);
   pbgi::RegisterWarm(subjects[0], recv);

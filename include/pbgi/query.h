@@ -52,6 +52,7 @@
 #ifndef PBGI_QUERY_H_
 #define PBGI_QUERY_H_
 
+#include <algorithm>
 #include <array>
 #include <atomic>
 #include <cmath>
@@ -109,13 +110,35 @@ inline bool SurfelBeyond(const Surfel& s, const Receiver& r, float max_distance)
 }
 
 // The solid angle a node subtends from the receiver, as the cut criterion measures it.
-inline float NodeSolidAngle(const glm::vec3& lo, const glm::vec3& hi, const float* sh_area,
-                            const glm::vec3& p) {
-  const glm::vec3 v = p - 0.5f * (lo + hi);
+// NodeSolidAngleFrom takes the centre 0.5f * (lo + hi) precomputed (the traversal keeps it in
+// its decoded pages); both forms give the same bits.
+// ProjectedAreaToward(c, w) is sh::Eval<float>(c, w) written out: the same operations in the
+// same order (so the same bits), kept in registers instead of a basis array in memory.
+inline float ProjectedAreaToward(const float* c, const glm::vec3& w) {
+  const float x = w.x, y = w.y, z = w.z;
+  float v = 0.0f;
+  v += c[0] * float(0.282094791773878);
+  v += c[1] * (float(0.488602511902920) * y);
+  v += c[2] * (float(0.488602511902920) * z);
+  v += c[3] * (float(0.488602511902920) * x);
+  v += c[4] * (float(1.092548430592079) * x * y);
+  v += c[5] * (float(1.092548430592079) * y * z);
+  v += c[6] * (float(0.315391565252520) * (3.0f * z * z - 1.0f));
+  v += c[7] * (float(1.092548430592079) * x * z);
+  v += c[8] * (float(0.546274215296040) * (x * x - y * y));
+  return v;
+}
+inline float NodeSolidAngleFrom(const glm::vec3& centre, const float* sh_area,
+                                const glm::vec3& p) {
+  const glm::vec3 v = p - centre;
   const float d2 = glm::dot(v, v);
   if (!(d2 > 0.0f)) return std::numeric_limits<float>::infinity();
   const glm::vec3 w = v / std::sqrt(d2);
-  return std::max(0.0f, sh::Eval<float>(sh_area, w)) / d2;
+  return std::max(0.0f, ProjectedAreaToward(sh_area, w)) / d2;
+}
+inline float NodeSolidAngle(const glm::vec3& lo, const glm::vec3& hi, const float* sh_area,
+                            const glm::vec3& p) {
+  return NodeSolidAngleFrom(0.5f * (lo + hi), sh_area, p);
 }
 inline float ClusterSolidAngle(const Cluster& c, const Receiver& r) {
   return NodeSolidAngle(c.bounds.lo, c.bounds.hi, c.sh_area.data(), r.position);
@@ -130,31 +153,68 @@ inline float NodeReach(float area) {
 // disk reach, always descends into the node rather than taking it as one cluster. (A flat patch
 // seen edge-on from a receiver just off its plane subtends a tiny solid angle from its centre,
 // yet covers half the receiver's view: testing the box alone splatted it as a speck.)
-inline bool NodeNearField(const glm::vec3& lo, const glm::vec3& hi, float reach,
-                          const glm::vec3& p) {
+// NearSphere gives that sphere's centre and squared radius once per node; NodeNearFieldSphere
+// tests it (the same bits as NodeNearField).
+struct NearSphere {
+  glm::vec3 centre;
+  float radius2;
+};
+inline NearSphere NodeNearSphere(const glm::vec3& lo, const glm::vec3& hi, float reach) {
   const glm::vec3 half = 0.5f * (hi - lo);
   const float r = glm::length(half) + reach;
-  const glm::vec3 d = p - (lo + half);
-  return glm::dot(d, d) <= r * r;
+  return {lo + half, r * r};
+}
+inline bool NodeNearFieldSphere(const glm::vec3& centre, float radius2, const glm::vec3& p) {
+  const glm::vec3 d = p - centre;
+  return glm::dot(d, d) <= radius2;
+}
+inline bool NodeNearField(const glm::vec3& lo, const glm::vec3& hi, float reach,
+                          const glm::vec3& p) {
+  const NearSphere s = NodeNearSphere(lo, hi, reach);
+  return NodeNearFieldSphere(s.centre, s.radius2, p);
 }
 
 // Whether a node (bounds of surfel centres, disk reach) lies wholly behind the tangent plane
 // (unit normal) or wholly beyond max_distance: the traversal skips it. Both keep a small
 // margin so that rounding never makes them drop a surfel that the exact surfel tests keep.
+// The margin grows with the largest coordinate magnitude of the node and the receiver:
+// NodeMarginOf(AbsMax(lo, hi), AbsMax(p)) == NodeMargin(lo, hi, p), so the traversal computes
+// the node's part once per page and the receiver's once per gather.
+inline float AbsMax(const glm::vec3& v) {
+  return std::max(std::abs(v.x), std::max(std::abs(v.y), std::abs(v.z)));
+}
+inline float AbsMax(const glm::vec3& lo, const glm::vec3& hi) {
+  return std::max(AbsMax(lo), AbsMax(hi));
+}
+inline float NodeMarginOf(float node_abs_max, float p_abs_max) {
+  return 1e-5f * (1.0f + std::max(node_abs_max, p_abs_max));
+}
 inline float NodeMargin(const glm::vec3& lo, const glm::vec3& hi, const glm::vec3& p) {
-  const glm::vec3 m = glm::max(glm::max(glm::abs(lo), glm::abs(hi)), glm::abs(p));
-  return 1e-5f * (1.0f + std::max(m.x, std::max(m.y, m.z)));
+  return NodeMarginOf(AbsMax(lo, hi), AbsMax(p));
+}
+// `far` is the corner of the bounds farthest along unit_n (hi where unit_n > 0, else lo).
+inline bool NodeWhollyBehindFar(const glm::vec3& far, float reach, const glm::vec3& p,
+                                const glm::vec3& unit_n, float margin) {
+  return glm::dot(unit_n, far - p) + reach < -margin;
+}
+inline bool NodeWhollyBehindMargin(const glm::vec3& lo, const glm::vec3& hi, float reach,
+                                   const glm::vec3& p, const glm::vec3& unit_n, float margin) {
+  const glm::vec3 far{unit_n.x > 0 ? hi.x : lo.x, unit_n.y > 0 ? hi.y : lo.y,
+                      unit_n.z > 0 ? hi.z : lo.z};
+  return NodeWhollyBehindFar(far, reach, p, unit_n, margin);
 }
 inline bool NodeWhollyBehind(const glm::vec3& lo, const glm::vec3& hi, float reach,
                              const glm::vec3& p, const glm::vec3& unit_n) {
-  const glm::vec3 far{unit_n.x > 0 ? hi.x : lo.x, unit_n.y > 0 ? hi.y : lo.y,
-                      unit_n.z > 0 ? hi.z : lo.z};
-  return glm::dot(unit_n, far - p) + reach < -NodeMargin(lo, hi, p);
+  return NodeWhollyBehindMargin(lo, hi, reach, p, unit_n, NodeMargin(lo, hi, p));
+}
+inline bool NodeBeyondMargin(const glm::vec3& lo, const glm::vec3& hi, float reach,
+                             const glm::vec3& p, float max_distance, float margin) {
+  const glm::vec3 d = glm::max(glm::max(lo - p, p - hi), glm::vec3(0.0f));
+  return glm::length(d) - reach > max_distance + margin;
 }
 inline bool NodeBeyond(const glm::vec3& lo, const glm::vec3& hi, float reach, const glm::vec3& p,
                        float max_distance) {
-  const glm::vec3 d = glm::max(glm::max(lo - p, p - hi), glm::vec3(0.0f));
-  return glm::length(d) - reach > max_distance + NodeMargin(lo, hi, p);
+  return NodeBeyondMargin(lo, hi, reach, p, max_distance, NodeMargin(lo, hi, p));
 }
 
 // Counters of one cache level.
@@ -223,6 +283,12 @@ struct DatabaseOptions {
   uint64_t reader_cache_bytes = 0;
   int cache_shard_bits = -1;  // -1: chosen from cache_bytes and page size
   bool verify_checksums = true;
+  // Read pages from the file into the cache (pread) rather than through LMDB's memory map, so
+  // that the map's pages never count in this process's resident memory: peak RSS stays within
+  // cache_bytes plus a fixed overhead, whatever the database's size (StoreOptions::copy_pages).
+  // false: zero-copy reads through the map, whose touched pages stay resident (file-backed,
+  // reclaimable, but counted) until the Database is closed.
+  bool copy_pages = true;
 };
 
 class Reader;
@@ -248,11 +314,15 @@ class Database {
   // A new Reader for one thread. REQUIRES: the Database outlives it.
   absl::StatusOr<std::unique_ptr<Reader>> NewReader();
 
-  // Counters of all Readers (each adds its own every 64 gathers and when destroyed)
-  // and the shared cache's evictions.
+  // Counters of all Readers, live and destroyed, up to their last finished gather, and the
+  // shared cache's evictions. (Each Reader publishes its counters on a cache line of its own;
+  // this sums them under a lock, so calling it costs the gathers nothing.)
   CacheStats TotalStats() const;
   // Bytes of decoded pages in the shared cache now (pinned ones included).
   uint64_t CacheUsageBytes() const;
+  // Bytes of the store's memory map resident in this process now (PageStore::MapResidentBytes;
+  // 0 for a source without a map). With copy_pages, only LMDB's B-tree pages.
+  absl::StatusOr<uint64_t> MapResidentBytes() const;
   // Empties the shared cache of unpinned pages (to measure cold runs).
   void DropCache();
 
@@ -308,7 +378,6 @@ class Reader {
   Database* db_;
   std::unique_ptr<Impl> impl_;
   CacheStats stats_;
-  CacheStats flushed_;
 };
 
 // The order in which to visit receivers for coherence: sorted by the Morton (Z-order) key of

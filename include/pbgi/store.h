@@ -99,6 +99,21 @@ struct StoreOptions {
   // even in random page order, so it is on by default; turn it off only for pages of 4 KiB
   // read at random from a store much larger than RAM.
   bool read_ahead = true;
+  // Readers: ReadTxn::Get() copies each page out of the file (pread) into a buffer that the
+  // ReadTxn owns, instead of returning a view into the memory map. The page bytes then live in
+  // the OS page cache only (shared, reclaimable) and never become resident memory of this
+  // process: a reader that keeps what it needs in its own bounded cache (pbgi::Database does)
+  // stays within that bound whatever the store's size. Only LMDB's B-tree pages are touched in
+  // the map (with the kernel's fault-around, up to 16 OS pages per B-tree page touched: about
+  // 9% of a store with 4 KiB pages), and those are dropped from the map again, see below.
+  // Costs one copy per read.
+  bool copy_pages = false;
+  // Readers with copy_pages: after every `trim_map_every` reads (all ReadTxns together), the
+  // whole map is madvise(MADV_DONTNEED)ed, so the B-tree pages that the reads faulted in stop
+  // counting as this process's resident memory (they stay in the page cache; the next read
+  // faults the hot ones back in from there). Bounds the map's resident bytes to what that many
+  // reads touch, whatever the store's size. 0: never.
+  uint32_t trim_map_every = 256;
 };
 
 // A zero-copy view of one page, valid until the ReadTxn that produced it is reset or destroyed.
@@ -140,7 +155,8 @@ class ReadTxn {
   ~ReadTxn();
 
   // Reads one page. NotFound if absent; DataLoss naming the page if its checksum, kind or number
-  // is wrong.
+  // is wrong. With StoreOptions::copy_pages the view points into this ReadTxn's buffer and is
+  // valid only until the next Get() (or Reset()).
   absl::StatusOr<PageView> Get(Section section, uint64_t page_no);
   // Releases the snapshot (views become invalid) but keeps the handle for Renew().
   void Reset();
@@ -167,6 +183,10 @@ class PageStore {
   absl::StatusOr<ReadTxn> BeginRead() const;
   // Bytes of the data file on disk.
   uint64_t FileBytes() const;
+  // Bytes of the store's memory map that are resident in this process now (the Rss of the
+  // mapping in /proc/self/smaps): what reading through the map has cost in resident memory.
+  // Unavailable (an error) where /proc is not mounted.
+  absl::StatusOr<uint64_t> MapResidentBytes() const;
   const StoreOptions& options() const;
 
  private:

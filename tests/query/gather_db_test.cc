@@ -3,6 +3,7 @@
 // sizes, a tiny cache, eight threads, and a corrupt page on disk.
 #include <algorithm>
 #include <atomic>
+#include <cstdio>
 #include <cstring>
 #include <fstream>
 #include <iterator>
@@ -151,6 +152,56 @@ TEST(GatherDb, TinyCacheAndEightThreadsMatchOneThread) {
   EXPECT_EQ(errors.load(), 0);
   EXPECT_EQ(mismatches.load(), 0);
   EXPECT_LE((*small)->CacheUsageBytes(), 8u * 4096u);
+}
+
+// The --cache promise: gathering over a database many times bigger than the cache leaves only
+// LMDB's B-tree pages of the map resident (pages are copied out of the file into the cache),
+// while reading through the map (copy_pages = false, the old way) leaves every page it read.
+TEST(GatherDb, CacheBoundsTheResidentMapOfABiggerDatabase) {
+  BuildOptions b;
+  b.page_size = EfficientPageSize(4);
+  b.memory_bytes = 64 << 20;
+  auto t = TempDatabase::Create(testing::RandomSceneSurfels(60000, 47), b);
+  ASSERT_TRUE(t.ok()) << t.status();
+  std::vector<Receiver> receivers;
+  for (size_t i = 0; i < (*t)->surfels().size(); i += 40) {
+    const Surfel& s = (*t)->surfels()[i];
+    receivers.push_back({s.position + 1e-4f * s.normal, s.normal});
+  }
+  const std::vector<uint32_t> order = ZOrder(receivers);
+  uint64_t resident[2] = {0, 0};
+  for (bool copy : {true, false}) {
+    DatabaseOptions o;
+    o.cache_bytes = 256 << 10;
+    o.copy_pages = copy;
+    auto db = Database::Open((*t)->path(), o);
+    ASSERT_TRUE(db.ok()) << db.status();
+    const double file = static_cast<double>((*db)->FileBytes());
+    ASSERT_GT(file, 10.0 * o.cache_bytes);
+    auto reader = (*db)->NewReader();
+    ASSERT_TRUE(reader.ok());
+    QueryStats stats;
+    absl::Status s = (*reader)->GatherBatch(
+        receivers, Cut{}, order, [](size_t, const Gathered&) { return absl::OkStatus(); }, &stats);
+    ASSERT_TRUE(s.ok()) << s;
+    // The receivers cover the scene: most of the database went through the small cache.
+    ASSERT_GT(static_cast<double>(stats.bytes_read), 0.6 * file);
+    auto rss = (*db)->MapResidentBytes();
+    ASSERT_TRUE(rss.ok()) << rss.status();
+    resident[copy ? 0 : 1] = *rss;
+    if (copy) {
+      // At most the B-tree pages (with the kernel's fault-around) of the reads since the map
+      // was last trimmed (StoreOptions::trim_map_every); PageStoreTest checks the trim itself.
+      EXPECT_LT(static_cast<double>(*rss), 0.10 * file)
+          << "map pages resident after reading " << stats.bytes_read << " bytes of a " << file
+          << "-byte database";
+    } else {
+      EXPECT_GT(static_cast<double>(*rss), 0.5 * file);
+    }
+    EXPECT_LE((*db)->CacheUsageBytes(), o.cache_bytes);
+  }
+  std::printf("map resident: copy_pages %.3f MB, through the map %.2f MB\n", resident[0] / 1e6,
+              resident[1] / 1e6);
 }
 
 // Flips one byte inside a node page in data.mdb: the gather reports that page and the store.

@@ -321,6 +321,42 @@ TEST(GatherFake, CountersAddUp) {
             first.TotalPagesTouched() + second.TotalPagesTouched());
 }
 
+// Database::TotalStats() is exact at any time: it sums what each live Reader has published
+// (after every gather, on its own cache line) and what destroyed Readers left.
+TEST(GatherFake, TotalStatsAreExactWhileReadersLive) {
+  std::vector<Surfel> input = testing::RandomSceneSurfels(3000, 7);
+  FakeDb fake = BuildFakeDb(input, {8, 1024, Channels::kRadiance});
+  std::vector<Receiver> receivers = Receivers(fake.surfels, 5, 8);
+  auto db = Open(fake);
+  auto a = db->NewReader();
+  auto b = db->NewReader();
+  ASSERT_TRUE(a.ok() && b.ok());
+  Gathered g;
+  auto expect_sum = [&](const CacheStats& want) {
+    const CacheStats got = db->TotalStats();
+    EXPECT_EQ(got.reader.hits, want.reader.hits);
+    EXPECT_EQ(got.reader.misses, want.reader.misses);
+    EXPECT_EQ(got.reader.pages_read, want.reader.pages_read);
+    EXPECT_EQ(got.shared.hits, want.shared.hits);
+    EXPECT_EQ(got.shared.misses, want.shared.misses);
+    EXPECT_EQ(got.shared.pages_read, want.shared.pages_read);
+    EXPECT_EQ(got.shared.bytes_read, want.shared.bytes_read);
+  };
+  for (const Receiver& r : receivers) ASSERT_TRUE((*a)->Gather(r, Cut{}, &g).ok());
+  ASSERT_TRUE((*b)->Gather(receivers[0], Cut{0.001f}, &g).ok());
+  const CacheStats b_final = (*b)->stats();
+  CacheStats both = (*a)->stats();
+  both.Add(b_final);
+  EXPECT_GT(both.shared.pages_read, 0u);
+  expect_sum(both);  // a few gathers, both Readers alive
+  b->reset();
+  expect_sum(both);  // b's counters stay in the total
+  ASSERT_TRUE((*a)->Gather(receivers[1], Cut{0.001f}, &g).ok());
+  CacheStats now = (*a)->stats();
+  now.Add(b_final);
+  expect_sum(now);
+}
+
 TEST(GatherFake, WarmGatherDoesNotAllocate) {
   std::vector<Surfel> input = testing::RandomSceneSurfels(3000, 7);
   FakeDb fake = BuildFakeDb(input, {8, 4096 - 16, Channels::kRadiance});

@@ -7,6 +7,7 @@
 #include <unistd.h>
 
 #include <csignal>
+#include <cstdio>
 #include <cstring>
 #include <fstream>
 #include <sstream>
@@ -131,6 +132,13 @@ TEST(PageStoreTest, RoundTripManyPagesOfSeveralSizes) {
     EXPECT_EQ(report->points.records, written.point_count);
     EXPECT_EQ(report->points.last_page_no, c.points - 1);
     EXPECT_EQ(report->bad_pages, 0u);
+    // The same bytes when pages are copied out of the file (inline values in LMDB's leaves
+    // included, at 104 bytes).
+    StoreOptions copy;
+    copy.copy_pages = true;
+    auto copied = PageStore::Open(path, copy);
+    ASSERT_TRUE(copied.ok()) << copied.status();
+    ExpectContents(**copied, c.nodes, c.points, c.page_size);
   }
 }
 
@@ -258,6 +266,20 @@ TEST(PageStoreTest, FlippedByteIsDataLossNamingThatPage) {
   auto utxn = (*unchecked)->BeginRead();
   ASSERT_TRUE(utxn.ok());
   EXPECT_TRUE(utxn->Get(Section::kPoints, 37).ok());
+
+  // Pages copied out of the file (copy_pages) are checked the same way.
+  StoreOptions copy;
+  copy.copy_pages = true;
+  auto copied = PageStore::Open(path, copy);
+  ASSERT_TRUE(copied.ok());
+  auto ctxn = (*copied)->BeginRead();
+  ASSERT_TRUE(ctxn.ok());
+  auto cbad = ctxn->Get(Section::kPoints, 37);
+  ASSERT_FALSE(cbad.ok());
+  EXPECT_EQ(cbad.status().code(), absl::StatusCode::kDataLoss);
+  EXPECT_THAT(cbad.status().message(), HasSubstr("points page 37"));
+  EXPECT_THAT(cbad.status().message(), HasSubstr("checksum"));
+  EXPECT_TRUE(ctxn->Get(Section::kPoints, 38).ok());
 }
 
 TEST(PageStoreTest, TruncatedFileIsRefused) {
@@ -564,6 +586,80 @@ TEST(PageStoreTest, CheckAllPagesComparesCountsWithTheMetaRecord) {
   EXPECT_EQ(report->bad_pages, 0u);
   EXPECT_EQ(report->points.records, 20u);
   EXPECT_THAT(report->first_error.message(), HasSubstr("points pages 1 to 1 are missing"));
+}
+
+// The --cache promise (docs/store.md): reading every page of a store through the map leaves
+// it all resident in this process; with copy_pages only LMDB's B-tree pages are, and the bytes
+// are the same.
+TEST(PageStoreTest, CopyPagesKeepsTheMapOutOfResidentMemory) {
+  ScratchDir dir;
+  const std::string path = dir.Sub("store");
+  StoreOptions opt;
+  opt.page_size = EfficientPageSize(4);
+  opt.sync = false;
+  constexpr uint64_t kPages = 640;  // per section: 2 x 640 x 16 KiB = 20 MiB
+  WriteStore(path, opt, kPages, kPages);
+  const double store_bytes = 2.0 * kPages * opt.page_size;
+
+  StoreOptions mapped;
+  auto m = PageStore::Open(path, mapped);
+  ASSERT_TRUE(m.ok()) << m.status();
+  ExpectContents(**m, kPages, kPages);
+  auto m_rss = (*m)->MapResidentBytes();
+  ASSERT_TRUE(m_rss.ok()) << m_rss.status();
+  // The probe sees what the map costs: the pages that verification read are resident.
+  EXPECT_GT(static_cast<double>(*m_rss), 0.9 * store_bytes);
+
+  StoreOptions copy;
+  copy.copy_pages = true;
+  copy.trim_map_every = 0;  // never trim: what the B-tree walks leave resident
+  auto c = PageStore::Open(path, copy);
+  ASSERT_TRUE(c.ok()) << c.status();
+  ExpectContents(**c, kPages, kPages);
+  auto c_rss = (*c)->MapResidentBytes();
+  ASSERT_TRUE(c_rss.ok()) << c_rss.status();
+  EXPECT_LT(static_cast<double>(*c_rss), 0.05 * store_bytes)
+      << "resident map bytes after copying every page out of a "
+      << static_cast<uint64_t>(store_bytes) << "-byte store";
+  std::printf("map resident after reading %.1f MB: mapped %.2f MB, copy_pages %.3f MB\n",
+              store_bytes / 1e6, static_cast<double>(*m_rss) / 1e6,
+              static_cast<double>(*c_rss) / 1e6);
+  EXPECT_GT(*c_rss, 0u) << "the B-tree walks touch the map";
+}
+
+// trim_map_every drops the B-tree pages that reads faulted into the map: with a trim after every
+// read nothing of the map stays resident, and the pages still read correctly afterwards.
+TEST(PageStoreTest, TrimmingTheMapLeavesNothingResident) {
+  ScratchDir dir;
+  const std::string path = dir.Sub("store");
+  StoreOptions opt;
+  opt.page_size = EfficientPageSize(1);
+  opt.sync = false;
+  constexpr uint64_t kPages = 300;
+  WriteStore(path, opt, kPages, kPages);
+  for (uint32_t every : {1u, 5u}) {
+    SCOPED_TRACE(every);
+    StoreOptions copy;
+    copy.copy_pages = true;
+    copy.trim_map_every = every;
+    auto c = PageStore::Open(path, copy);
+    ASSERT_TRUE(c.ok()) << c.status();
+    {
+      auto txn = (*c)->BeginRead();
+      ASSERT_TRUE(txn.ok()) << txn.status();
+      for (Section s : {Section::kNodes, Section::kPoints}) {
+        for (uint64_t i = 0; i < kPages; ++i) {  // 2 x 300 reads: a multiple of both
+          auto v = txn->Get(s, i);
+          ASSERT_TRUE(v.ok()) << v.status();
+          ASSERT_EQ(v->header->page_no, i);
+        }
+      }
+    }
+    auto rss = (*c)->MapResidentBytes();
+    ASSERT_TRUE(rss.ok()) << rss.status();
+    EXPECT_EQ(*rss, 0u);
+    ExpectContents(**c, kPages, kPages);  // trimmed pages fault back in intact
+  }
 }
 
 }  // namespace
