@@ -112,7 +112,7 @@ absl::Status MicroBuffer::Prepare(int resolution) {
   hemi_omega_.clear();
   pixels_.assign(n, internal::PixelState{});
   for (internal::PixelState& px : pixels_) px.depth = std::numeric_limits<float>::infinity();
-  fragments_.reserve(n);
+  fragments_.resize(n);
 
   const double step = 2.0 / res_;
   for (int f = 0; f < 6; ++f) {

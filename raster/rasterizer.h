@@ -15,6 +15,11 @@
 
 namespace pbgi::internal {
 
+// Cones up to 2 * kBoxMaxHalf pixels wide are splatted as squares (SplatBox), which then span
+// at most kBoxMaxSpan pixels per axis.
+inline constexpr float kBoxMaxHalf = 1.0f;
+inline constexpr int kBoxMaxSpan = 4;
+
 // Shades one receiver into a MicroBuffer that it borrows. Not thread-safe (neither is the
 // buffer); cheap to construct: everything it keeps lives in the MicroBuffer.
 class Rasterizer {
@@ -42,39 +47,54 @@ class Rasterizer {
   }
   void PrepareCluster(const Cluster& c, ShadeResult* out);
   void PrepareSurfel(const Surfel& s, ShadeResult* out);
-  void SplatCone(const PreparedSplat& s);
-  void SplatDisk(const PreparedSplat& s);
   void Integrate(const ShadeReceiver& r, ShadeResult* out);
+
+  // What Emit() needs of the element being drawn.
+  struct Frag {
+    float depth, lo, hi;  // centre distance and depth range [lo, hi]
+    const float* rgb;     // radiance
+  };
+  static Frag FragOf(const PreparedSplat& s) {
+    return Frag{s.depth, s.depth - s.extent, s.depth + s.extent, &s.radiance[0]};
+  }
+  template <bool kClamp, bool kRad>
+  void Draw(uint32_t count);
+  template <bool kClamp, bool kRad>
+  void SplatCone(const PreparedSplat& s);
+  // A square footprint of half side h pixels centred at (u, v) (pixel-edge coordinates) on
+  // the face whose first pixel is `base`; q is the pixel that holds the centre.
+  template <bool kClamp, bool kRad>
+  void SplatBox(const PreparedSplat& s, int base, float u, float v, float h, uint32_t q);
+  template <bool kClamp, bool kRad>
+  void SplatDisk(const PreparedSplat& s);
 
   // Adds a fragment of coverage `cov` to pixel p. With clamp, fragments arrive front to back:
   // one that overlaps the open layer in depth joins it (the splats of one surface tile it, and
   // their round footprints overlap and leave gaps that cancel only if they add up freely); one
   // wholly behind closes the layer first. The first layer counts in full only if nothing lies
   // behind it; otherwise it, like every later one, only fills what is left below 1: nearer
-  // surfaces hide farther ones (the depth test), see Close().
-  void Emit(uint32_t p, float cov, const PreparedSplat& s) {
+  // surfaces hide farther ones (the depth test), see Close(). An open layer's `far` is 0 when
+  // it is empty (every depth range ends beyond 0).
+  template <bool kClamp, bool kRad>
+  void Emit(uint32_t p, float cov, const Frag& f) {
     PixelState& px = px_[p];
-    px.depth = std::min(px.depth, s.depth);
-    if (!clamp_) {
+    px.depth = std::min(px.depth, f.depth);
+    if constexpr (!kClamp) {
       px.closed += cov;
-      if (radiance_) {
-        for (int ch = 0; ch < 3; ++ch) px.closed_rgb[ch] += cov * s.radiance[ch];
+      if constexpr (kRad) {
+        for (int ch = 0; ch < 3; ++ch) px.closed_rgb[ch] += cov * f.rgb[ch];
       }
-      return;
-    }
-    if (px.closed >= 1.0f) return;
-    if (px.open > 0.0f && s.depth - s.extent > px.far) {
-      Close(px, /*behind=*/true);
-      if (px.closed >= 1.0f) return;
-    }
-    if (px.open == 0.0f) {
-      px.far = s.depth + s.extent;
     } else {
-      px.far = std::max(px.far, s.depth + s.extent);
-    }
-    px.open += cov;
-    if (radiance_) {
-      for (int ch = 0; ch < 3; ++ch) px.open_rgb[ch] += cov * s.radiance[ch];
+      if (px.closed >= 1.0f) return;
+      if (f.lo > px.far && px.open > 0.0f) {
+        Close<kRad>(px, /*behind=*/true);
+        if (px.closed >= 1.0f) return;
+      }
+      px.far = std::max(px.far, f.hi);
+      px.open += cov;
+      if constexpr (kRad) {
+        for (int ch = 0; ch < 3; ++ch) px.open_rgb[ch] += cov * f.rgb[ch];
+      }
     }
   }
 
@@ -82,18 +102,22 @@ class Rasterizer {
   // only when nothing lies behind it (a lone surface whose splats' overlaps and gaps cancel);
   // with a surface behind, the gaps are filled by that surface, so the overlaps must not count
   // twice: the layer is clamped at 1 like the later ones (bug: hidden_surface_overcount).
+  template <bool kRad>
   static void Close(PixelState& px, bool behind) {
     if (!(px.open > 0.0f)) return;
     const float e = px.closed == 0.0f && !behind
                         ? px.open
                         : std::min(px.open, std::max(0.0f, 1.0f - px.closed));
-    const float scale = e / px.open;
     px.closed += e;
-    for (int ch = 0; ch < 3; ++ch) {
-      px.closed_rgb[ch] += scale * px.open_rgb[ch];
-      px.open_rgb[ch] = 0.0f;
+    if constexpr (kRad) {
+      const float scale = e / px.open;
+      for (int ch = 0; ch < 3; ++ch) {
+        px.closed_rgb[ch] += scale * px.open_rgb[ch];
+        px.open_rgb[ch] = 0.0f;
+      }
     }
     px.open = 0.0f;
+    px.far = 0.0f;
   }
 
   MicroBuffer& mb_;
@@ -106,6 +130,7 @@ class Rasterizer {
   const float* inv_omega_;
   const float max_width_;  // the largest pixel's angular width
   glm::vec3 origin_, t_, b_, n_;
+  uint32_t count_ = 0;  // prepared splats in mb_.splats_
 };
 
 }  // namespace pbgi::internal

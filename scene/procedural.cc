@@ -218,6 +218,7 @@ Scene MakeForestScene(const SceneOptions& options) {
   uint32_t soil = AddMaterial(&s, glm::vec3(0.3f, 0.22f, 0.15f));
   uint32_t bark = AddMaterial(&s, glm::vec3(0.35f, 0.25f, 0.18f));
   uint32_t leaf = AddMaterial(&s, glm::vec3(0.2f, 0.45f, 0.15f));
+  s.materials[leaf].thin = true;  // a leaf's back is its other side, not the inside of a solid
   const float half = 0.5f * spacing * static_cast<float>(per_side) + spacing;
   Mesh ground;
   AddQuad(&ground, {-half, -half, 0.0f}, {half, -half, 0.0f}, {half, half, 0.0f},

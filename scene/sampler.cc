@@ -9,14 +9,18 @@
 // are generated in parallel and the stream is the same for any number of threads.
 #include <algorithm>
 #include <cmath>
+#include <functional>
+#include <limits>
 #include <utility>
 
 #include "absl/strings/str_format.h"
 #include "pbgi/scene.h"
+#include "pbgi/status.h"
 #include "scene/sample_math.h"
 #include "scene/scene_index.h"
 #include "tbb/blocked_range.h"
 #include "tbb/parallel_for.h"
+#include "tbb/parallel_reduce.h"
 #include "tbb/task_group.h"
 
 namespace pbgi {
@@ -26,6 +30,44 @@ using internal::HashCombine;
 using internal::SceneIndex;
 
 constexpr int64_t kBlock = 2048;  // surfels per parallel task inside a chunk
+
+// The scene without its thin triangles (Material::thin): what the hidden-sample test traces, so
+// that a leaf's back side never counts as the inside of a solid.
+std::shared_ptr<const Scene> SolidPart(const Scene& scene) {
+  bool any_thin = false;
+  for (const Material& m : scene.materials) any_thin = any_thin || m.thin;
+  if (!any_thin) return nullptr;
+  auto solid = std::make_shared<Scene>();
+  solid->name = scene.name + " (solid part)";
+  solid->materials = scene.materials;
+  solid->has_radiance = false;
+  // Meshes [0, M) as they are (for instances whose override material is solid), then [M, 2M)
+  // without their thin triangles.
+  const uint32_t m_count = static_cast<uint32_t>(scene.meshes.size());
+  solid->meshes = scene.meshes;
+  for (const Mesh& m : scene.meshes) {
+    Mesh f;
+    f.positions = m.positions;
+    for (size_t t = 0; t < m.triangles.size(); ++t) {
+      if (scene.materials[m.materials[t]].thin) continue;
+      f.triangles.push_back(m.triangles[t]);
+      f.materials.push_back(m.materials[t]);
+    }
+    solid->meshes.push_back(std::move(f));
+  }
+  for (const Instance& in : scene.instances) {
+    if (in.material >= 0) {
+      if (!scene.materials[static_cast<size_t>(in.material)].thin) {
+        solid->instances.push_back(in);
+      }
+    } else {
+      Instance f = in;
+      f.mesh += m_count;
+      solid->instances.push_back(f);
+    }
+  }
+  return solid;
+}
 
 class SceneSurfelSource final : public SurfelSource {
  public:
@@ -39,48 +81,56 @@ class SceneSurfelSource final : public SurfelSource {
 
   ~SceneSurfelSource() override { pending_->wait(); }
 
-  // Builds the cumulative area table; returns an error when the request cannot be met.
+  // Builds the cumulative area table, runs the pilot pass for hidden samples; returns an error
+  // when the request cannot be met.
   absl::Status Init() {
     const int64_t tris = index_.triangle_count();
-    cumulative_.resize(static_cast<size_t>(tris) + 1);
+    area_.resize(static_cast<size_t>(tris) + 1);
     double area = 0.0;
-    cumulative_[0] = 0.0;
+    area_[0] = 0.0;
     for (uint32_t i = 0; i < scene_->instances.size(); ++i) {
       const int64_t first = index_.instance_first()[i];
       const int64_t n = index_.instance_first()[i + 1] - first;
       for (int64_t t = 0; t < n; ++t) {
         area += index_.Triangle(i, static_cast<uint32_t>(t)).Area();
-        cumulative_[first + t + 1] = area;
+        area_[first + t + 1] = area;
       }
     }
     total_area_ = area;
-    if (options_.count > 0) {
-      count_ = options_.count;
-    } else if (options_.density > 0.0) {
-      count_ = std::llround(area * options_.density);
-    } else if (options_.count < 0 || options_.density < 0.0) {
+    if (options_.count < 0 || options_.density < 0.0) {
       return absl::InvalidArgumentError(
           absl::StrFormat("scene '%s': negative surfel count or density requested", scene_->name));
-    } else {
+    }
+    if (options_.count == 0 && !(options_.density > 0.0)) {
       return absl::InvalidArgumentError(
           absl::StrFormat("scene '%s': give a surfel count or a density", scene_->name));
-    }
-    if (count_ > 0 && !(area > 0.0)) {
-      return absl::InvalidArgumentError(absl::StrFormat(
-          "scene '%s' has no surface area to put %d surfels on", scene_->name, count_));
     }
     if (options_.chunk_size <= 0) {
       return absl::InvalidArgumentError("sampler chunk size must be positive");
     }
-    // Measure the cumulative area in surfels, with the last entry exactly the count so that
-    // floor(C_T + u) == count.
-    const double scale = count_ > 0 ? static_cast<double>(count_) / area : 0.0;
-    for (double& c : cumulative_) c = std::min(c * scale, static_cast<double>(count_));
-    cumulative_.back() = static_cast<double>(count_);
-    offset_ = internal::ToUnitFloat(HashCombine(options_.seed, 0x6f6666u));
+    int64_t request = options_.count > 0 ? options_.count : std::llround(area * options_.density);
+    if (request > 0 && !(area > 0.0)) {
+      return absl::InvalidArgumentError(absl::StrFormat(
+          "scene '%s' has no surface area to put %d surfels on", scene_->name, request));
+    }
+    // The pilot: which fraction of the area is visible (not inside solid geometry)?
+    visible_fraction_ = 1.0;
+    if (options_.drop_hidden && request > 0) {
+      PBGI_RETURN_IF_ERROR(Pilot(request));
+      if (options_.count == 0) request = std::llround(area * visible_fraction_ * options_.density);
+    }
+    request_ = request;
+    // Candidates: as many as make `request` visible ones at a uniform density.
+    count_ = test_hidden_ ? std::max<int64_t>(
+                                1, std::llround(static_cast<double>(request) / visible_fraction_))
+                          : request;
+    if (request == 0) count_ = 0;
+    layout_ = MakeLayout(count_, options_.seed);
     area_per_surfel_ = count_ > 0 ? area / static_cast<double>(count_) : 0.0;
     radius_ = static_cast<float>(std::sqrt(area_per_surfel_ / 3.14159265358979323846));
-    for (auto& b : buffers_) b.resize(static_cast<size_t>(std::min(options_.chunk_size, count_)));
+    const size_t chunk = static_cast<size_t>(std::min(options_.chunk_size, count_));
+    for (auto& b : buffers_) b.resize(chunk);
+    for (auto& k : keep_) k.resize(test_hidden_ ? chunk : 0);
     return Rewind();
   }
 
@@ -88,13 +138,14 @@ class SceneSurfelSource final : public SurfelSource {
     size_t written = 0;
     while (written < out.size()) {
       if (pos_ == size_) {
-        if (first_ + size_ >= count_) break;
+        if (end_ >= count_) break;
         pending_->wait();
         std::swap(buffers_[0], buffers_[1]);
-        first_ = next_first_;
+        end_ = next_end_;
         size_ = next_size_;
         pos_ = 0;
-        Prefetch(first_ + size_);
+        Prefetch(end_);
+        continue;
       }
       size_t n = std::min(out.size() - written, static_cast<size_t>(size_ - pos_));
       std::copy_n(buffers_[0].begin() + pos_, n, out.begin() + written);
@@ -106,7 +157,7 @@ class SceneSurfelSource final : public SurfelSource {
 
   absl::Status Rewind() override {
     pending_->wait();
-    first_ = 0;
+    end_ = 0;
     size_ = 0;
     pos_ = 0;
     Prefetch(0);
@@ -114,64 +165,147 @@ class SceneSurfelSource final : public SurfelSource {
   }
 
   Bounds KnownBounds() const override { return index_.bounds(); }
-  int64_t KnownCount() const override { return count_; }
+  int64_t KnownCount() const override { return test_hidden_ ? -1 : count_; }
   bool HasRadiance() const override { return bake_; }
 
+  int64_t candidates() const { return count_; }
+  double visible_fraction() const { return visible_fraction_; }
+
  private:
-  // Starts generating surfels [first, first + chunk) into buffers_[1] in the background.
+  // Where the candidates of a stream of `count` go: the cumulative area measured in candidates
+  // (C_g = area_[g] * scale, the last one exactly `count`) and the systematic offset u.
+  struct Layout {
+    int64_t count = 0;
+    double scale = 0.0;
+    double offset = 0.0;
+    uint64_t seed = 0;
+  };
+
+  Layout MakeLayout(int64_t count, uint64_t seed) const {
+    Layout l;
+    l.count = count;
+    l.scale = count > 0 ? static_cast<double>(count) / total_area_ : 0.0;
+    l.offset = internal::ToUnitFloat(HashCombine(seed, 0x6f6666u));
+    l.seed = seed;
+    return l;
+  }
+
+  // C_g of a layout.
+  double Cumulative(const Layout& l, int64_t g) const {
+    if (g >= index_.triangle_count()) return static_cast<double>(l.count);
+    return std::min(area_[g] * l.scale, static_cast<double>(l.count));
+  }
+
+  // First candidate owned by triangle g: floor(C_g + u).
+  int64_t FirstOf(const Layout& l, int64_t g) const {
+    return static_cast<int64_t>(std::floor(Cumulative(l, g) + l.offset));
+  }
+
+  // Estimates the visible fraction of the area from a stratified pilot sample of up to 2^17
+  // points with its own seed; decides whether the stream tests its candidates at all.
+  absl::Status Pilot(int64_t request) {
+    const std::shared_ptr<const Scene> solid = SolidPart(*scene_);
+    if (solid != nullptr) {
+      solid_scene_ = solid;
+      PBGI_ASSIGN_OR_RETURN(solid_tracer_, Tracer::Create(*solid_scene_));
+    }
+    const int64_t m = std::clamp<int64_t>(request, int64_t{1} << 14, int64_t{1} << 17);
+    const Layout pilot = MakeLayout(m, HashCombine(options_.seed, 0x70696c6fu));
+    std::vector<Surfel> s(static_cast<size_t>(m));
+    std::vector<uint32_t> mats(static_cast<size_t>(m));
+    const int64_t visible = tbb::parallel_reduce(
+        tbb::blocked_range<int64_t>(0, m, kBlock), int64_t{0},
+        [&](const tbb::blocked_range<int64_t>& r, int64_t acc) {
+          Place(pilot, r.begin(), r.end(), s.data() + r.begin(), mats.data() + r.begin());
+          for (int64_t i = r.begin(); i < r.end(); ++i) acc += Hidden(s[i]) ? 0 : 1;
+          return acc;
+        },
+        std::plus<int64_t>(), tbb::simple_partitioner());
+    if (visible == 0) {
+      return absl::FailedPreconditionError(absl::StrFormat(
+          "scene '%s': all %d pilot samples lie inside solid geometry (back faces all round); "
+          "use keep-hidden sampling",
+          scene_->name, m));
+    }
+    test_hidden_ = visible < m;
+    visible_fraction_ = static_cast<double>(visible) / static_cast<double>(m);
+    return absl::OkStatus();
+  }
+
+  // Whether a sample lies inside solid geometry: the ray along its normal first meets the back
+  // of a (non-thin) face.
+  bool Hidden(const Surfel& s) const {
+    const Tracer& t = solid_tracer_ ? *solid_tracer_ : *tracer_;
+    const Hit h = t.Intersect(s.position + t.epsilon() * s.normal, s.normal,
+                              std::numeric_limits<float>::infinity());
+    return h.hit && !h.front;
+  }
+
+  // Starts generating candidates [first, first + chunk) into buffers_[1] in the background and
+  // compacting the visible ones to its front.
   void Prefetch(int64_t first) {
-    next_first_ = first;
-    next_size_ = std::max<int64_t>(0, std::min(options_.chunk_size, count_ - first));
+    next_end_ = first + std::max<int64_t>(0, std::min(options_.chunk_size, count_ - first));
+    next_size_ = next_end_ - first;
     if (next_size_ == 0) return;
-    pending_->run([this] {
-      const int64_t n = next_size_;
-      const int64_t base = next_first_;
+    pending_->run([this, first] {
+      const int64_t n = next_end_ - first;
       Surfel* dst = buffers_[1].data();
+      uint8_t* keep = test_hidden_ ? keep_[1].data() : nullptr;
       // simple_partitioner: the same blocks for any thread count.
       tbb::parallel_for(
           tbb::blocked_range<int64_t>(0, n, kBlock),
           [&](const tbb::blocked_range<int64_t>& r) {
-            Generate(base + r.begin(), base + r.end(), dst + r.begin());
+            Generate(first + r.begin(), first + r.end(), dst + r.begin(),
+                     keep ? keep + r.begin() : nullptr);
           },
           tbb::simple_partitioner());
+      if (keep != nullptr) {
+        int64_t kept = 0;
+        for (int64_t i = 0; i < n; ++i) {
+          if (keep[i]) dst[kept++] = dst[i];
+        }
+        next_size_ = kept;
+      }
     });
   }
 
-  // First surfel owned by triangle g: floor(C_g + u).
-  int64_t FirstOf(int64_t g) const {
-    return static_cast<int64_t>(std::floor(cumulative_[g] + offset_));
-  }
-
-  // Surfels [begin, end) in order.
-  void Generate(int64_t begin, int64_t end, Surfel* out) const {
+  // Candidates [begin, end) of layout l, in order, with their materials: positions and normals.
+  void Place(const Layout& l, int64_t begin, int64_t end, Surfel* out, uint32_t* materials) const {
     // The triangle of `begin`: the last g with floor(C_g + u) <= begin, i.e. C_g < begin+1-u.
-    const double key = static_cast<double>(begin) + 1.0 - offset_;
-    int64_t g =
-        (std::lower_bound(cumulative_.begin(), cumulative_.end(), key) - cumulative_.begin()) - 1;
+    const double key = static_cast<double>(begin) + 1.0 - l.offset;
     const int64_t tris = index_.triangle_count();
+    int64_t lo = 0, hi = tris + 1;  // first g in [0, T] with C_g >= key
+    while (lo < hi) {
+      const int64_t mid = lo + (hi - lo) / 2;
+      if (Cumulative(l, mid) < key) {
+        lo = mid + 1;
+      } else {
+        hi = mid;
+      }
+    }
+    int64_t g = lo - 1;
     uint32_t inst = index_.InstanceOf(g);
     int64_t tri_first = 0, tri_end = -1;
     internal::WorldTriangle w{};
     glm::vec3 normal(0.0f);
     uint32_t material = 0;
     float r0 = 0.0f, r1 = 0.0f;
-    std::vector<uint32_t> materials(bake_ ? static_cast<size_t>(end - begin) : 0);
     for (int64_t s = begin; s < end; ++s) {
       if (s >= tri_end) {
         if (tri_end >= 0) ++g;
-        tri_first = FirstOf(g);
-        tri_end = FirstOf(g + 1);
+        tri_first = FirstOf(l, g);
+        tri_end = FirstOf(l, g + 1);
         while (tri_end <= s && g + 1 < tris) {  // triangles that own no surfel
           ++g;
           tri_first = tri_end;
-          tri_end = FirstOf(g + 1);
+          tri_end = FirstOf(l, g + 1);
         }
         while (index_.instance_first()[inst + 1] <= g) ++inst;
         const uint32_t t = static_cast<uint32_t>(g - index_.instance_first()[inst]);
         w = index_.Triangle(inst, t);
         normal = glm::normalize(w.Cross());
         material = index_.MaterialOf(inst, t);
-        const uint64_t tk = HashCombine(options_.seed, static_cast<uint64_t>(g));
+        const uint64_t tk = HashCombine(l.seed, static_cast<uint64_t>(g));
         r0 = internal::Random(tk, 0);
         r1 = internal::Random(tk, 1);
       }
@@ -183,49 +317,77 @@ class SceneSurfelSource final : public SurfelSource {
       sf.normal = normal;
       sf.radius = radius_;
       sf.radiance = glm::vec3(0.0f);
-      if (bake_) materials[s - begin] = material;
+      materials[s - begin] = material;
     }
-    if (bake_) Bake(begin, end, out, materials.data());
   }
 
-  // Bakes radiance in groups of surfels [16q, 16q + 16) (global numbers): a group shares its
-  // light samples, keyed by q, so a group split between two calls still gets the same ones.
-  void Bake(int64_t begin, int64_t end, Surfel* out, const uint32_t* materials) const {
+  // Candidates [begin, end) of the stream in order; keep[i] says whether candidate begin + i is
+  // visible (when hidden samples are tested), and only visible ones are baked.
+  void Generate(int64_t begin, int64_t end, Surfel* out, uint8_t* keep) const {
+    std::vector<uint32_t> materials(static_cast<size_t>(end - begin));
+    Place(layout_, begin, end, out, materials.data());
+    if (keep != nullptr) {
+      for (int64_t i = 0; i < end - begin; ++i) keep[i] = Hidden(out[i]) ? 0 : 1;
+    }
+    if (bake_) Bake(begin, end, out, materials.data(), keep);
+  }
+
+  // Bakes radiance in groups of candidates [16q, 16q + 16) (global numbers): a group shares its
+  // light samples, keyed by q, so a group split between two calls still gets the same ones, and
+  // a dropped candidate changes nobody else's light.
+  void Bake(int64_t begin, int64_t end, Surfel* out, const uint32_t* materials,
+            const uint8_t* keep) const {
     constexpr int64_t kP = Tracer::kGroup;
     glm::vec3 p[kP], n[kP], l[kP];
+    uint32_t m[kP];
+    int64_t at[kP];
     for (int64_t first = begin; first < end;) {
       const int64_t q = first / kP;
       const int64_t last = std::min(end, (q + 1) * kP);
-      const int count = static_cast<int>(last - first);
-      for (int i = 0; i < count; ++i) {
-        p[i] = out[first - begin + i].position;
-        n[i] = out[first - begin + i].normal;
+      int count = 0;
+      for (int64_t s = first; s < last; ++s) {
+        const int64_t i = s - begin;
+        if (keep != nullptr && !keep[i]) continue;
+        p[count] = out[i].position;
+        n[count] = out[i].normal;
+        m[count] = materials[i];
+        at[count] = i;
+        ++count;
       }
-      tracer_->SurfaceRadiance(absl::MakeConstSpan(p, count), absl::MakeConstSpan(n, count),
-                               absl::MakeConstSpan(materials + (first - begin), count),
-                               HashCombine(options_.seed ^ 0x62616b65u, static_cast<uint64_t>(q)),
-                               absl::MakeSpan(l, count));
-      for (int i = 0; i < count; ++i) out[first - begin + i].radiance = l[i];
+      if (count > 0) {
+        tracer_->SurfaceRadiance(absl::MakeConstSpan(p, count), absl::MakeConstSpan(n, count),
+                                 absl::MakeConstSpan(m, count),
+                                 HashCombine(options_.seed ^ 0x62616b65u, static_cast<uint64_t>(q)),
+                                 absl::MakeSpan(l, count));
+      }
+      for (int i = 0; i < count; ++i) out[at[i]].radiance = l[i];
       first = last;
     }
   }
 
   std::shared_ptr<const Scene> scene_;
   std::unique_ptr<Tracer> tracer_;
+  // The scene without thin triangles and its tracer, when the scene has thin materials.
+  std::shared_ptr<const Scene> solid_scene_;
+  std::unique_ptr<Tracer> solid_tracer_;
   SceneIndex index_;
   SamplerOptions options_;
   bool bake_;
-  std::vector<double> cumulative_;  // per triangle boundary, in surfels
+  std::vector<double> area_;  // cumulative area per triangle boundary
   double total_area_ = 0.0;
   double area_per_surfel_ = 0.0;
-  double offset_ = 0.0;
+  double visible_fraction_ = 1.0;
+  bool test_hidden_ = false;
   float radius_ = 0.0f;
-  int64_t count_ = 0;
+  int64_t request_ = 0;
+  int64_t count_ = 0;  // candidates
+  Layout layout_;
 
-  // buffers_[0] is being served, buffers_[1] is being filled by `pending_`.
+  // buffers_[0] is being served, buffers_[1] is being filled by `pending_`; keep_ likewise.
   std::vector<Surfel> buffers_[2];
-  int64_t first_ = 0, size_ = 0, pos_ = 0;
-  int64_t next_first_ = 0, next_size_ = 0;
+  std::vector<uint8_t> keep_[2];
+  int64_t end_ = 0, size_ = 0, pos_ = 0;  // candidates before end_ are done; size_ surfels kept
+  int64_t next_end_ = 0, next_size_ = 0;
   // Held by pointer: tbb::task_group's destructor may throw, which SurfelSource's may not.
   std::unique_ptr<tbb::task_group> pending_ = std::make_unique<tbb::task_group>();
 };

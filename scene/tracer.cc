@@ -457,6 +457,44 @@ float Tracer::ReferenceOcclusion(const glm::vec3& p, const glm::vec3& n, int ray
   return static_cast<float>(hits) / static_cast<float>(rays);
 }
 
+float Tracer::ReferenceOcclusionPackets(const glm::vec3& p, const glm::vec3& n, int rays,
+                                        float max_distance, uint64_t seed) const {
+  if (rays <= 0) return 0.0f;
+  glm::vec3 t, b;
+  internal::Basis(n, &t, &b);
+  const float r0 = internal::Random(seed, 0), r1 = internal::Random(seed, 1);
+  const glm::vec3 origin = p + n * impl_->eps;
+  RTCIntersectContext ctx;
+  rtcInitIntersectContext(&ctx);
+  int hits = 0;
+  for (int first = 0; first < rays; first += 16) {
+    alignas(64) RTCRay16 r;
+    alignas(64) int valid[16];
+    for (int k = 0; k < 16; ++k) {
+      const int i = first + k;
+      valid[k] = i < rays ? -1 : 0;
+      const glm::vec3 d = i < rays ? internal::CosineDirection(
+                                         n, t, b, internal::RotatedHammersley(i, rays, r0, r1))
+                                   : n;
+      r.org_x[k] = origin.x;
+      r.org_y[k] = origin.y;
+      r.org_z[k] = origin.z;
+      r.dir_x[k] = d.x;
+      r.dir_y[k] = d.y;
+      r.dir_z[k] = d.z;
+      r.tnear[k] = 0.0f;
+      r.tfar[k] = max_distance;
+      r.time[k] = 0.0f;
+      r.mask[k] = 0xffffffffu;
+      r.id[k] = static_cast<unsigned>(k);
+      r.flags[k] = 0;
+    }
+    rtcOccluded16(valid, impl_->top.get(), &ctx, &r);
+    for (int k = 0; k < 16 && first + k < rays; ++k) hits += r.tfar[k] < 0.0f ? 1 : 0;
+  }
+  return static_cast<float>(hits) / static_cast<float>(rays);
+}
+
 glm::vec3 Tracer::ReferenceIrradiance(const glm::vec3& p, const glm::vec3& n, int rays,
                                       uint64_t seed) const {
   if (rays <= 0) return glm::vec3(0.0f);

@@ -56,7 +56,8 @@ TEST_P(SamplerSceneTest, CountAreaNormalsAndBounds) {
   SamplerOptions o;
   o.count = 50021;
   o.bake = false;
-  o.chunk_size = 4099;  // many chunks, odd boundaries
+  o.chunk_size = 4099;    // many chunks, odd boundaries
+  o.drop_hidden = false;  // all the area (hidden_test.cc checks the visible-area contract)
   auto source = MakeSceneSurfelSource(std::make_shared<Scene>(scene), o);
   ASSERT_TRUE(source.ok()) << source.status();
   EXPECT_EQ((*source)->KnownCount(), o.count);
@@ -94,6 +95,7 @@ TEST(SamplerTest, DensityGivesAreaTimesDensity) {
   SamplerOptions o;
   o.density = 20000.0;
   o.bake = false;
+  o.drop_hidden = false;
   std::vector<Surfel> s = Sample(scene, o);
   EXPECT_EQ(static_cast<int64_t>(s.size()), std::llround(scene.SurfaceArea() * o.density));
 }
@@ -136,6 +138,7 @@ TEST(SamplerTest, DeterministicPerSeedChunkAndThreads) {
   o.count = 20000;
   o.seed = 42;
   o.chunk_size = 3001;
+  o.drop_hidden = false;  // exact count; hidden_test.cc repeats this with hidden samples dropped
   std::vector<Surfel> one, two, again, other_chunk, other_seed;
   tbb::task_arena(1).execute([&] { one = Sample(scene, o); });
   tbb::task_arena(2).execute([&] { two = Sample(scene, o); });
@@ -158,6 +161,7 @@ TEST(SamplerTest, RewindRestartsTheSameStream) {
   SamplerOptions o;
   o.count = 5000;
   o.chunk_size = 1024;
+  o.drop_hidden = false;
   auto source = MakeSceneSurfelSource(std::make_shared<Scene>(scene), o);
   ASSERT_TRUE(source.ok()) << source.status();
   std::vector<Surfel> first = Drain(**source, 333);

@@ -29,7 +29,7 @@ refuse() {
   else ok; fi
 }
 
-run generate "$pbgi" generate cornell -n 30000 -o "$dir/c.ply" --seed 3
+run generate "$pbgi" generate cornell -n 30000 -o "$dir/c.ply" --seed 3 --keep-hidden
 run build "$pbgi" build "$dir/c.ply" -o "$dir/c.pbgi" --memory 64M --stats-json "$dir/stats.json"
 run info "$pbgi" info "$dir/c.pbgi" --json
 grep -qE '"point_count"[^0-9]*30000\b' "$dir/info.out" && ok || fail "info --json does not report 30000 points: $(head -c 400 "$dir/info.out")"
