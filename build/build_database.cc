@@ -1,8 +1,15 @@
 // BuildDatabase and VerifyTree over the LMDB store.
 #include <chrono>
+#include <condition_variable>
+#include <cstring>
 #include <filesystem>
+#include <memory>
+#include <mutex>
 #include <string>
 #include <system_error>
+#include <thread>
+#include <utility>
+#include <vector>
 
 #include "absl/strings/str_format.h"
 #include "build/builder.h"
@@ -12,6 +19,8 @@
 
 namespace pbgi {
 namespace {
+
+constexpr size_t kWriterSlots = 16;  // pages queued for the LMDB thread (1 MiB at 64 KiB pages)
 
 class WriterSink final : public internal::PageSink {
  public:
@@ -24,6 +33,111 @@ class WriterSink final : public internal::PageSink {
 
  private:
   PageWriter* w_;
+};
+
+// Runs a PageWriter on a thread of its own, so that LMDB's copies and writes overlap the octree
+// pass. Append copies the page into one of a few slots and returns; the writer thread appends
+// the slots in order. An LMDB write transaction belongs to the thread that began it, so every
+// call that may touch one (Append, Finish, the destructor's abort) runs on the writer thread.
+// A writer error is returned by the next Append or by Finish.
+class AsyncWriterSink final : public internal::PageSink {
+ public:
+  AsyncWriterSink(std::unique_ptr<PageWriter> writer, size_t slots)
+      : writer_(std::move(writer)), page_size_(writer_->page_size()), slots_(slots) {
+    for (Slot& s : slots_) s.payload.reserve(page_size_);
+    thread_ = std::thread([this] { Run(); });
+  }
+  ~AsyncWriterSink() override {
+    {
+      std::lock_guard<std::mutex> l(mu_);
+      quit_ = true;
+    }
+    cv_.notify_all();
+    thread_.join();
+  }
+  uint32_t page_size() const override { return page_size_; }
+
+  absl::Status Append(Section section, uint64_t page_no, PageKind kind, uint32_t record_count,
+                      absl::Span<const uint8_t> payload) override {
+    std::unique_lock<std::mutex> l(mu_);
+    cv_.wait(l, [&] { return count_ < slots_.size() || !status_.ok(); });
+    if (!status_.ok()) return status_;
+    Slot& s = slots_[(head_ + count_) % slots_.size()];
+    l.unlock();  // the slot is ours until count_ covers it
+    s.section = section;
+    s.page_no = page_no;
+    s.kind = kind;
+    s.record_count = record_count;
+    s.payload.assign(payload.begin(), payload.end());
+    l.lock();
+    ++count_;
+    cv_.notify_all();
+    return absl::OkStatus();
+  }
+
+  // Writes the remaining pages, then the meta record (PageWriter::Finish), on the writer thread.
+  absl::Status Finish(const StoreMeta& meta) {
+    std::unique_lock<std::mutex> l(mu_);
+    meta_ = &meta;
+    cv_.notify_all();
+    cv_.wait(l, [&] { return finished_ || !status_.ok(); });
+    return status_;
+  }
+
+ private:
+  struct Slot {
+    Section section = Section::kNodes;
+    uint64_t page_no = 0;
+    PageKind kind = PageKind::kNode;
+    uint32_t record_count = 0;
+    std::vector<uint8_t> payload;
+  };
+
+  void Run() {
+    std::unique_lock<std::mutex> l(mu_);
+    for (;;) {
+      cv_.wait(l, [&] { return quit_ || count_ > 0 || (meta_ != nullptr && !finished_); });
+      if (count_ > 0 && status_.ok() && !quit_) {
+        Slot& s = slots_[head_];
+        l.unlock();
+        absl::Status st = writer_->Append(s.section, s.page_no, s.kind, s.record_count,
+                                          absl::MakeConstSpan(s.payload));
+        l.lock();
+        head_ = (head_ + 1) % slots_.size();
+        --count_;
+        if (!st.ok() && status_.ok()) status_ = st;
+        cv_.notify_all();
+        continue;
+      }
+      if (!status_.ok() || quit_) count_ = 0;  // the build failed or gave up: drop the rest
+      if (meta_ != nullptr && !finished_ && status_.ok() && count_ == 0) {
+        const StoreMeta* meta = meta_;
+        l.unlock();
+        absl::Status st = writer_->Finish(*meta);
+        l.lock();
+        if (!st.ok()) status_ = st;
+        finished_ = true;
+        cv_.notify_all();
+        continue;
+      }
+      if (quit_) break;
+    }
+    l.unlock();
+    writer_.reset();  // aborts an open transaction on the thread that began it
+  }
+
+  std::unique_ptr<PageWriter> writer_;
+  const uint32_t page_size_;
+  std::vector<Slot> slots_;
+  std::mutex mu_;
+  std::condition_variable cv_;
+  size_t head_ = 0;   // guarded by mu_
+  size_t count_ = 0;  // guarded by mu_
+  bool quit_ = false;
+  bool finished_ = false;
+  const StoreMeta* meta_ = nullptr;
+  absl::Status status_;
+  std::thread thread_;
 };
 
 class TxnGetter final : public internal::PageGetter {
@@ -69,13 +183,21 @@ absl::StatusOr<BuildStats> BuildDatabase(SurfelSource& source, const std::string
   so.page_size = options.page_size;
   so.batch_bytes = internal::PlanMemory(options, source.KnownCount()).batch_bytes;
   PBGI_ASSIGN_OR_RETURN(std::unique_ptr<PageWriter> writer, PageWriter::Create(db_path, so));
-  WriterSink sink(writer.get());
   StoreMeta meta;
-  PBGI_ASSIGN_OR_RETURN(BuildStats stats,
-                        internal::BuildToSink(source, sink, options, tmp_dir, &meta));
-  auto t = std::chrono::steady_clock::now();
-  PBGI_RETURN_IF_ERROR(writer->Finish(meta));
-  writer.reset();
+  BuildStats stats;
+  std::chrono::steady_clock::time_point t;
+  if (internal::ThreadCount(options) > 1) {
+    AsyncWriterSink sink(std::move(writer), kWriterSlots);
+    PBGI_ASSIGN_OR_RETURN(stats, internal::BuildToSink(source, sink, options, tmp_dir, &meta));
+    t = std::chrono::steady_clock::now();
+    PBGI_RETURN_IF_ERROR(sink.Finish(meta));
+  } else {
+    WriterSink sink(writer.get());
+    PBGI_ASSIGN_OR_RETURN(stats, internal::BuildToSink(source, sink, options, tmp_dir, &meta));
+    t = std::chrono::steady_clock::now();
+    PBGI_RETURN_IF_ERROR(writer->Finish(meta));
+    writer.reset();
+  }
   stats.seconds_finish =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - t).count();
   stats.seconds_total += stats.seconds_finish;

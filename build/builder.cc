@@ -5,6 +5,7 @@
 #include <cmath>
 #include <fstream>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include "absl/strings/str_format.h"
@@ -82,6 +83,11 @@ absl::Status CheckOptions(const BuildOptions& o, uint32_t page_size) {
 
 }  // namespace
 
+int ThreadCount(const BuildOptions& o) {
+  if (o.threads > 0) return o.threads;
+  return std::thread::hardware_concurrency() >= 2 ? 2 : 1;
+}
+
 uint64_t PeakRss() {
   std::ifstream in("/proc/self/status");
   std::string line;
@@ -97,13 +103,24 @@ MemoryPlan PlanMemory(const BuildOptions& o, int64_t known_count) {
   p.batch_bytes = std::clamp<uint64_t>(m / 16, kMiB, 64 * kMiB);
   // Node packer pending sets, page buffers, the look-ahead window, the PLY reader, LMDB's own
   // allocations and the process's baseline (code, libraries).
-  const uint64_t fixed = 24 * kMiB + 4 * uint64_t{o.page_size};
-  const uint64_t sort_bytes = m > p.batch_bytes + fixed ? m - p.batch_bytes - fixed : 0;
+  p.threads = ThreadCount(o);
+  // Threads add the merge's block pipe, the LMDB writer's page slots and per-thread malloc arenas.
+  const uint64_t fixed = 24 * kMiB + 4 * uint64_t{o.page_size} + (p.threads > 1 ? 4 * kMiB : 0);
+  uint64_t sort_bytes = m > p.batch_bytes + fixed ? m - p.batch_bytes - fixed : 0;
+  // The coherent layout's upper node groups grow during the octree pass, while the merge buffers
+  // (or, without spill, the sorted run) are in use: they get their own share.
+  p.upper_bytes =
+      std::clamp<uint64_t>(sort_bytes / 4, 256 << 10, NodePacker::kDefaultUpperLimitBytes);
+  sort_bytes = sort_bytes > p.upper_bytes ? sort_bytes - p.upper_bytes : 0;
   p.run_capacity = std::max<uint64_t>(kMinRunRecords, sort_bytes / kSortBytesPerRecord);
-  if (known_count >= 0) {
-    p.run_capacity =
-        std::min<uint64_t>(p.run_capacity, std::max<uint64_t>(1, uint64_t(known_count)));
+  if (known_count >= 0 && uint64_t(known_count) <= p.run_capacity) {
+    // Fits one run: never spilled, so no second buffer either.
+    p.run_capacity = std::max<uint64_t>(1, uint64_t(known_count));
+  } else if (p.threads > 1) {
+    // A second run buffer fills while the first one is sorted and spilled.
+    p.run_capacity = std::max<uint64_t>(kMinRunRecords, sort_bytes / kSortBytesPerRecordThreaded);
   }
+  // The merge reuses the sort's memory once the runs are spilled.
   p.merge_bytes = std::max<uint64_t>(64 << 10, sort_bytes);
   return p;
 }
@@ -164,14 +181,35 @@ absl::StatusOr<BuildStats> BuildToSink(SurfelSource& source, PageSink& sink,
   t = Clock::now();
   const MemoryPlan plan = PlanMemory(options, known);
   stats.run_capacity = plan.run_capacity;
-  ExternalSorter sorter(ExternalSorter::Options{tmp_dir, plan.run_capacity, plan.merge_bytes});
+  stats.threads = plan.threads;
+  ExternalSorter sorter(
+      ExternalSorter::Options{tmp_dir, plan.run_capacity, plan.merge_bytes, plan.threads});
   const MortonQuantizer quant(bounds);
-  PBGI_RETURN_IF_ERROR(for_each_valid("sort", [&](const Surfel& in) {
-    Surfel s = in;
-    s.normal = glm::vec3(glm::normalize(glm::dvec3(s.normal)));
-    if (!radiance) s.radiance = glm::vec3(0.0f);
-    return sorter.Add(MakeSortRecord(quant.Key(s.position), s));
+  // Records are made in place in the sorter's run buffer.
+  absl::Span<SortRecord> slots;
+  size_t used = 0;
+  PBGI_RETURN_IF_ERROR(for_each_valid("sort", [&](const Surfel& in) -> absl::Status {
+    if (used == slots.size()) {
+      sorter.Commit(used);
+      used = 0;
+      PBGI_ASSIGN_OR_RETURN(slots, sorter.Reserve(kBatch));
+    }
+    const glm::vec3 n = glm::vec3(glm::normalize(glm::dvec3(in.normal)));
+    SortRecord& r = slots[used++];
+    r.key = quant.Key(in.position);
+    r.position[0] = in.position.x;
+    r.position[1] = in.position.y;
+    r.position[2] = in.position.z;
+    r.normal[0] = n.x;
+    r.normal[1] = n.y;
+    r.normal[2] = n.z;
+    r.radius = in.radius;
+    r.radiance[0] = radiance ? in.radiance.x : 0.0f;
+    r.radiance[1] = radiance ? in.radiance.y : 0.0f;
+    r.radiance[2] = radiance ? in.radiance.z : 0.0f;
+    return absl::OkStatus();
   }));
+  sorter.Commit(used);
   PBGI_RETURN_IF_ERROR(sorter.FinishInput());
   stats.seconds_sort = Since(t);
   stats.runs_spilled = sorter.runs_spilled();
@@ -188,16 +226,16 @@ absl::StatusOr<BuildStats> BuildToSink(SurfelSource& source, PageSink& sink,
   // Pass 3: merge, octree, pages.
   t = Clock::now();
   NodePacker packer(options.layout, options.channels, &sink, options.shuffle_seed);
+  packer.set_upper_limit_bytes(plan.upper_bytes);
   PointPageWriter points(options.channels, &sink);
   OctreeBuilder octree(options.leaf_size, options.channels, &points, &packer);
-  std::vector<SortRecord> recs(4096);
   uint64_t done = 0, next_report = kProgressEvery;
   for (;;) {
-    PBGI_ASSIGN_OR_RETURN(size_t n, sorter.Next(absl::MakeSpan(recs)));
-    if (n == 0) break;
+    PBGI_ASSIGN_OR_RETURN(absl::Span<const SortRecord> recs, sorter.NextBlock());
+    if (recs.empty()) break;
     PBGI_RETURN_IF_ERROR(CheckCancel(options));
-    for (size_t i = 0; i < n; ++i) PBGI_RETURN_IF_ERROR(octree.Add(recs[i]));
-    done += n;
+    for (const SortRecord& r : recs) PBGI_RETURN_IF_ERROR(octree.Add(r));
+    done += recs.size();
     if (done >= next_report) {
       Report(options, "merge+octree", done, static_cast<int64_t>(sorter.records()));
       next_report = done + kProgressEvery;
@@ -217,6 +255,8 @@ absl::StatusOr<BuildStats> BuildToSink(SurfelSource& source, PageSink& sink,
   stats.node_page_fill = packer.pages() == 0 ? 0
                                              : double(packer.records_written()) /
                                                    (double(packer.pages()) * packer.capacity());
+  stats.upper_records = packer.upper_records();
+  stats.early_upper_writes = packer.early_upper_writes();
   stats.seconds_total = Since(t_start);
 
   *meta = StoreMeta{};
@@ -244,6 +284,9 @@ absl::StatusOr<BuildStats> BuildToSink(SurfelSource& source, PageSink& sink,
   m["runs_spilled"] = absl::StrFormat("%d", stats.runs_spilled);
   m["merge_passes"] = absl::StrFormat("%d", stats.merge_passes);
   m["memory_bytes"] = absl::StrFormat("%d", options.memory_bytes);
+  m["threads"] = absl::StrFormat("%d", stats.threads);
+  m["upper_records"] = absl::StrFormat("%d", stats.upper_records);
+  m["early_upper_writes"] = absl::StrFormat("%d", stats.early_upper_writes);
   return stats;
 }
 

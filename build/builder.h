@@ -19,8 +19,12 @@ namespace pbgi::internal {
 struct MemoryPlan {
   uint64_t run_capacity = 0;  // records per sorted run
   uint64_t merge_bytes = 0;   // merge read buffers
+  uint64_t upper_bytes = 0;   // coherent layout: upper node groups held by the packer
   uint64_t batch_bytes = 0;   // LMDB write batch (StoreOptions::batch_bytes)
+  int threads = 1;            // BuildOptions::threads resolved
 };
+// BuildOptions::threads, 0 resolved to the machine's.
+int ThreadCount(const BuildOptions& options);
 MemoryPlan PlanMemory(const BuildOptions& options, int64_t known_count);
 
 // Runs bounds, sort and the octree pass; pages go to `sink`, and `meta` receives everything

@@ -18,6 +18,8 @@ constexpr int kPasses = 5;      // 65 bits >= 63
 constexpr size_t kBuckets = size_t{1} << kDigitBits;
 constexpr uint64_t kMinMergeBufferBytes = 64 << 10;
 constexpr size_t kWriteChunkRecords = 4096;
+constexpr size_t kBlockRecords = 8192;  // merge output blocks (384 KiB)
+constexpr size_t kPipeBlocks = 4;
 
 absl::Status ErrnoError(const std::string& what, int err) {
   return absl::InternalError(absl::StrFormat("%s: %s", what, std::strerror(err)));
@@ -103,8 +105,11 @@ class ExternalSorter::RunReader {
     pos_ = 0;
     len_ = static_cast<size_t>(std::min<uint64_t>(cap_, run_.count - next_));
     if (len_ == 0) return absl::OkStatus();
-    PBGI_RETURN_IF_ERROR(
-        ReadAll(run_.fd, buf_.get(), len_ * sizeof(SortRecord), next_ * sizeof(SortRecord), *dir_));
+    const uint64_t offset = next_ * sizeof(SortRecord), bytes = len_ * sizeof(SortRecord);
+    PBGI_RETURN_IF_ERROR(ReadAll(run_.fd, buf_.get(), bytes, offset, *dir_));
+    // Read once: drop the pages from the page cache (a memory cgroup counts them).
+    (void)posix_fadvise(run_.fd, static_cast<off_t>(offset), static_cast<off_t>(bytes),
+                        POSIX_FADV_DONTNEED);
     next_ += len_;
     return absl::OkStatus();
   }
@@ -186,6 +191,74 @@ class ExternalSorter::Merger {
   std::vector<Entry> heap_;
 };
 
+BlockPipe::BlockPipe(size_t blocks, size_t block_records, Producer produce)
+    : block_records_(std::max<size_t>(block_records, 1)), produce_(std::move(produce)) {
+  blocks = std::max<size_t>(blocks, 2);
+  storage_.reset(new SortRecord[blocks * block_records_]);
+  for (size_t i = 0; i < blocks; ++i) free_.push_back(storage_.get() + i * block_records_);
+  full_.reserve(blocks);
+  thread_ = std::thread([this] { Run(); });
+}
+
+BlockPipe::~BlockPipe() {
+  {
+    std::lock_guard<std::mutex> l(mu_);
+    stop_ = true;
+  }
+  cv_.notify_all();
+  thread_.join();
+}
+
+void BlockPipe::Run() {
+  for (;;) {
+    SortRecord* b = nullptr;
+    {
+      std::unique_lock<std::mutex> l(mu_);
+      cv_.wait(l, [&] { return stop_ || !free_.empty(); });
+      if (stop_) return;
+      b = free_.back();
+      free_.pop_back();
+    }
+    absl::StatusOr<size_t> n = produce_(absl::Span<SortRecord>(b, block_records_));
+    bool done = false;
+    {
+      std::lock_guard<std::mutex> l(mu_);
+      if (!n.ok()) {
+        status_ = n.status();
+        done = true;
+      } else if (*n == 0) {
+        done = true;
+      } else {
+        full_.push_back({b, *n});
+      }
+      done_ = done;
+    }
+    cv_.notify_all();
+    if (done) return;
+  }
+}
+
+absl::StatusOr<absl::Span<const SortRecord>> BlockPipe::Next() {
+  std::unique_lock<std::mutex> l(mu_);
+  if (held_ != nullptr) {
+    free_.push_back(held_);
+    held_ = nullptr;
+    cv_.notify_all();
+  }
+  cv_.wait(l, [&] { return full_head_ < full_.size() || done_; });
+  if (full_head_ < full_.size()) {
+    auto [b, n] = full_[full_head_++];
+    if (full_head_ == full_.size()) {
+      full_.clear();
+      full_head_ = 0;
+    }
+    held_ = b;
+    return absl::Span<const SortRecord>(b, n);
+  }
+  if (!status_.ok()) return status_;
+  return absl::Span<const SortRecord>();
+}
+
 ExternalSorter::ExternalSorter(const Options& options) : options_(options) {
   if (options_.run_capacity == 0) options_.run_capacity = 1;
   // new[] of trivial types leaves the memory untouched: only the pages a run uses become
@@ -196,16 +269,18 @@ ExternalSorter::ExternalSorter(const Options& options) : options_(options) {
 }
 
 ExternalSorter::~ExternalSorter() {
+  pipe_.reset();  // its thread may be using merger_ or the buffers
+  StopSpiller();
   merger_.reset();
   for (Run& r : runs_) {
     if (r.fd >= 0) close(r.fd);
   }
 }
 
-void ExternalSorter::SortBuffer() {
-  for (uint64_t i = 0; i < size_; ++i) pairs_[i] = KeyIndex{records_[i].key, i};
-  sorted_ = RadixSortKeyIndex(absl::Span<KeyIndex>(pairs_.get(), size_),
-                              absl::Span<KeyIndex>(scratch_.get(), size_));
+void ExternalSorter::SortBuffer(const SortRecord* recs, uint64_t n) {
+  for (uint64_t i = 0; i < n; ++i) pairs_[i] = KeyIndex{recs[i].key, i};
+  sorted_ = RadixSortKeyIndex(absl::Span<KeyIndex>(pairs_.get(), n),
+                              absl::Span<KeyIndex>(scratch_.get(), n));
 }
 
 absl::StatusOr<ExternalSorter::Run> ExternalSorter::NewRunFile() {
@@ -227,33 +302,98 @@ absl::StatusOr<ExternalSorter::Run> ExternalSorter::NewRunFile() {
 
 absl::Status ExternalSorter::SpillRun() {
   if (size_ == 0) return absl::OkStatus();
-  SortBuffer();
+  if (options_.threads <= 1) {
+    absl::Status s = SpillBuffer(records_.get(), size_);
+    size_ = 0;
+    return s;
+  }
+  // Hand the full buffer to the sort thread and go on filling the other one.
+  PBGI_RETURN_IF_ERROR(WaitSpiller());
+  if (!spiller_.joinable()) {
+    spare_.reset(new SortRecord[options_.run_capacity]);
+    spiller_ = std::thread([this] { SpillerLoop(); });
+  }
+  std::swap(records_, spare_);
+  {
+    std::lock_guard<std::mutex> l(spill_mu_);
+    spill_job_ = size_;
+    spill_busy_ = true;
+  }
+  spill_cv_.notify_all();
+  size_ = 0;
+  return absl::OkStatus();
+}
+
+absl::Status ExternalSorter::WaitSpiller() {
+  std::unique_lock<std::mutex> l(spill_mu_);
+  spill_cv_.wait(l, [&] { return !spill_busy_; });
+  return spill_status_;
+}
+
+void ExternalSorter::SpillerLoop() {
+  for (;;) {
+    uint64_t n = 0;
+    {
+      std::unique_lock<std::mutex> l(spill_mu_);
+      spill_cv_.wait(l, [&] { return spill_quit_ || spill_busy_; });
+      if (spill_quit_) return;
+      n = spill_job_;
+    }
+    absl::Status s = spill_status_.ok() ? SpillBuffer(spare_.get(), n) : absl::OkStatus();
+    {
+      std::lock_guard<std::mutex> l(spill_mu_);
+      if (spill_status_.ok()) spill_status_ = s;
+      spill_busy_ = false;
+    }
+    spill_cv_.notify_all();
+  }
+}
+
+void ExternalSorter::StopSpiller() {
+  if (!spiller_.joinable()) return;
+  {
+    std::lock_guard<std::mutex> l(spill_mu_);
+    spill_quit_ = true;
+  }
+  spill_cv_.notify_all();
+  spiller_.join();
+}
+
+absl::Status ExternalSorter::SpillBuffer(const SortRecord* recs, uint64_t n) {
+  if (n == 0) return absl::OkStatus();
+  SortBuffer(recs, n);
   PBGI_ASSIGN_OR_RETURN(Run run, NewRunFile());
   runs_.push_back(run);
-  std::vector<SortRecord> chunk(std::min<uint64_t>(kWriteChunkRecords, size_));
+  std::vector<SortRecord> chunk(std::min<uint64_t>(kWriteChunkRecords, n));
   uint64_t offset = 0;
-  for (uint64_t i = 0; i < size_;) {
-    size_t n = static_cast<size_t>(std::min<uint64_t>(chunk.size(), size_ - i));
-    for (size_t j = 0; j < n; ++j) {
+  for (uint64_t i = 0; i < n;) {
+    size_t k = static_cast<size_t>(std::min<uint64_t>(chunk.size(), n - i));
+    for (size_t j = 0; j < k; ++j) {
       // The gather is random access: fetch a few records ahead.
-      if (i + j + 16 < size_) __builtin_prefetch(&records_[sorted_[i + j + 16].index]);
-      chunk[j] = records_[sorted_[i + j].index];
+      if (i + j + 16 < n) __builtin_prefetch(&recs[sorted_[i + j + 16].index]);
+      chunk[j] = recs[sorted_[i + j].index];
     }
-    PBGI_RETURN_IF_ERROR(
-        WriteAll(run.fd, chunk.data(), n * sizeof(SortRecord), offset, options_.tmp_dir));
-    offset += n * sizeof(SortRecord);
-    i += n;
+    absl::Status s =
+        WriteAll(run.fd, chunk.data(), k * sizeof(SortRecord), offset, options_.tmp_dir);
+    if (!s.ok()) {
+      return absl::Status(
+          s.code(), absl::StrFormat("sort run %d (input records %d..%d), byte "
+                                    "offset %d: %s",
+                                    runs_.size() - 1, total_, total_ + n - 1, offset, s.message()));
+    }
+    offset += k * sizeof(SortRecord);
+    i += k;
   }
-  runs_.back().count = size_;
+  runs_.back().count = n;
   spill_bytes_ += offset;
   ++runs_spilled_;
-  total_ += size_;
-  size_ = 0;
+  total_ += n;
   return absl::OkStatus();
 }
 
 void ExternalSorter::FreeBuffers() {
   records_.reset();
+  spare_.reset();
   pairs_.reset();
   scratch_.reset();
   sorted_ = nullptr;
@@ -279,12 +419,20 @@ absl::Status ExternalSorter::MergeRuns(std::vector<Run> in, size_t buffer_record
 absl::Status ExternalSorter::FinishInput() {
   if (finished_) return absl::FailedPreconditionError("ExternalSorter::FinishInput called twice");
   finished_ = true;
+  if (options_.threads > 1) PBGI_RETURN_IF_ERROR(WaitSpiller());
   if (runs_.empty()) {
-    SortBuffer();
+    SortBuffer(records_.get(), size_);
     total_ = size_;
+    if (options_.threads > 1 && size_ > kBlockRecords) {
+      // The gather runs ahead of the consumer.
+      pipe_ = std::make_unique<BlockPipe>(
+          kPipeBlocks, kBlockRecords, [this](absl::Span<SortRecord> out) { return Produce(out); });
+    }
     return absl::OkStatus();
   }
-  PBGI_RETURN_IF_ERROR(SpillRun());
+  StopSpiller();
+  PBGI_RETURN_IF_ERROR(SpillBuffer(records_.get(), size_));
+  size_ = 0;
   FreeBuffers();
   const uint64_t fan_in = std::max<uint64_t>(2, options_.merge_bytes / kMinMergeBufferBytes);
   while (runs_.size() > fan_in) {
@@ -314,11 +462,14 @@ absl::Status ExternalSorter::FinishInput() {
   const size_t buffer_records =
       std::max<size_t>(64, options_.merge_bytes / runs_.size() / sizeof(SortRecord));
   PBGI_ASSIGN_OR_RETURN(merger_, Merger::Create(runs_, buffer_records, &options_.tmp_dir));
+  if (options_.threads > 1) {
+    pipe_ = std::make_unique<BlockPipe>(
+        kPipeBlocks, kBlockRecords, [this](absl::Span<SortRecord> out) { return Produce(out); });
+  }
   return absl::OkStatus();
 }
 
-absl::StatusOr<size_t> ExternalSorter::Next(absl::Span<SortRecord> out) {
-  if (!finished_) return absl::FailedPreconditionError("ExternalSorter::Next before FinishInput");
+absl::StatusOr<size_t> ExternalSorter::Produce(absl::Span<SortRecord> out) {
   if (merger_ != nullptr) return merger_->Next(out);
   size_t n = static_cast<size_t>(std::min<uint64_t>(out.size(), size_ - emitted_));
   for (size_t i = 0; i < n; ++i) {
@@ -327,6 +478,34 @@ absl::StatusOr<size_t> ExternalSorter::Next(absl::Span<SortRecord> out) {
   }
   emitted_ += n;
   return n;
+}
+
+absl::StatusOr<size_t> ExternalSorter::Next(absl::Span<SortRecord> out) {
+  if (!finished_) return absl::FailedPreconditionError("ExternalSorter::Next before FinishInput");
+  if (pipe_ == nullptr) return Produce(out);
+  size_t n = 0;
+  while (n < out.size()) {
+    if (cur_pos_ == cur_.size()) {
+      PBGI_ASSIGN_OR_RETURN(cur_, pipe_->Next());
+      cur_pos_ = 0;
+      if (cur_.empty()) break;
+    }
+    const size_t k = std::min(out.size() - n, cur_.size() - cur_pos_);
+    std::copy(cur_.begin() + cur_pos_, cur_.begin() + cur_pos_ + k, out.begin() + n);
+    n += k;
+    cur_pos_ += k;
+  }
+  return n;
+}
+
+absl::StatusOr<absl::Span<const SortRecord>> ExternalSorter::NextBlock() {
+  if (!finished_) {
+    return absl::FailedPreconditionError("ExternalSorter::NextBlock before FinishInput");
+  }
+  if (pipe_ != nullptr) return pipe_->Next();
+  if (block_.empty()) block_.resize(kBlockRecords);
+  PBGI_ASSIGN_OR_RETURN(size_t n, Produce(absl::MakeSpan(block_)));
+  return absl::Span<const SortRecord>(block_.data(), n);
 }
 
 }  // namespace pbgi::internal

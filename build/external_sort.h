@@ -6,13 +6,26 @@
 // same input produce identical databases. Temporary files are unlinked as soon as they are
 // created and only held open: nothing is left behind on success, error, Ctrl-C or a crash.
 //
-// Not thread-safe.
+// Threads (Options::threads > 1): a full run buffer is handed to a background thread that
+// radix-sorts and spills it while the caller fills a second buffer (double buffering inside the
+// same budget: see kSortBytesPerRecordThreaded), and after FinishInput a background thread merges
+// (or, without spill, gathers) the sorted records into a few fixed blocks that NextBlock() hands
+// out. The output is the same for any thread count: runs are consecutive input ranges and the
+// merge breaks ties by run order. An error in a background thread is returned by the next call
+// of the caller's thread (Add, FinishInput, NextBlock) with the file or record it concerns.
+//
+// Not thread-safe: one caller thread (the background threads are internal).
 #ifndef PBGI_BUILD_EXTERNAL_SORT_H_
 #define PBGI_BUILD_EXTERNAL_SORT_H_
 
+#include <algorithm>
+#include <condition_variable>
 #include <cstdint>
+#include <functional>
 #include <memory>
+#include <mutex>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include "absl/status/status.h"
@@ -34,6 +47,43 @@ KeyIndex* RadixSortKeyIndex(absl::Span<KeyIndex> pairs, absl::Span<KeyIndex> scr
 
 // Memory per record of a run: the record plus two (key, index) arrays.
 inline constexpr uint64_t kSortBytesPerRecord = sizeof(SortRecord) + 2 * sizeof(KeyIndex);
+// With a background sort thread: two record buffers (one filling, one sorting) and the pairs.
+inline constexpr uint64_t kSortBytesPerRecordThreaded =
+    2 * sizeof(SortRecord) + 2 * sizeof(KeyIndex);
+
+// A single-producer single-consumer pipe of fixed record blocks between a producer thread and
+// the caller: the producer fills free blocks, the consumer reads full ones in order. Memory:
+// blocks x block_records records, allocated once.
+class BlockPipe {
+ public:
+  // `produce` fills a block and returns how many records it wrote (0: the end) or an error.
+  using Producer = std::function<absl::StatusOr<size_t>(absl::Span<SortRecord>)>;
+  BlockPipe(size_t blocks, size_t block_records, Producer produce);
+  // Stops the producer (if still running) and joins it.
+  ~BlockPipe();
+  BlockPipe(const BlockPipe&) = delete;
+  BlockPipe& operator=(const BlockPipe&) = delete;
+
+  // The next block in order (valid until the next call); empty at the end; the producer's error.
+  absl::StatusOr<absl::Span<const SortRecord>> Next();
+
+ private:
+  void Run();
+
+  size_t block_records_;
+  Producer produce_;
+  std::unique_ptr<SortRecord[]> storage_;
+  std::mutex mu_;
+  std::condition_variable cv_;
+  std::vector<SortRecord*> free_;                     // guarded by mu_
+  std::vector<std::pair<SortRecord*, size_t>> full_;  // FIFO, guarded by mu_
+  size_t full_head_ = 0;                              // guarded by mu_
+  bool done_ = false;                                 // producer finished; guarded by mu_
+  bool stop_ = false;                                 // consumer gone; guarded by mu_
+  absl::Status status_;                               // producer's error; guarded by mu_
+  SortRecord* held_ = nullptr;                        // block the consumer holds
+  std::thread thread_;
+};
 
 class ExternalSorter {
  public:
@@ -41,6 +91,7 @@ class ExternalSorter {
     std::string tmp_dir;        // where spilled runs go
     uint64_t run_capacity = 0;  // records per in-memory run (> 0)
     uint64_t merge_bytes = 0;   // read buffers of the merge, all runs together
+    int threads = 1;            // > 1: background sort/spill and merge threads (see above)
   };
   explicit ExternalSorter(const Options& options);
   ~ExternalSorter();
@@ -52,11 +103,26 @@ class ExternalSorter {
     records_[size_++] = r;
     return absl::OkStatus();
   }
+  // Free slots for up to `want` records (at least one; spills first when the buffer is full),
+  // to be filled in place and then committed with Commit(k), k <= the span's size: saves a
+  // copy per record. No Add between Reserve and Commit.
+  absl::StatusOr<absl::Span<SortRecord>> Reserve(size_t want) {
+    if (size_ == options_.run_capacity) PBGI_RETURN_IF_ERROR(SpillRun());
+    const uint64_t room = options_.run_capacity - size_;
+    return absl::Span<SortRecord>(
+        &records_[size_], static_cast<size_t>(std::min<uint64_t>(room, std::max<size_t>(want, 1))));
+  }
+  void Commit(size_t n) { size_ += n; }
+  uint64_t run_capacity() const { return options_.run_capacity; }
   // Ends the input: sorts the last run, and with spilled runs merges them down to a count the
   // merge buffers can serve at once.
   absl::Status FinishInput();
-  // After FinishInput: fills `out` with the next records in key order; 0 at the end.
+  // After FinishInput: fills `out` with the next records in key order; 0 at the end. Use either
+  // Next or NextBlock to drain a sorter, not both.
   absl::StatusOr<size_t> Next(absl::Span<SortRecord> out);
+  // After FinishInput: the next block of records in key order, valid until the next call of
+  // NextBlock or Next; empty at the end. With threads, produced ahead by a background thread.
+  absl::StatusOr<absl::Span<const SortRecord>> NextBlock();
 
   uint64_t runs_spilled() const { return runs_spilled_; }
   uint64_t merge_passes() const { return merge_passes_; }
@@ -71,8 +137,16 @@ class ExternalSorter {
   class RunReader;
   class Merger;
 
-  void SortBuffer();
+  // Sorts recs[0, n) into sorted_ (pairs_ / scratch_).
+  void SortBuffer(const SortRecord* recs, uint64_t n);
   absl::Status SpillRun();
+  // Sorts and writes recs[0, n) as a new run (caller's thread or the sort thread).
+  absl::Status SpillBuffer(const SortRecord* recs, uint64_t n);
+  // Sort thread: waits until it is idle and returns its error, if any.
+  absl::Status WaitSpiller();
+  void SpillerLoop();
+  void StopSpiller();
+  absl::StatusOr<size_t> Produce(absl::Span<SortRecord> out);
   absl::StatusOr<Run> NewRunFile();
   absl::Status MergeRuns(std::vector<Run> in, size_t buffer_records, Run* out);
   void FreeBuffers();
@@ -90,6 +164,20 @@ class ExternalSorter {
   bool finished_ = false;
   uint64_t emitted_ = 0;  // in-memory mode: records returned so far
   std::unique_ptr<Merger> merger_;
+  // NextBlock without threads: a block of the in-memory gather.
+  std::vector<SortRecord> block_;
+  // Threads: the buffer being sorted and spilled in the background, and its thread.
+  std::unique_ptr<SortRecord[]> spare_;
+  std::thread spiller_;
+  std::mutex spill_mu_;
+  std::condition_variable spill_cv_;
+  uint64_t spill_job_ = 0;     // records in spare_ to spill; guarded by spill_mu_
+  bool spill_busy_ = false;    // guarded by spill_mu_
+  bool spill_quit_ = false;    // guarded by spill_mu_
+  absl::Status spill_status_;  // guarded by spill_mu_
+  std::unique_ptr<BlockPipe> pipe_;
+  absl::Span<const SortRecord> cur_;  // Next() over the pipe: the block being copied out
+  size_t cur_pos_ = 0;
 };
 
 }  // namespace pbgi::internal

@@ -140,6 +140,7 @@ class PlySource final : public SurfelSource {
   }
 
   absl::StatusOr<size_t> Next(absl::Span<Surfel> out) override {
+    if (!ascii_ && all_float_in_order_) return NextBinaryFloats(out);
     size_t n = 0;
     while (n < out.size() && record_ < count_) {
       if (ascii_) {
@@ -315,6 +316,36 @@ class PlySource final : public SurfelSource {
     buf_pos_ += stride_;
     file_pos_ += stride_;
     return absl::OkStatus();
+  }
+
+  // The common layout (PlyWriter's, float x y z nx ny nz radius [r g b]): whole buffered runs
+  // of records at a time, one copy into the surfels. Surfel is 10 packed floats in file order.
+  absl::StatusOr<size_t> NextBinaryFloats(absl::Span<Surfel> out) {
+    static_assert(sizeof(Surfel) == 10 * sizeof(float));
+    const size_t stride = static_cast<size_t>(stride_);
+    size_t n = 0;
+    while (n < out.size() && record_ < count_) {
+      if (Fill(stride) < stride) {
+        PBGI_RETURN_IF_ERROR(ReadBinaryRecord(&out[n]));  // names the truncation offset
+      }
+      const size_t k = static_cast<size_t>(
+          std::min<uint64_t>({out.size() - n, count_ - record_, (buf_len_ - buf_pos_) / stride}));
+      const char* p = buf_.data() + buf_pos_;
+      if (stride == sizeof(Surfel)) {
+        std::memcpy(static_cast<void*>(&out[n]), p, k * stride);
+      } else {
+        for (size_t j = 0; j < k; ++j) {
+          Surfel& s = out[n + j];
+          std::memcpy(static_cast<void*>(&s), p + j * stride, stride);
+          s.radiance = glm::vec3(0.0f);
+        }
+      }
+      buf_pos_ += k * stride;
+      file_pos_ += static_cast<long>(k * stride);
+      record_ += k;
+      n += k;
+    }
+    return n;
   }
 
   absl::Status ReadAsciiRecord(Surfel* s) {

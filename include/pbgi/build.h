@@ -7,7 +7,9 @@
 // sorted points, packing nodes into coherent pages as they close. Points are written in Morton
 // order, so a node's points are one contiguous range of global point indices.
 //
-// Thread safety: BuildDatabase uses one thread; independent builds may run concurrently.
+// Thread safety: independent builds may run concurrently. With BuildOptions::threads > 1 one
+// build pipelines its passes over internal threads (parse+keys | sort+spill, then merge |
+// octree+packing | LMDB writes); the database is byte-identical for any thread count.
 //
 // Caveats:
 // - The memory budget covers the sort buffers, the merge buffers, the node packer and LMDB's
@@ -69,6 +71,10 @@ struct BuildOptions {
   // When set and it becomes true (e.g. from a SIGINT handler), the build stops at the next
   // batch with a Cancelled error, removing its temporary files and the incomplete store.
   const std::atomic<bool>* cancel = nullptr;
+  // 1: everything on the calling thread. >= 2: a background sort/spill thread (double-buffered
+  // runs inside the same budget), a merge thread running ahead of the octree pass, and (in
+  // BuildDatabase) a thread for the LMDB writes. 0: 2 when the machine has 2 or more cores.
+  int threads = 0;
 };
 
 struct BuildStats {
@@ -92,6 +98,11 @@ struct BuildStats {
   uint64_t run_capacity = 0;    // points per in-memory run
   uint64_t spill_bytes = 0;     // bytes written to temporary files
   uint64_t peak_rss_bytes = 0;  // VmHWM of the process after the build
+  int threads = 1;              // BuildOptions::threads as resolved
+  // Coherent layout: node records of the upper levels (written level by level), and how many
+  // upper subtrees were written before the end to stay within the memory budget.
+  uint64_t upper_records = 0;
+  uint64_t early_upper_writes = 0;
 };
 
 // Builds a database at `db_path` (a directory, created or replaced) from all surfels of `source`.

@@ -1,5 +1,10 @@
 // BuildDatabase end to end over LMDB: VerifyTree, meta record, agreement with the in-memory
 // pipeline page by page, spilled and not, temporary files cleaned up.
+#include <signal.h>
+#include <sys/resource.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
 #include <cstring>
 #include <filesystem>
 
@@ -21,52 +26,97 @@ TEST(BuildDatabaseTest, BuildsAVerifiableStoreEqualToTheInMemoryPipeline) {
   const auto cloud = testing_build::SurfaceCloud(30000, 5);
   for (Layout layout : {Layout::kCoherent, Layout::kShuffled}) {
     for (uint64_t memory : {uint64_t{1} << 30, uint64_t{1}}) {
-      SCOPED_TRACE(std::string(LayoutName(layout)) + " memory " + std::to_string(memory));
-      BuildOptions o;
-      o.layout = layout;
-      o.memory_bytes = memory;
-      o.tmp_dir = dir.Sub("tmp");
-      std::filesystem::create_directories(o.tmp_dir);
-      VectorSurfelSource src(cloud);
-      const std::string db = dir.Sub("db");
-      auto stats = BuildDatabase(src, db, o);
-      ASSERT_TRUE(stats.ok()) << stats.status();
-      EXPECT_EQ(stats->points, cloud.size());
-      EXPECT_EQ(stats->runs_spilled > 0, memory == 1);
-      EXPECT_GT(stats->bytes_on_disk, cloud.size() * sizeof(internal::PointRecordRadiance));
-      EXPECT_TRUE(std::filesystem::is_empty(o.tmp_dir));
+      for (int threads : {1, 2}) {
+        SCOPED_TRACE(std::string(LayoutName(layout)) + " memory " + std::to_string(memory) +
+                     " threads " + std::to_string(threads));
+        BuildOptions o;
+        o.layout = layout;
+        o.memory_bytes = memory;
+        o.threads = threads;
+        o.tmp_dir = dir.Sub("tmp");
+        std::filesystem::create_directories(o.tmp_dir);
+        VectorSurfelSource src(cloud);
+        const std::string db = dir.Sub("db");
+        auto stats = BuildDatabase(src, db, o);
+        ASSERT_TRUE(stats.ok()) << stats.status();
+        EXPECT_EQ(stats->points, cloud.size());
+        EXPECT_EQ(stats->runs_spilled > 0, memory == 1);
+        EXPECT_GT(stats->bytes_on_disk, cloud.size() * sizeof(internal::PointRecordRadiance));
+        EXPECT_TRUE(std::filesystem::is_empty(o.tmp_dir));
 
-      auto store = PageStore::Open(db);
-      ASSERT_TRUE(store.ok()) << store.status();
-      const StoreMeta& m = (*store)->meta();
-      EXPECT_EQ(m.point_count, cloud.size());
-      EXPECT_EQ(m.node_count, stats->nodes);
-      EXPECT_EQ(m.layout, LayoutName(layout));
-      EXPECT_EQ(m.leaf_size, 16u);
-      EXPECT_EQ(m.channels, Channels::kRadiance);
-      EXPECT_TRUE(VerifyTree(**store).ok()) << VerifyTree(**store);
+        auto store = PageStore::Open(db);
+        ASSERT_TRUE(store.ok()) << store.status();
+        const StoreMeta& m = (*store)->meta();
+        EXPECT_EQ(m.point_count, cloud.size());
+        EXPECT_EQ(m.node_count, stats->nodes);
+        EXPECT_EQ(m.layout, LayoutName(layout));
+        EXPECT_EQ(m.leaf_size, 16u);
+        EXPECT_EQ(m.channels, Channels::kRadiance);
+        EXPECT_TRUE(VerifyTree(**store).ok()) << VerifyTree(**store);
 
-      // The same pages as the pipeline over memory.
-      internal::MemoryPageSink mem(o.page_size);
-      StoreMeta mm;
-      VectorSurfelSource src2(cloud);
-      ASSERT_TRUE(internal::BuildToSink(src2, mem, o, o.tmp_dir, &mm).ok());
-      EXPECT_EQ(mm.root, m.root);
-      auto txn = (*store)->BeginRead();
-      ASSERT_TRUE(txn.ok());
-      for (Section s : {Section::kNodes, Section::kPoints}) {
-        for (const auto& [no, bytes] : mem.pages(s)) {
-          auto v = txn->Get(s, no);
-          ASSERT_TRUE(v.ok()) << v.status();
-          ASSERT_EQ(v->header->record_count,
-                    reinterpret_cast<const PageHeader*>(bytes.data())->record_count);
-          ASSERT_EQ(0, std::memcmp(v->payload.data(), bytes.data() + sizeof(PageHeader),
-                                   v->payload.size()))
-              << SectionName(s) << " page " << no;
+        // The same pages as the pipeline over memory.
+        internal::MemoryPageSink mem(o.page_size);
+        StoreMeta mm;
+        VectorSurfelSource src2(cloud);
+        ASSERT_TRUE(internal::BuildToSink(src2, mem, o, o.tmp_dir, &mm).ok());
+        EXPECT_EQ(mm.root, m.root);
+        auto txn = (*store)->BeginRead();
+        ASSERT_TRUE(txn.ok());
+        for (Section s : {Section::kNodes, Section::kPoints}) {
+          for (const auto& [no, bytes] : mem.pages(s)) {
+            auto v = txn->Get(s, no);
+            ASSERT_TRUE(v.ok()) << v.status();
+            ASSERT_EQ(v->header->record_count,
+                      reinterpret_cast<const PageHeader*>(bytes.data())->record_count);
+            ASSERT_EQ(0, std::memcmp(v->payload.data(), bytes.data() + sizeof(PageHeader),
+                                     v->payload.size()))
+                << SectionName(s) << " page " << no;
+          }
         }
       }
     }
   }
+}
+
+// A write that fails on the LMDB writer thread (threads = 2; RLIMIT_FSIZE stands in for a full
+// disk, in a child process so the limit stays there) ends the build with the store's error:
+// no hang, no crash, and nothing left that opens.
+TEST(BuildDatabaseTest, WriteErrorOnTheWriterThreadEndsTheBuild) {
+  ScratchDir dir("fsize");
+  const std::string db = dir.Sub("db");
+  const auto cloud = testing_build::SurfaceCloud(60000, 8);  // about 5 MiB of pages
+  int fds[2];
+  ASSERT_EQ(pipe(fds), 0);
+  const pid_t pid = fork();
+  ASSERT_GE(pid, 0);
+  if (pid == 0) {
+    close(fds[0]);
+    alarm(120);  // a deadlock fails the test instead of hanging it
+    signal(SIGXFSZ, SIG_IGN);
+    rlimit lim{2 << 20, 2 << 20};
+    setrlimit(RLIMIT_FSIZE, &lim);
+    BuildOptions o;
+    o.threads = 2;
+    o.memory_bytes = uint64_t{256} << 20;  // no spill: the limit hits the database file
+    VectorSurfelSource src(cloud);
+    auto stats = BuildDatabase(src, db, o);
+    const std::string report = stats.ok() ? "built" : stats.status().ToString();
+    (void)!write(fds[1], report.data(), report.size());
+    _exit(0);
+  }
+  close(fds[1]);
+  std::string got;
+  char buf[512];
+  ssize_t n;
+  while ((n = read(fds[0], buf, sizeof(buf))) > 0) got.append(buf, static_cast<size_t>(n));
+  close(fds[0]);
+  int status = 0;
+  ASSERT_EQ(waitpid(pid, &status, 0), pid);
+  ASSERT_TRUE(WIFEXITED(status)) << "the build crashed or hung (signal "
+                                 << (WIFSIGNALED(status) ? WTERMSIG(status) : 0) << ")";
+  EXPECT_NE(got.find("RESOURCE_EXHAUSTED"), std::string::npos) << got;
+  EXPECT_NE(got.find("file too large"), std::string::npos) << got;
+  EXPECT_FALSE(PageStore::Open(db).ok());
 }
 
 TEST(BuildDatabaseTest, OcclusionDatabaseIsSmaller) {

@@ -5,6 +5,7 @@
 #include <atomic>
 #include <cmath>
 #include <cstring>
+#include <functional>
 #include <memory>
 #include <numeric>
 #include <set>
@@ -182,23 +183,6 @@ void CheckAgainstReference(const Built& b, const std::vector<Surfel>& cloud, uin
   EXPECT_EQ(seen.size(), ref.nodes);
 }
 
-// Number of times a depth-first walk moves to a different node page.
-uint64_t PageSwitches(const Built& b) {
-  uint64_t switches = 0, last = ~uint64_t{0};
-  std::vector<NodeRef> stack{b.meta.root};
-  while (!stack.empty()) {
-    NodeRef r = stack.back();
-    stack.pop_back();
-    if (RefPage(r) != last) ++switches;
-    last = RefPage(r);
-    NodeRecordRadiance n = ReadNode(b, r);
-    for (uint32_t i = n.common.child_count; i-- > 0;) {
-      stack.push_back(MakeNodeRef(RefPage(n.common.children), RefSlot(n.common.children) + i));
-    }
-  }
-  return switches;
-}
-
 bool SamePages(const Built& a, const Built& b) {
   for (Section s : {Section::kNodes, Section::kPoints}) {
     if (a.sink->pages(s) != b.sink->pages(s)) return false;
@@ -245,6 +229,19 @@ TEST_P(LayoutTest, InvariantsAndSpillIdentity) {
   EXPECT_GE(tiny->stats.merge_passes, 1u);
   EXPECT_TRUE(SamePages(*big, *tiny)) << "spilled build differs from the in-memory one";
   EXPECT_TRUE(std::filesystem::is_empty(dir.path()));
+
+  // One thread, or three, builds the same pages as the default two (pipelined sort and merge).
+  for (int threads : {1, 3}) {
+    for (uint64_t memory : {uint64_t{1}, uint64_t{1} << 30}) {
+      o.threads = threads;
+      o.memory_bytes = memory;
+      auto t = BuildMem(cloud, o, dir.path());
+      ASSERT_TRUE(t.ok()) << t.status();
+      EXPECT_EQ(t->stats.threads, threads);
+      EXPECT_EQ(t->stats.runs_spilled > 0, memory == 1);
+      EXPECT_TRUE(SamePages(*big, *t)) << threads << " threads, memory " << memory;
+    }
+  }
 }
 
 INSTANTIATE_TEST_SUITE_P(
@@ -254,24 +251,48 @@ INSTANTIATE_TEST_SUITE_P(
                                          Layout::kBreadthFirst, Layout::kShuffled),
                        ::testing::Values(Channels::kRadiance, Channels::kOcclusion)));
 
-TEST(CoherentLayoutTest, DepthFirstWalkSwitchesPagesLessThanOtherLayouts) {
-  const std::vector<Surfel> cloud = SurfaceCloud(20000, 21);
-  ScratchDir dir("coherence");
-  BuildOptions o;
-  o.leaf_size = 8;
-  o.page_size = EfficientPageSize(1);
-  uint64_t switches[4];
-  int i = 0;
-  for (Layout l :
-       {Layout::kCoherent, Layout::kPostOrder, Layout::kBreadthFirst, Layout::kShuffled}) {
-    o.layout = l;
+// The bottom of the coherent layout: the descendants of a node with at most a unit of records
+// below it (a quarter page, node_packer.h) lie in at most two pages, so a walk that enters such
+// a subtree stays in its page to the leaves. (The upper levels are paged level by level, which
+// a gather's cut wants; tests/build/layout_io_test.cc measures that through the query layer.)
+TEST(CoherentLayoutTest, SmallSubtreesLieInAtMostTwoPages) {
+  for (uint32_t pages_4k : {1u, 4u}) {
+    const std::vector<Surfel> cloud = SurfaceCloud(20000, 21);
+    ScratchDir dir("coherence");
+    BuildOptions o;
+    o.leaf_size = 8;
+    o.page_size = EfficientPageSize(pages_4k);
     auto b = BuildMem(cloud, o, dir.path());
     ASSERT_TRUE(b.ok()) << b.status();
-    switches[i++] = PageSwitches(*b);
+    const uint32_t unit = std::max<uint32_t>(8, NodesPerPage(o.page_size, o.channels) / 4);
+    // Post-order walk: records below each node and the set of pages holding them.
+    struct Below {
+      uint64_t records = 0;
+      std::set<uint64_t> pages;
+    };
+    uint64_t small = 0, one_page = 0;
+    std::function<Below(NodeRef)> walk = [&](NodeRef r) {
+      Below out;
+      const NodeRecordRadiance n = ReadNode(*b, r);
+      for (uint32_t i = 0; i < n.common.child_count; ++i) {
+        const NodeRef c = MakeNodeRef(RefPage(n.common.children), RefSlot(n.common.children) + i);
+        Below kid = walk(c);
+        out.records += 1 + kid.records;
+        out.pages.insert(RefPage(c));
+        out.pages.insert(kid.pages.begin(), kid.pages.end());
+      }
+      if (out.records > 0 && out.records <= unit) {
+        ++small;
+        if (out.pages.size() == 1) ++one_page;
+        EXPECT_LE(out.pages.size(), 2u) << "node at page " << RefPage(r) << " slot " << RefSlot(r);
+      }
+      return out;
+    };
+    walk(b->meta.root);
+    EXPECT_GT(small, 100u);
+    // Most units start a page or fit the one being filled.
+    EXPECT_GT(one_page, small * 3 / 4) << one_page << " of " << small;
   }
-  EXPECT_LT(switches[0], switches[2]);
-  EXPECT_LT(switches[0], switches[3]);
-  EXPECT_LE(switches[0], switches[1]);
 }
 
 TEST(BuildEdgeTest, EmptyInputIsAClearError) {

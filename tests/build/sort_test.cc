@@ -1,5 +1,6 @@
 // Morton keys, the radix sort and the external sort (spills, multi-pass merges, stability).
 #include <algorithm>
+#include <cstring>
 #include <filesystem>
 #include <random>
 #include <vector>
@@ -158,6 +159,67 @@ TEST(ExternalSortTest, MissingTmpDirIsAClearError) {
   ExternalSorter s({"/nonexistent/pbgi/tmp", 10, 1 << 20});
   absl::Status st;
   for (int i = 0; i < 20 && st.ok(); ++i) st = s.Add(SortRecord{});
+  ASSERT_FALSE(st.ok());
+  EXPECT_NE(st.message().find("/nonexistent/pbgi/tmp"), std::string::npos) << st;
+}
+
+// The background sort thread and the merge thread (Options::threads > 1) change nothing in the
+// output: the same records in the same order as one thread, for runs merged in one pass, in
+// several passes, and with no spill; NextBlock and Next agree.
+TEST(ExternalSortTest, ThreadsGiveTheSameOrderAsOneThread) {
+  testing_build::ScratchDir dir("sort_threads");
+  auto in = RandomRecords(30000, 9);
+  struct Case {
+    uint64_t run_capacity, merge_bytes;
+  };
+  for (Case c : {Case{100, 128 << 10}, Case{1000, 64 << 20}, Case{50000, 1 << 20}}) {
+    std::vector<SortRecord> want;
+    for (int threads : {1, 2, 3}) {
+      SCOPED_TRACE(::testing::Message() << "run " << c.run_capacity << " threads " << threads);
+      ExternalSorter s({dir.path(), c.run_capacity, c.merge_bytes, threads});
+      // Half through Add, half through Reserve/Commit.
+      size_t i = 0;
+      for (; i < in.size() / 2; ++i) ASSERT_TRUE(s.Add(in[i]).ok());
+      while (i < in.size()) {
+        auto slots = s.Reserve(777);
+        ASSERT_TRUE(slots.ok()) << slots.status();
+        const size_t k = std::min(slots->size(), in.size() - i);
+        std::copy(in.begin() + i, in.begin() + i + k, slots->begin());
+        s.Commit(k);
+        i += k;
+      }
+      ASSERT_TRUE(s.FinishInput().ok());
+      EXPECT_EQ(s.runs_spilled(), c.run_capacity >= in.size() ? 0u : in.size() / c.run_capacity);
+      std::vector<SortRecord> got;
+      if (threads == 2) {
+        got = Drain(s);
+      } else {
+        for (;;) {
+          auto block = s.NextBlock();
+          ASSERT_TRUE(block.ok()) << block.status();
+          if (block->empty()) break;
+          got.insert(got.end(), block->begin(), block->end());
+        }
+      }
+      ExpectStablySorted(in, got);
+      if (threads == 1) {
+        want = got;
+      } else {
+        ASSERT_EQ(got.size(), want.size());
+        EXPECT_EQ(0, std::memcmp(got.data(), want.data(), got.size() * sizeof(SortRecord)));
+      }
+      EXPECT_TRUE(std::filesystem::is_empty(dir.path()));
+    }
+  }
+}
+
+// An error on the sort thread (the run file cannot be created) reaches the caller with the
+// directory's name, at the latest from FinishInput; nothing hangs.
+TEST(ExternalSortTest, SpillErrorOnTheSortThreadIsReported) {
+  ExternalSorter s({"/nonexistent/pbgi/tmp", 10, 1 << 20, 2});
+  absl::Status st;
+  for (int i = 0; i < 50 && st.ok(); ++i) st = s.Add(SortRecord{});
+  if (st.ok()) st = s.FinishInput();
   ASSERT_FALSE(st.ok());
   EXPECT_NE(st.message().find("/nonexistent/pbgi/tmp"), std::string::npos) << st;
 }
