@@ -113,7 +113,7 @@ absl::StatusOr<FileMapping> FindFileMapping(const struct stat& file, const void*
       continue;
     }
     if (inode != file.st_ino || makedev(dev_major, dev_minor) != file.st_dev) continue;
-    if (offset != 0 || want < start || want >= end) continue;
+    if (offset != 0 || (inside != nullptr && (want < start || want >= end))) continue;
     result = FileMapping{reinterpret_cast<const uint8_t*>(start), end - start};
     break;
   }

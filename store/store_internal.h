@@ -53,7 +53,8 @@ absl::Status CheckPage(const std::string& path, Section section, uint64_t page_n
 // pread()s exactly `size` bytes at `offset` (retrying short reads); errors name `file`.
 absl::Status ReadFully(int fd, void* out, size_t size, uint64_t offset, const std::string& file);
 
-// The mapping of `file` (at file offset 0) that holds `inside`, from /proc/self/maps.
+// The mapping of `file` (at file offset 0) that holds `inside` (or, with nullptr, the first such
+// mapping), from /proc/self/maps.
 struct FileMapping {
   const uint8_t* start = nullptr;
   uint64_t bytes = 0;
