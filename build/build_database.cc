@@ -181,12 +181,13 @@ absl::StatusOr<BuildStats> BuildDatabase(SurfelSource& source, const std::string
   }
   StoreOptions so;
   so.page_size = options.page_size;
-  so.batch_bytes = internal::PlanMemory(options, source.KnownCount()).batch_bytes;
+  const internal::MemoryPlan plan = internal::PlanMemory(options, source.KnownCount());
+  so.batch_bytes = plan.batch_bytes;
   PBGI_ASSIGN_OR_RETURN(std::unique_ptr<PageWriter> writer, PageWriter::Create(db_path, so));
   StoreMeta meta;
   BuildStats stats;
   std::chrono::steady_clock::time_point t;
-  if (internal::ThreadCount(options) > 1) {
+  if (plan.threads > 1) {
     AsyncWriterSink sink(std::move(writer), kWriterSlots);
     PBGI_ASSIGN_OR_RETURN(stats, internal::BuildToSink(source, sink, options, tmp_dir, &meta));
     t = std::chrono::steady_clock::now();

@@ -97,35 +97,53 @@ uint64_t PeakRss() {
   return 0;
 }
 
-MemoryPlan PlanMemory(const BuildOptions& o, int64_t known_count) {
+namespace {
+
+MemoryPlan PlanFor(const BuildOptions& o, int64_t known_count, int threads) {
   MemoryPlan p;
   const uint64_t m = o.memory_bytes;
+  p.threads = threads;
   p.batch_bytes = std::clamp<uint64_t>(m / 16, kMiB, 64 * kMiB);
   // Node packer pending sets, page buffers, the look-ahead window, the PLY reader, LMDB's own
-  // allocations and the process's baseline (code, libraries).
-  p.threads = ThreadCount(o);
-  // Threads add the merge's block pipe and the LMDB writer's page slots, and LMDB's dirty pages
-  // then come from the writer thread's malloc arena, which keeps about one more batch of freed
-  // pages resident (measured: 16 M points, 256 MiB, +16 MiB anonymous memory during the merge).
+  // allocations and the process's baseline (code, libraries). Threads add the merge's block
+  // pipe and the LMDB writer's page slots, and LMDB's dirty pages then come from the writer
+  // thread's malloc arena, which keeps about one more batch of freed pages resident (measured:
+  // 16 M points, 256 MiB, +16 MiB anonymous memory during the merge).
   const uint64_t fixed =
-      24 * kMiB + 4 * uint64_t{o.page_size} + (p.threads > 1 ? 4 * kMiB + p.batch_bytes : 0);
+      24 * kMiB + 4 * uint64_t{o.page_size} + (threads > 1 ? 4 * kMiB + p.batch_bytes : 0);
   uint64_t sort_bytes = m > p.batch_bytes + fixed ? m - p.batch_bytes - fixed : 0;
   // The coherent layout's upper node groups grow during the octree pass, while the merge buffers
   // (or, without spill, the sorted run) are in use: they get their own share.
   p.upper_bytes =
       std::clamp<uint64_t>(sort_bytes / 4, 256 << 10, NodePacker::kDefaultUpperLimitBytes);
   sort_bytes = sort_bytes > p.upper_bytes ? sort_bytes - p.upper_bytes : 0;
+  p.sort_bytes = sort_bytes;
   p.run_capacity = std::max<uint64_t>(kMinRunRecords, sort_bytes / kSortBytesPerRecord);
   if (known_count >= 0 && uint64_t(known_count) <= p.run_capacity) {
     // Fits one run: never spilled, so no second buffer either.
     p.run_capacity = std::max<uint64_t>(1, uint64_t(known_count));
-  } else if (p.threads > 1) {
+    p.spills = false;
+  } else if (threads > 1) {
     // A second run buffer fills while the first one is sorted and spilled.
     p.run_capacity = std::max<uint64_t>(kMinRunRecords, sort_bytes / kSortBytesPerRecordThreaded);
   }
   // The merge reuses the sort's memory once the runs are spilled.
   p.merge_bytes = std::max<uint64_t>(64 << 10, sort_bytes);
   return p;
+}
+
+}  // namespace
+
+MemoryPlan PlanMemory(const BuildOptions& o, int64_t known_count) {
+  const int threads = ThreadCount(o);
+  const MemoryPlan one = PlanFor(o, known_count, 1);
+  if (threads <= 1) return one;
+  const MemoryPlan many = PlanFor(o, known_count, threads);
+  // Under a small budget the threads' own memory would cut the sort's share so much that the
+  // runs shrink (and the merge fans out) more than the overlap gains: 1 M points at 32 MiB made
+  // 4,096 runs and took 20x longer. Threads only when they leave at least half the sort memory.
+  if (many.spills && 2 * many.sort_bytes < one.sort_bytes) return one;
+  return many;
 }
 
 absl::StatusOr<BuildStats> BuildToSink(SurfelSource& source, PageSink& sink,

@@ -21,7 +21,9 @@ struct MemoryPlan {
   uint64_t merge_bytes = 0;   // merge read buffers
   uint64_t upper_bytes = 0;   // coherent layout: upper node groups held by the packer
   uint64_t batch_bytes = 0;   // LMDB write batch (StoreOptions::batch_bytes)
-  int threads = 1;            // BuildOptions::threads resolved
+  int threads = 1;            // BuildOptions::threads resolved (1 under a small budget)
+  uint64_t sort_bytes = 0;    // run buffers (and later merge buffers), all together
+  bool spills = true;         // false: the input is known to fit one run
 };
 // BuildOptions::threads, 0 resolved to the machine's.
 int ThreadCount(const BuildOptions& options);

@@ -9,6 +9,7 @@
 #include <filesystem>
 
 #include "build/builder.h"
+#include "build/external_sort.h"
 #include "build/page_sink.h"
 #include "gtest/gtest.h"
 #include "pbgi/build.h"
@@ -156,6 +157,31 @@ TEST(BuildDatabaseTest, MissingTmpDirAndEmptyInputAreClearErrors) {
   EXPECT_NE(e.status().message().find("no surfels"), std::string::npos) << e.status();
   // A failed build leaves nothing that opens.
   EXPECT_FALSE(PageStore::Open(dir.Sub("db2")).ok());
+}
+
+// The plan's shares never exceed the budget, threads only come with a budget that leaves their
+// runs large (1 M points at 32 MiB once made 4,096 runs of 256 points), and a known input that
+// fits one run is planned as one run.
+TEST(PlanMemoryTest, SharesFitTheBudgetAndSmallBudgetsDropThreads) {
+  for (uint64_t mib : {32, 64, 256, 1024, 4096}) {
+    SCOPED_TRACE(mib);
+    BuildOptions o;
+    o.memory_bytes = mib << 20;
+    o.threads = 2;
+    const internal::MemoryPlan p = internal::PlanMemory(o, 100000000);
+    EXPECT_LE(p.batch_bytes + p.upper_bytes + p.sort_bytes, o.memory_bytes);
+    const uint64_t per_record = p.threads > 1 ? internal::kSortBytesPerRecordThreaded
+                                              : internal::kSortBytesPerRecord;
+    EXPECT_LE(p.run_capacity * per_record, p.sort_bytes);
+    EXPECT_GE(p.run_capacity, 32768u) << "runs of " << p.run_capacity << " points";
+    EXPECT_EQ(p.threads, mib >= 64 ? 2 : 1);
+  }
+  BuildOptions o;
+  o.memory_bytes = uint64_t{256} << 20;
+  o.threads = 2;
+  const internal::MemoryPlan fits = internal::PlanMemory(o, 1000);
+  EXPECT_EQ(fits.run_capacity, 1000u);
+  EXPECT_FALSE(fits.spills);
 }
 
 }  // namespace
