@@ -48,6 +48,8 @@ struct PageWriter::Impl {
   MDB_dbi meta_dbi = 0, nodes = 0, points = 0;
   uint64_t map_size = 0;
   uint32_t env_page = 4096;  // LMDB's page size (the OS page size)
+  off_t written_end_ = 0;    // StreamOut: write-back started below this offset
+  off_t dropped_end_ = 0;    // StreamOut: written back and dropped from the page cache below this
   int fstat_ok_ = 0;         // TrimMap: 0 not yet, 1 file_stat_ valid, -1 no stat
   struct stat file_stat_ {};
 
@@ -157,7 +159,33 @@ struct PageWriter::Impl {
     PBGI_RETURN_IF_ERROR(internal::LmdbWriteStatus(
         rc, absl::StrCat(Where(), ": committing a batch of pages"), tmp_path));
     TrimMap();
+    StreamOut();
     return absl::OkStatus();
+  }
+
+  // A build writes each page once and does not read it back, so its file should not fill the
+  // page cache (which a memory cgroup charges to the build) or pile up as dirty memory that the
+  // kernel then throttles. After each batch: start the write-back of what it appended, wait for
+  // the previous batch's write-back (long done, as a rule) and drop those pages from the cache.
+  // LMDB's meta pages and the B-tree's few branch pages are rewritten in place and re-read from
+  // disk when needed. Best effort: errors here change nothing, Finish() still syncs everything.
+  void StreamOut() {
+    int fd = -1;
+    if (mdb_env_get_fd(env, &fd) != MDB_SUCCESS || fd < 0) return;
+    struct stat st;
+    if (fstat(fd, &st) != 0) return;
+    const off_t end = st.st_size;
+    if (end > written_end_) {
+      (void)sync_file_range(fd, written_end_, end - written_end_, SYNC_FILE_RANGE_WRITE);
+    }
+    if (written_end_ > dropped_end_) {
+      (void)sync_file_range(
+          fd, dropped_end_, written_end_ - dropped_end_,
+          SYNC_FILE_RANGE_WAIT_BEFORE | SYNC_FILE_RANGE_WRITE | SYNC_FILE_RANGE_WAIT_AFTER);
+      (void)posix_fadvise(fd, dropped_end_, written_end_ - dropped_end_, POSIX_FADV_DONTNEED);
+      dropped_end_ = written_end_;
+    }
+    written_end_ = std::max(written_end_, end);
   }
 
   // The pages of data.mdb that LMDB reads through its map while appending (the B-tree's right

@@ -1,12 +1,16 @@
 // BuildDatabase end to end over LMDB: VerifyTree, meta record, agreement with the in-memory
 // pipeline page by page, spilled and not, temporary files cleaned up.
+#include <fcntl.h>
 #include <signal.h>
+#include <sys/mman.h>
 #include <sys/resource.h>
+#include <sys/stat.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
 #include <cstring>
 #include <filesystem>
+#include <vector>
 
 #include "build/builder.h"
 #include "build/external_sort.h"
@@ -159,6 +163,40 @@ TEST(BuildDatabaseTest, MissingTmpDirAndEmptyInputAreClearErrors) {
   EXPECT_FALSE(PageStore::Open(dir.Sub("db2")).ok());
 }
 
+// A build streams its pages out: after it, most of data.mdb has been written back and dropped
+// from the page cache (which a memory cgroup would charge to the build), yet the store verifies.
+TEST(BuildDatabaseTest, PagesAreStreamedOutOfThePageCache) {
+  ScratchDir dir("stream");
+  const auto cloud = testing_build::SurfaceCloud(60000, 9);
+  BuildOptions o;
+  o.memory_bytes = uint64_t{16} << 20;  // 1 MiB write batches
+  VectorSurfelSource src(cloud);
+  const std::string db = dir.Sub("db");
+  auto stats = BuildDatabase(src, db, o);
+  ASSERT_TRUE(stats.ok()) << stats.status();
+  ASSERT_GT(stats->bytes_on_disk, uint64_t{4} << 20);
+  const std::string data = db + "/data.mdb";
+  const int fd = open(data.c_str(), O_RDONLY);
+  ASSERT_GE(fd, 0) << data;
+  struct stat st;
+  ASSERT_EQ(fstat(fd, &st), 0);
+  const size_t bytes = static_cast<size_t>(st.st_size);
+  void* map = mmap(nullptr, bytes, PROT_READ, MAP_SHARED, fd, 0);
+  ASSERT_NE(map, MAP_FAILED);
+  const size_t page = static_cast<size_t>(sysconf(_SC_PAGESIZE));
+  std::vector<unsigned char> in_core((bytes + page - 1) / page);
+  ASSERT_EQ(mincore(map, bytes, in_core.data()), 0);
+  size_t resident = 0;
+  for (unsigned char c : in_core) resident += c & 1;
+  munmap(map, bytes);
+  close(fd);
+  EXPECT_LT(resident * 2, in_core.size())
+      << resident << " of " << in_core.size() << " pages of data.mdb still cached";
+  auto store = PageStore::Open(db);
+  ASSERT_TRUE(store.ok()) << store.status();
+  EXPECT_TRUE(VerifyTree(**store).ok()) << VerifyTree(**store);
+}
+
 // The plan's shares never exceed the budget, threads only come with a budget that leaves their
 // runs large (1 M points at 32 MiB once made 4,096 runs of 256 points), and a known input that
 // fits one run is planned as one run.
@@ -170,8 +208,8 @@ TEST(PlanMemoryTest, SharesFitTheBudgetAndSmallBudgetsDropThreads) {
     o.threads = 2;
     const internal::MemoryPlan p = internal::PlanMemory(o, 100000000);
     EXPECT_LE(p.batch_bytes + p.upper_bytes + p.sort_bytes, o.memory_bytes);
-    const uint64_t per_record = p.threads > 1 ? internal::kSortBytesPerRecordThreaded
-                                              : internal::kSortBytesPerRecord;
+    const uint64_t per_record =
+        p.threads > 1 ? internal::kSortBytesPerRecordThreaded : internal::kSortBytesPerRecord;
     EXPECT_LE(p.run_capacity * per_record, p.sort_bytes);
     EXPECT_GE(p.run_capacity, 32768u) << "runs of " << p.run_capacity << " points";
     EXPECT_EQ(p.threads, mib >= 64 ? 2 : 1);
