@@ -73,7 +73,8 @@ struct BuildOptions {
   const std::atomic<bool>* cancel = nullptr;
   // 1: everything on the calling thread. >= 2: a background sort/spill thread (double-buffered
   // runs inside the same budget), a merge thread running ahead of the octree pass, and (in
-  // BuildDatabase) a thread for the LMDB writes. 0: 2 when the machine has 2 or more cores.
+  // BuildDatabase) a thread for the LMDB writes. 0: 1 (measured faster on 2 cores under load;
+  // docs/format.md). Under a small budget the build uses one thread whatever this says.
   int threads = 0;
 };
 
