@@ -78,10 +78,11 @@ void Rasterizer::PrepareCluster(const Cluster& c, ShadeResult* out) {
   }
   const glm::vec3 ext = c.bounds.Extent();
   const glm::vec3 rel = c.bounds.Center() - origin_;
+  const glm::vec3 local = ToLocal(rel);
   // Entirely behind (or in) the tangent plane: the box's highest corner along n.
-  const float top = glm::dot(n_, rel) + 0.5f * (std::fabs(n_.x) * ext.x + std::fabs(n_.y) * ext.y +
-                                                std::fabs(n_.z) * ext.z);
-  const float d2 = glm::dot(rel, rel);
+  const float top = local.z + 0.5f * (std::fabs(n_.x) * ext.x + std::fabs(n_.y) * ext.y +
+                                      std::fabs(n_.z) * ext.z);
+  const float d2 = glm::dot(local, local);
   if (!(top > 0.0f) || !(d2 > 0.0f) || !std::isfinite(d2)) {
     ++out->culled;
     return;
@@ -104,23 +105,25 @@ void Rasterizer::PrepareCluster(const Cluster& c, ShadeResult* out) {
   }
   // Written in place: the splat is only counted once complete.
   PreparedSplat& s = mb_.splats_[count_];
-  s.dir = ToLocal(rel) * inv_d;
+  s.dir = local * inv_d;
   s.omega = omega;
   s.depth = d;
   s.extent = 0.5f * glm::length(ext);
   // The mean normal, turned towards the receiver; a nearly flat cluster also gets its plane
   // through the box centre and its thickness along the normal (the box's half extent).
-  const float nl = glm::length(m.normal_sum);
+  const float nl2 = glm::dot(m.normal_sum, m.normal_sum);
   s.normal = glm::vec3(0.0f);
   s.plane = 0.0f;
   s.thick = 0.0f;
   s.flat = 0;
-  if (nl > 0.0f) {
-    glm::vec3 mw = m.normal_sum / nl;
-    if (glm::dot(mw, rel) > 0.0f) mw = -mw;
+  if (nl2 > 0.0f) {
+    const float nl = std::sqrt(nl2);
+    const float towards = glm::dot(m.normal_sum, rel);
+    const float scale = (towards > 0.0f ? -1.0f : 1.0f) / nl;
+    const glm::vec3 mw = m.normal_sum * scale;
     s.normal = ToLocal(mw);
     if (nl > kFlatness * m.area) {
-      s.plane = glm::dot(mw, rel);
+      s.plane = towards * scale;
       s.thick =
           0.5f * (std::fabs(mw.x) * ext.x + std::fabs(mw.y) * ext.y + std::fabs(mw.z) * ext.z);
       s.flat = s.plane < 0.0f ? 1 : 0;

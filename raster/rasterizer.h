@@ -84,14 +84,14 @@ class Rasterizer {
   // (t * half the pixel's width * tan(incidence)). Co-planar fragments then get the same range
   // in a pixel however far apart their centres lie, so a surface seen at a grazing angle stays
   // one layer without chaining; a ray (nearly) parallel to the plane keeps [lo, hi].
-  void PlaneRange(uint32_t p, const Frag& f, float* lo, float* hi) const {
+  [[gnu::always_inline]] void PlaneRange(uint32_t p, const Frag& f, float* lo, float* hi) const {
     const PixelDir& u = dirs_[p];
     const float mu = f.normal.x * u.x + f.normal.y * u.y + f.normal.z * u.z;
     if (!(mu < -kMinPlaneCos)) return;
     const float inv = -1.0f / mu;  // 1 / cos(incidence)
     const float t = -f.plane * inv;
     const float half =
-        f.thick * inv + 0.5f * t * std::sqrt(std::max(0.0f, 1.0f - mu * mu)) * inv / u.inv_width;
+        (f.thick + t * std::sqrt(std::max(0.0f, 1.0f - mu * mu)) * u.half_width) * inv;
     *lo = t - half;
     *hi = t + half;
   }
@@ -109,7 +109,7 @@ class Rasterizer {
   // hide farther ones (the depth test), see Close(). An open layer's `far` is 0 when it is
   // empty (every depth range ends beyond 0).
   template <bool kClamp, bool kRad>
-  void Emit(uint32_t p, float cov, const Frag& f) {
+  [[gnu::always_inline]] void Emit(uint32_t p, float cov, const Frag& f) {
     PixelState& px = px_[p];
     px.depth = std::min(px.depth, f.depth);
     if constexpr (!kClamp) {

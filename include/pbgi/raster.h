@@ -152,7 +152,8 @@ struct PixelState {
 };
 struct PixelDir {
   float x, y, z;
-  float inv_width;  // 1 / (angular width of the pixel)
+  float inv_width;   // 1 / (angular width of the pixel)
+  float half_width;  // half the angular width of the pixel
 };
 class Rasterizer;
 }  // namespace internal
