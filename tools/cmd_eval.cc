@@ -78,6 +78,7 @@ struct Row {
   double seconds_per_receiver = 0;
   Errors err;
   double clusters = 0, surfels = 0;
+  double gather_us = 0, raster_us = 0;  // PBGI rows: thread time per receiver in each stage
   double speedup = 0;         // PBGI rows: the reference's time at this MAE over this row's time
   bool extrapolated = false;  // the MAE lies outside the reference sweep's range of MAE
 };
@@ -255,10 +256,12 @@ absl::Status RunEval(const EvalArgs& a) {
       so.raster.compute_radiance = !occlusion;
       std::vector<ShadeResult> results;
       ShadeJobStats st;
-      std::vector<double> times;
+      std::vector<double> times, gather, raster;
       for (int k = 0; k < a.repeat; ++k) {
         PBGI_RETURN_IF_ERROR(ShadeReceivers(*db, receivers, {}, so, &results, &st));
         times.push_back(st.seconds / n);
+        gather.push_back(st.gather_seconds / n * 1e6);
+        raster.push_back(st.raster_seconds / n * 1e6);
       }
       std::vector<double> v(results.size());
       for (size_t i = 0; i < v.size(); ++i) {
@@ -271,6 +274,8 @@ absl::Status RunEval(const EvalArgs& a) {
       r.method = "pbgi";
       r.setting = absl::StrFormat("msa %.3g res %d", msa, res);
       r.seconds_per_receiver = Median(times);
+      r.gather_us = Median(gather);
+      r.raster_us = Median(raster);
       r.err = Compare(v, truth);
       r.clusters = double(st.query.clusters) / n;
       r.surfels = double(st.query.surfels) / n;
@@ -308,13 +313,23 @@ absl::Status RunEval(const EvalArgs& a) {
       "rays (its own MAE ~%.2g), times = median of %d\n",
       scene->name.c_str(), a.mode.c_str(), static_cast<unsigned long long>(bs.points),
       receivers.size(), threads, a.truth_rays, truth_noise, a.repeat);
-  std::printf("%-10s %-20s %12s %10s %10s %10s %9s %9s %9s\n", "method", "setting", "us/receiver",
-              "MAE", "RMSE", "max", "clusters", "surfels", "speedup");
+  std::printf("%-10s %-20s %12s %10s %10s %10s %9s %9s %9s %9s %9s\n", "method", "setting",
+              "us/receiver", "MAE", "RMSE", "max", "clusters", "surfels", "gather_us", "raster_us",
+              "speedup");
   for (const Row& r : rows) {
-    std::printf("%-10s %-20s %12.2f %10.5f %10.5f %10.5f %9.1f %9.1f %9s\n", r.method.c_str(),
+    const bool pbgi = r.method == "pbgi";
+    std::printf("%-10s %-20s %12.2f %10.5f %10.5f %10.5f %9s %9s %9s %9s %9s\n", r.method.c_str(),
                 r.setting.c_str(), r.seconds_per_receiver * 1e6, r.err.mae, r.err.rmse, r.err.max,
-                r.clusters, r.surfels, r.method == "pbgi" ? ratio_text(r).c_str() : "");
+                pbgi ? absl::StrFormat("%.1f", r.clusters).c_str() : "",
+                pbgi ? absl::StrFormat("%.1f", r.surfels).c_str() : "",
+                pbgi ? absl::StrFormat("%.1f", r.gather_us).c_str() : "",
+                pbgi ? absl::StrFormat("%.1f", r.raster_us).c_str() : "",
+                pbgi ? ratio_text(r).c_str() : "");
   }
+  std::printf(
+      "(us/receiver: wall time over %d threads; gather_us, raster_us: thread time per receiver "
+      "in Gather and Shade)\n",
+      threads);
   for (const Row& r : rows) {
     if (r.method == "pbgi" && r.extrapolated) {
       std::printf(
@@ -367,9 +382,11 @@ absl::Status RunEval(const EvalArgs& a) {
     js << absl::StrFormat(
         "    {\"method\": \"%s\", \"setting\": \"%s\", \"seconds_per_receiver\": %.6g, "
         "\"mae\": %.6g, \"rmse\": %.6g, \"max\": %.6g, \"clusters\": %.4g, \"surfels\": "
-        "%.4g, \"speedup\": %.4g, \"extrapolated\": %s}%s\n",
+        "%.4g, \"gather_us\": %.4g, \"raster_us\": %.4g, \"speedup\": %.4g, "
+        "\"extrapolated\": %s}%s\n",
         r.method, r.setting, r.seconds_per_receiver, r.err.mae, r.err.rmse, r.err.max, r.clusters,
-        r.surfels, r.speedup, r.extrapolated ? "true" : "false", i + 1 < rows.size() ? "," : "");
+        r.surfels, r.gather_us, r.raster_us, r.speedup, r.extrapolated ? "true" : "false",
+        i + 1 < rows.size() ? "," : "");
   }
   js << "  ]\n}\n";
   if (!js.good()) return absl::UnavailableError(absl::StrFormat("cannot write %s", json_path));
