@@ -68,12 +68,9 @@ inline ClusterMoments MomentsFromSh(const Sh9& c) {
   return m;
 }
 
-// Projected area of the cluster seen from direction w (unit, world space, pointing from the
-// cluster towards the viewer), counting the sides that `sides` selects. Never negative.
-inline float ProjectedArea(const Cluster& cluster, const glm::vec3& w, HitSides sides,
-                           ClusterModel model) {
-  if (model == ClusterModel::kShEval) return ProjectedAreaShEval(cluster, w, sides);
-  const ClusterMoments m = MomentsFromSh(cluster.sh_area);
+// Projected area of a cluster with moments m seen from direction w (unit, world space, pointing
+// from the cluster towards the viewer), counting the sides that `sides` selects. Never negative.
+inline float ProjectedArea(const ClusterMoments& m, const glm::vec3& w, HitSides sides) {
   if (!(m.area > 0.0f)) return 0.0f;
   // w^T M w = sum A_i (n_i.w)^2.
   const float m2 = m.mxx * w.x * w.x + m.myy * w.y * w.y + m.mzz * w.z * w.z +
@@ -91,6 +88,13 @@ inline float ProjectedArea(const Cluster& cluster, const glm::vec3& w, HitSides 
       return even;
   }
   return 0.0f;
+}
+
+// The same from the cluster's SH, with the chosen reconstruction.
+inline float ProjectedArea(const Cluster& cluster, const glm::vec3& w, HitSides sides,
+                           ClusterModel model) {
+  if (model == ClusterModel::kShEval) return ProjectedAreaShEval(cluster, w, sides);
+  return ProjectedArea(MomentsFromSh(cluster.sh_area), w, sides);
 }
 
 // Radiance P(w)/A(w) per colour seen from w, with the same side rule. The ratio is regularised

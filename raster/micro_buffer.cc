@@ -136,7 +136,8 @@ absl::Status MicroBuffer::Prepare(int resolution) {
         max_width_ = std::max(max_width_, static_cast<float>(std::sqrt(omega_[p])));
         dirs_[p] = internal::PixelDir{static_cast<float>(centre.x), static_cast<float>(centre.y),
                                       static_cast<float>(centre.z),
-                                      static_cast<float>(1.0 / std::sqrt(omega_[p]))};
+                                      static_cast<float>(1.0 / std::sqrt(omega_[p])),
+                                      static_cast<float>(0.5 * std::sqrt(omega_[p]))};
         // The part above the horizon z >= 0. On the side faces z is the row coordinate b
         // (k2 == 2), so clipping keeps a rectangle; +z is all above, -z all below.
         double c0 = b0;

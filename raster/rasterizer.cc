@@ -78,10 +78,11 @@ void Rasterizer::PrepareCluster(const Cluster& c, ShadeResult* out) {
   }
   const glm::vec3 ext = c.bounds.Extent();
   const glm::vec3 rel = c.bounds.Center() - origin_;
+  const glm::vec3 local = ToLocal(rel);
   // Entirely behind (or in) the tangent plane: the box's highest corner along n.
-  const float top = glm::dot(n_, rel) + 0.5f * (std::fabs(n_.x) * ext.x + std::fabs(n_.y) * ext.y +
-                                                 std::fabs(n_.z) * ext.z);
-  const float d2 = glm::dot(rel, rel);
+  const float top = local.z + 0.5f * (std::fabs(n_.x) * ext.x + std::fabs(n_.y) * ext.y +
+                                      std::fabs(n_.z) * ext.z);
+  const float d2 = glm::dot(local, local);
   if (!(top > 0.0f) || !(d2 > 0.0f) || !std::isfinite(d2)) {
     ++out->culled;
     return;
@@ -93,7 +94,10 @@ void Rasterizer::PrepareCluster(const Cluster& c, ShadeResult* out) {
   }
   const float inv_d = 1.0f / d;
   const glm::vec3 to_receiver = rel * -inv_d;
-  const float area = ProjectedArea(c, to_receiver, o_.hitsides, o_.cluster_model);
+  const ClusterMoments m = MomentsFromSh(c.sh_area);
+  const float area = o_.cluster_model == ClusterModel::kMoments
+                         ? ProjectedArea(m, to_receiver, o_.hitsides)
+                         : ProjectedAreaShEval(c, to_receiver, o_.hitsides);
   const float omega = std::min(area * (inv_d * inv_d), 2.0f * static_cast<float>(sh::kPi));
   if (!(omega > 0.0f)) {
     ++out->culled;
@@ -101,11 +105,30 @@ void Rasterizer::PrepareCluster(const Cluster& c, ShadeResult* out) {
   }
   // Written in place: the splat is only counted once complete.
   PreparedSplat& s = mb_.splats_[count_];
-  s.dir = ToLocal(rel) * inv_d;
+  s.dir = local * inv_d;
   s.omega = omega;
-  s.normal = glm::vec3(0.0f);
   s.depth = d;
   s.extent = 0.5f * glm::length(ext);
+  // The mean normal, turned towards the receiver; a nearly flat cluster also gets its plane
+  // through the box centre and its thickness along the normal (the box's half extent).
+  const float nl2 = glm::dot(m.normal_sum, m.normal_sum);
+  s.normal = glm::vec3(0.0f);
+  s.plane = 0.0f;
+  s.thick = 0.0f;
+  s.flat = 0;
+  if (nl2 > 0.0f) {
+    const float nl = std::sqrt(nl2);
+    const float towards = glm::dot(m.normal_sum, rel);
+    const float scale = (towards > 0.0f ? -1.0f : 1.0f) / nl;
+    const glm::vec3 mw = m.normal_sum * scale;
+    s.normal = ToLocal(mw);
+    if (nl > kFlatness * m.area) {
+      s.plane = towards * scale;
+      s.thick =
+          0.5f * (std::fabs(mw.x) * ext.x + std::fabs(mw.y) * ext.y + std::fabs(mw.z) * ext.z);
+      s.flat = s.plane < 0.0f ? 1 : 0;
+    }
+  }
   s.radiance = radiance_ ? ClusterRadiance(c, to_receiver, o_.hitsides) : glm::vec3(0.0f);
   s.near = 0;
   ++count_;
@@ -139,10 +162,15 @@ void Rasterizer::PrepareSurfel(const Surfel& sf, ShadeResult* out) {
   s.depth = d;
   s.extent = r;
   s.radiance = radiance_ ? sf.radiance : glm::vec3(0.0f);
+  // The disk's plane, its normal turned towards the receiver (side != 0 here).
+  const float facing = side > 0.0f ? 1.0f : -1.0f;
+  s.normal = ToLocal(normal) * facing;
+  s.plane = -std::fabs(side);
+  s.thick = 0.0f;
+  s.flat = 1;
   if (d < o_.near_field_factor * r) {
     s.dir = ToLocal(rel);
     s.omega = r;
-    s.normal = ToLocal(normal);
     s.near = 1;
     ++count_;
     ++out->near_disks_drawn;
@@ -156,7 +184,6 @@ void Rasterizer::PrepareSurfel(const Surfel& sf, ShadeResult* out) {
   }
   s.dir = ToLocal(rel) * (1.0f / d);
   s.omega = omega;
-  s.normal = glm::vec3(0.0f);
   s.near = 0;
   ++count_;
   ++out->surfels_drawn;

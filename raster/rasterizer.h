@@ -19,6 +19,13 @@ namespace pbgi::internal {
 // at most kBoxMaxSpan pixels per axis.
 inline constexpr float kBoxMaxHalf = 1.0f;
 inline constexpr int kBoxMaxSpan = 4;
+// A fragment extends a layer's depth range only if its normal is within acos(kChainCos) = 45.6
+// degrees of the layer's first fragment's (see Emit()).
+inline constexpr float kChainCos = 0.7f;
+// A cluster counts as flat (depth from its mean plane) when |sum A_i n_i| > kFlatness * A.
+inline constexpr float kFlatness = 0.8f;
+// Rays closer than this cosine to a flat element's plane keep its bounding-sphere depth range.
+inline constexpr float kMinPlaneCos = 1e-3f;
 
 // Shades one receiver into a MicroBuffer that it borrows. Not thread-safe (neither is the
 // buffer); cheap to construct: everything it keeps lives in the MicroBuffer.
@@ -53,9 +60,13 @@ class Rasterizer {
   struct Frag {
     float depth, lo, hi;  // centre distance and depth range [lo, hi]
     const float* rgb;     // radiance
+    glm::vec3 normal;     // unit, facing the receiver; 0 when unknown
+    float plane, thick;   // flat: see PreparedSplat
+    bool flat;
   };
   static Frag FragOf(const PreparedSplat& s) {
-    return Frag{s.depth, s.depth - s.extent, s.depth + s.extent, &s.radiance[0]};
+    return Frag{s.depth, s.depth - s.extent, s.depth + s.extent, &s.radiance[0], s.normal, s.plane,
+                s.thick, s.flat != 0};
   }
   template <bool kClamp, bool kRad>
   void Draw(uint32_t count);
@@ -68,15 +79,38 @@ class Rasterizer {
   template <bool kClamp, bool kRad>
   void SplatDisk(const PreparedSplat& s);
 
+  // A flat fragment's depth range in pixel p: where the pixel's central ray meets the slab of
+  // half thickness `thick` around its plane, widened by t * half the pixel's width /
+  // cos(incidence), a bound on the depth change across half the pixel (t * half width *
+  // tan(incidence)) that needs no square root (same MAE on cornell and sphere-in-box, 3% fewer
+  // instructions). Co-planar fragments then get the same range in a pixel however far apart their
+  // centres lie, so a surface seen at a grazing angle stays one layer without chaining; a ray
+  // (nearly) parallel to the plane keeps [lo, hi].
+  [[gnu::always_inline]] void PlaneRange(uint32_t p, const Frag& f, float* lo, float* hi) const {
+    const PixelDir& u = dirs_[p];
+    const float mu = f.normal.x * u.x + f.normal.y * u.y + f.normal.z * u.z;
+    if (!(mu < -kMinPlaneCos)) return;
+    const float inv = -1.0f / mu;  // 1 / cos(incidence)
+    const float t = -f.plane * inv;
+    const float half = (f.thick + t * u.half_width) * inv;
+    *lo = t - half;
+    *hi = t + half;
+  }
+
   // Adds a fragment of coverage `cov` to pixel p. With clamp, fragments arrive front to back:
-  // one that overlaps the open layer in depth joins it (the splats of one surface tile it, and
-  // their round footprints overlap and leave gaps that cancel only if they add up freely); one
-  // wholly behind closes the layer first. The first layer counts in full only if nothing lies
-  // behind it; otherwise it, like every later one, only fills what is left below 1: nearer
-  // surfaces hide farther ones (the depth test), see Close(). An open layer's `far` is 0 when
-  // it is empty (every depth range ends beyond 0).
+  // one whose depth range overlaps the open layer's joins it (the splats of one surface tile it,
+  // and their round footprints overlap and leave gaps that cancel only if they add up freely);
+  // one wholly behind closes the layer first. The layer's range is its first fragment's,
+  // extended by a joining fragment only if that faces the same way (normals within
+  // kChainCos): a curved surface's splats chain along it, but a chain of fragments of
+  // different surfaces (a block's top, its edge, the floor, the next block, each overlapping the
+  // previous in depth) must not merge them into one layer that adds up (bug:
+  // chained_surfaces_overcount). The first layer counts in full only if nothing lies behind
+  // it; otherwise it, like every later one, only fills what is left below 1: nearer surfaces
+  // hide farther ones (the depth test), see Close(). An open layer's `far` is 0 when it is
+  // empty (every depth range ends beyond 0).
   template <bool kClamp, bool kRad>
-  void Emit(uint32_t p, float cov, const Frag& f) {
+  [[gnu::always_inline]] void Emit(uint32_t p, float cov, const Frag& f) {
     PixelState& px = px_[p];
     px.depth = std::min(px.depth, f.depth);
     if constexpr (!kClamp) {
@@ -86,11 +120,19 @@ class Rasterizer {
       }
     } else {
       if (px.closed >= 1.0f) return;
-      if (f.lo > px.far && px.open > 0.0f) {
+      float lo = f.lo, hi = f.hi;
+      if (f.flat) PlaneRange(p, f, &lo, &hi);
+      if (lo > px.far && px.open > 0.0f) {
         Close<kRad>(px, /*behind=*/true);
         if (px.closed >= 1.0f) return;
       }
-      px.far = std::max(px.far, f.hi);
+      if (!(px.open > 0.0f)) {
+        px.far = hi;
+        px.normal[0] = f.normal.x, px.normal[1] = f.normal.y, px.normal[2] = f.normal.z;
+      } else if (f.normal.x * px.normal[0] + f.normal.y * px.normal[1] + f.normal.z * px.normal[2] >
+                 kChainCos) {
+        px.far = std::max(px.far, hi);
+      }
       px.open += cov;
       if constexpr (kRad) {
         for (int ch = 0; ch < 3; ++ch) px.open_rgb[ch] += cov * f.rgb[ch];

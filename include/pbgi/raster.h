@@ -19,14 +19,18 @@
 //    that the disk's bounding cone touches is sampled with near_field_samples^2 rays, each
 //    intersected with the disk; coverage is the solid-angle-weighted fraction of rays that hit.
 //  - With `clamp` (the default), elements are composited front to back by distance, in depth
-//    layers per pixel: an element whose depth range [d - extent, d + extent] overlaps the open
-//    layer's joins it, and a layer's coverage adds up freely (the splats of one surface tile it;
-//    their round footprints overlap and leave gaps that cancel only if they add up); an element
-//    wholly behind closes the layer. The first layer counts in full only while nothing lies
-//    behind it in that pixel; once a fragment behind it arrives it is clamped at 1, and each
-//    later layer only fills what the nearer ones left below 1 (the depth test). Surfaces closer in
-//    depth than a pixel's footprint spans (about depth * slope * pixel angle) merge into one layer
-//    and add up.
+//    layers per pixel: an element whose depth range in the pixel overlaps the open layer's joins
+//    it, and a layer's coverage adds up freely (the splats of one surface tile it; their round
+//    footprints overlap and leave gaps that cancel only if they add up); an element wholly
+//    behind closes the layer. A flat element's depth range in a pixel is where the pixel's ray
+//    meets its plane (a surfel's disk, a flat cluster's mean plane); a curved cluster's is
+//    [d - extent, d + extent]. A joining element extends the layer's range only if it faces
+//    the same way as the layer's first one (one surface, curving), so that a chain of elements
+//    of different surfaces cannot merge them into one layer. The first layer counts in full only
+//    while nothing lies behind it in that pixel; once a fragment behind it arrives it is clamped at
+//    1, and each later layer only fills what the nearer ones left below 1 (the depth test).
+//    Surfaces closer in depth than a pixel's footprint spans (about depth * slope * pixel angle)
+//    merge into one layer and add up.
 //  - Pixel solid angles are exact for their place on the face (closed form for a rectangle on a
 //    cube face), and each pixel's cosine weight is the exact projected solid angle of the part
 //    of the pixel above the horizon (Lambert's polygon formula), so the weights sum to pi.
@@ -125,11 +129,15 @@ namespace internal {
 struct PreparedSplat {
   glm::vec3 dir;     // far: unit direction; near disk: centre
   float omega;       // far: solid angle; near disk: radius
-  glm::vec3 normal;  // near disk only
+  glm::vec3 normal;  // near disk: its normal; far: unit mean normal facing the receiver, or 0
   float depth;       // distance from the receiver to the element's centre
   float extent;      // half the element's size along any direction (depth overlap test)
+  // Far and flat: the element lies within `thick` of its plane {x : normal.x = plane} (x
+  // relative to the receiver; plane < 0), which gives its depth along each pixel's ray.
+  float plane, thick;
   glm::vec3 radiance;
-  uint32_t near;  // 1 for an exact disk
+  uint8_t near;  // 1 for an exact disk
+  uint8_t flat;  // far: 1 when plane and thick are set (a surfel, or a nearly flat cluster)
 };
 // A pixel's state: layers of fragments that overlap in depth (one surface) add up freely in
 // `open`; when a fragment lies wholly behind the open layer, the layer closes into `closed`.
@@ -140,10 +148,12 @@ struct PixelState {
   float depth;   // nearest fragment's depth
   float closed_rgb[3];
   float open_rgb[3];
+  float normal[3];  // the open layer's first fragment's normal (0: none)
 };
 struct PixelDir {
   float x, y, z;
-  float inv_width;  // 1 / (angular width of the pixel)
+  float inv_width;   // 1 / (angular width of the pixel)
+  float half_width;  // half the angular width of the pixel
 };
 class Rasterizer;
 }  // namespace internal
