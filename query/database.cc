@@ -112,6 +112,7 @@ const StoreMeta& Database::meta() const { return source_->meta(); }
 const std::string& Database::path() const { return source_->name(); }
 uint64_t Database::FileBytes() const { return source_->FileBytes(); }
 uint64_t Database::CacheUsageBytes() const { return cache_->usage(); }
+uint64_t Database::SharedCacheCalls() const { return cache_->counters().calls(); }
 absl::StatusOr<uint64_t> Database::MapResidentBytes() const { return source_->MapResidentBytes(); }
 void Database::DropCache() { cache_->Prune(); }
 
@@ -356,9 +357,8 @@ absl::Status Reader::Impl::Gather(const Receiver& receiver, const Cut& cut, Gath
       // Built in place (C++20 aggregate initialization): no zeroing of ~200 bytes first.
       const float area = page->areas[slot];
       if (page->power) {
-        out->clusters.emplace_back(Bounds{node.lo, node.hi}, area, node.sh_area,
-                                   page->power[slot], uint32_t{node.depth}, node.first_point,
-                                   node.point_count);
+        out->clusters.emplace_back(Bounds{node.lo, node.hi}, area, node.sh_area, page->power[slot],
+                                   uint32_t{node.depth}, node.first_point, node.point_count);
       } else {
         out->clusters.emplace_back(Bounds{node.lo, node.hi}, area, node.sh_area,
                                    std::array<Sh9, 3>{}, uint32_t{node.depth}, node.first_point,

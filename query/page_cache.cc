@@ -126,6 +126,7 @@ void PageCache::EvictWhileOver(Shard& s) {
 void PageCache::ReleaseEntry(Entry* e) {
   Shard& s = ShardFor(e->key);
   std::lock_guard<std::mutex> l(s.mu);
+  ++s.counters.releases;
   Unref(s, e);
   EvictWhileOver(s);
 }
@@ -235,6 +236,7 @@ PageCache::Counters PageCache::counters() const {
     c.load_charge += x.load_charge;
     c.failed_loads += x.failed_loads;
     c.evictions += x.evictions;
+    c.releases += x.releases;
   }
   return c;
 }

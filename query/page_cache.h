@@ -63,6 +63,9 @@ class PageCache {
     uint64_t load_charge = 0;   // charge of the successful loads
     uint64_t failed_loads = 0;  // loads that returned an error (never cached)
     uint64_t evictions = 0;
+    uint64_t releases = 0;  // handles released (unpins)
+    // Every call that took a shard's lock on behalf of a caller: lookups and unpins.
+    uint64_t calls() const { return hits + waits + misses + releases; }
   };
 
   // A loaded value and what it costs in bytes.

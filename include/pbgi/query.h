@@ -128,8 +128,7 @@ inline float ProjectedAreaToward(const float* c, const glm::vec3& w) {
   v += c[8] * (float(0.546274215296040) * (x * x - y * y));
   return v;
 }
-inline float NodeSolidAngleFrom(const glm::vec3& centre, const float* sh_area,
-                                const glm::vec3& p) {
+inline float NodeSolidAngleFrom(const glm::vec3& centre, const float* sh_area, const glm::vec3& p) {
   const glm::vec3 v = p - centre;
   const float d2 = glm::dot(v, v);
   if (!(d2 > 0.0f)) return std::numeric_limits<float>::infinity();
@@ -318,6 +317,10 @@ class Database {
   // shared cache's evictions. (Each Reader publishes its counters on a cache line of its own;
   // this sums them under a lock, so calling it costs the gathers nothing.)
   CacheStats TotalStats() const;
+  // Calls into the shared cache so far, by all Readers: lookups (found, waited for or loaded)
+  // and unpins, each of which takes a shard's lock. A gather whose pages are all in its
+  // Reader's own LRU makes none: its hits touch no state shared with other threads.
+  uint64_t SharedCacheCalls() const;
   // Bytes of decoded pages in the shared cache now (pinned ones included).
   uint64_t CacheUsageBytes() const;
   // Bytes of the store's memory map resident in this process now (PageStore::MapResidentBytes;
@@ -377,7 +380,9 @@ class Reader {
 
   Database* db_;
   std::unique_ptr<Impl> impl_;
-  CacheStats stats_;
+  // Written at the end of every gather: on cache lines of its own (which also aligns the
+  // Reader), so that no other thread's data can share them, whatever the heap puts next to it.
+  alignas(64) CacheStats stats_;
 };
 
 // The order in which to visit receivers for coherence: sorted by the Morton (Z-order) key of

@@ -7,6 +7,7 @@
 #include <cstring>
 #include <fstream>
 #include <iterator>
+#include <memory>
 #include <thread>
 #include <tuple>
 #include <vector>
@@ -152,6 +153,48 @@ TEST(GatherDb, TinyCacheAndEightThreadsMatchOneThread) {
   EXPECT_EQ(errors.load(), 0);
   EXPECT_EQ(mismatches.load(), 0);
   EXPECT_LE((*small)->CacheUsageBytes(), 8u * 4096u);
+}
+
+// Over LMDB (copy_pages, the default): once a Reader's own LRU holds a gather's pages, the same
+// gathers again never reach the shared cache or the store's pread path, in two threads at once.
+TEST(GatherDb, WarmGathersInTwoThreadsMakeNoSharedCacheCalls) {
+  BuildOptions b;
+  b.page_size = EfficientPageSize(2);
+  auto t = TempDatabase::Create(testing::RandomSceneSurfels(8000, 45), b);
+  ASSERT_TRUE(t.ok()) << t.status();
+  const std::vector<Receiver> receivers = Receivers((*t)->surfels(), 200, 5);
+  auto db = Database::Open((*t)->path());
+  ASSERT_TRUE(db.ok()) << db.status();
+  ASSERT_TRUE((*db)->options().copy_pages);
+  std::vector<std::unique_ptr<Reader>> readers;
+  for (int th = 0; th < 2; ++th) readers.push_back(std::move(*(*db)->NewReader()));
+  auto pass = [&](std::vector<QueryStats>* stats) {
+    std::vector<std::thread> threads;
+    for (int th = 0; th < 2; ++th) {
+      threads.emplace_back([&, th] {
+        Gathered g;
+        for (const Receiver& r : receivers) {
+          EXPECT_TRUE(readers[th]->Gather(r, Cut{}, &g, &(*stats)[th]).ok());
+        }
+      });
+    }
+    for (auto& th : threads) th.join();
+  };
+  std::vector<QueryStats> cold(2), warm(2);
+  pass(&cold);
+  const uint64_t calls = (*db)->SharedCacheCalls();
+  const uint64_t pages_read = (*db)->TotalStats().shared.pages_read;
+  EXPECT_GT(calls, 0u);
+  EXPECT_GT(pages_read, 0u);
+  pass(&warm);
+  EXPECT_EQ((*db)->SharedCacheCalls() - calls, 0u);
+  EXPECT_EQ((*db)->TotalStats().shared.pages_read - pages_read, 0u);
+  for (int th = 0; th < 2; ++th) {
+    EXPECT_EQ(warm[th].queries, receivers.size());
+    EXPECT_EQ(warm[th].pages_read, 0u);
+    EXPECT_EQ(warm[th].TotalReaderHits(), warm[th].TotalPagesTouched());
+    EXPECT_EQ(warm[th].nodes_visited, cold[th].nodes_visited);
+  }
 }
 
 // The --cache promise: gathering over a database many times bigger than the cache leaves only

@@ -374,6 +374,44 @@ TEST(GatherFake, WarmGatherDoesNotAllocate) {
   EXPECT_EQ(g_allocations.load() - before, 0u);
 }
 
+// A warm gather is served by its Reader's own LRU alone: no lookup or unpin in the shared cache
+// (each takes a shard lock and writes an entry's reference count that other threads touch) and
+// no store read, also while another Reader works on the same cache. Issue 4's 2-thread goal
+// rests on this: a warm traversal shares nothing that it writes.
+TEST(GatherFake, WarmGatherMakesNoSharedCacheCalls) {
+  std::vector<Surfel> input = testing::RandomSceneSurfels(3000, 9);
+  FakeDb fake = BuildFakeDb(input, {8, 1024, Channels::kRadiance});
+  MemPageSource* src = fake.source.get();
+  std::vector<Receiver> receivers = Receivers(fake.surfels, 40, 11);
+  auto db = Open(fake);
+  auto a = db->NewReader();
+  auto b = db->NewReader();
+  ASSERT_TRUE(a.ok() && b.ok());
+  Gathered g;
+  for (const Receiver& r : receivers) ASSERT_TRUE((*a)->Gather(r, Cut{}, &g).ok());
+  const uint64_t calls = db->SharedCacheCalls();
+  const uint64_t reads = src->reads();
+  EXPECT_GT(calls, 0u);
+  EXPECT_GT(reads, 0u);
+  QueryStats second;
+  for (const Receiver& r : receivers) ASSERT_TRUE((*a)->Gather(r, Cut{}, &g, &second).ok());
+  EXPECT_EQ(db->SharedCacheCalls() - calls, 0u);
+  EXPECT_EQ(src->reads() - reads, 0u);
+  EXPECT_GT(second.TotalPagesTouched(), 0u);
+  EXPECT_EQ(second.TotalReaderHits(), second.TotalPagesTouched());
+  EXPECT_EQ(second.TotalSharedHits() + second.TotalSharedMisses(), 0u);
+  // b's first gather goes to the shared cache (and finds its pages there)...
+  QueryStats b_first;
+  ASSERT_TRUE((*b)->Gather(receivers[0], Cut{}, &g, &b_first).ok());
+  EXPECT_GT(db->SharedCacheCalls(), calls);
+  EXPECT_GT(b_first.TotalSharedHits(), 0u);
+  EXPECT_EQ(src->reads() - reads, 0u);
+  // ...and a stays warm while b lives and holds pins.
+  const uint64_t after_b = db->SharedCacheCalls();
+  for (const Receiver& r : receivers) ASSERT_TRUE((*a)->Gather(r, Cut{}, &g).ok());
+  EXPECT_EQ(db->SharedCacheCalls() - after_b, 0u);
+}
+
 TEST(GatherFake, BatchInZOrderMatchesSingleGathers) {
   std::vector<Surfel> input = testing::RandomSceneSurfels(2000, 12);
   FakeDb fake = BuildFakeDb(input, {});

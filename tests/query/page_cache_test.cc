@@ -5,6 +5,7 @@
 #include <atomic>
 #include <chrono>
 #include <thread>
+#include <utility>
 #include <vector>
 
 #include "gmock/gmock.h"
@@ -62,6 +63,26 @@ TEST_F(CacheTest, HitAfterMissAndValueIsTheLoadedOne) {
   EXPECT_EQ(c.hits, 1u);
   EXPECT_EQ(c.misses, 1u);
   EXPECT_EQ(c.loads, 1u);
+}
+
+// calls() counts every lookup and every unpin: what Database::SharedCacheCalls() reports.
+TEST_F(CacheTest, CallsCountLookupsAndReleases) {
+  PageCache cache(100, 2);
+  EXPECT_EQ(cache.counters().calls(), 0u);
+  {
+    auto h = Get(cache, 1);
+    ASSERT_TRUE(h.ok());
+    EXPECT_EQ(cache.counters().calls(), 1u);  // the miss
+    auto h2 = Get(cache, 1);
+    ASSERT_TRUE(h2.ok());
+    EXPECT_EQ(cache.counters().calls(), 2u);  // and the hit
+    EXPECT_EQ(cache.counters().releases, 0u);
+    PageCache::Handle moved = std::move(*h2);  // a move is not a call
+    EXPECT_EQ(cache.counters().calls(), 2u);
+  }
+  const PageCache::Counters c = cache.counters();
+  EXPECT_EQ(c.releases, 2u);
+  EXPECT_EQ(c.calls(), 4u);
 }
 
 TEST_F(CacheTest, EvictsLeastRecentlyUsedFirst) {
