@@ -1,11 +1,8 @@
 // BuildDatabase end to end over LMDB: VerifyTree, meta record, agreement with the in-memory
 // pipeline page by page, spilled and not, temporary files cleaned up.
 #include <fcntl.h>
-#include <signal.h>
 #include <sys/mman.h>
-#include <sys/resource.h>
 #include <sys/stat.h>
-#include <sys/wait.h>
 #include <unistd.h>
 
 #include <cstring>
@@ -20,6 +17,7 @@
 #include "pbgi/store.h"
 #include "store/page_format.h"
 #include "tests/build/test_clouds.h"
+#include "tests/common/child_process.h"
 
 namespace pbgi {
 namespace {
@@ -90,35 +88,18 @@ TEST(BuildDatabaseTest, WriteErrorOnTheWriterThreadEndsTheBuild) {
   ScratchDir dir("fsize");
   const std::string db = dir.Sub("db");
   const auto cloud = testing_build::SurfaceCloud(60000, 8);  // about 5 MiB of pages
-  int fds[2];
-  ASSERT_EQ(pipe(fds), 0);
-  const pid_t pid = fork();
-  ASSERT_GE(pid, 0);
-  if (pid == 0) {
-    close(fds[0]);
-    alarm(120);  // a deadlock fails the test instead of hanging it
-    signal(SIGXFSZ, SIG_IGN);
-    rlimit lim{2 << 20, 2 << 20};
-    setrlimit(RLIMIT_FSIZE, &lim);
-    BuildOptions o;
-    o.threads = 2;
-    o.memory_bytes = uint64_t{256} << 20;  // no spill: the limit hits the database file
-    VectorSurfelSource src(cloud);
-    auto stats = BuildDatabase(src, db, o);
-    const std::string report = stats.ok() ? "built" : stats.status().ToString();
-    (void)!write(fds[1], report.data(), report.size());
-    _exit(0);
-  }
-  close(fds[1]);
-  std::string got;
-  char buf[512];
-  ssize_t n;
-  while ((n = read(fds[0], buf, sizeof(buf))) > 0) got.append(buf, static_cast<size_t>(n));
-  close(fds[0]);
-  int status = 0;
-  ASSERT_EQ(waitpid(pid, &status, 0), pid);
-  ASSERT_TRUE(WIFEXITED(status)) << "the build crashed or hung (signal "
-                                 << (WIFSIGNALED(status) ? WTERMSIG(status) : 0) << ")";
+  const testing_common::ChildResult child = testing_common::RunInChild(
+      [&] {
+        BuildOptions o;
+        o.threads = 2;
+        o.memory_bytes = uint64_t{256} << 20;  // no spill: the limit hits the database file
+        VectorSurfelSource src(cloud);
+        auto stats = BuildDatabase(src, db, o);
+        return stats.ok() ? std::string("built") : stats.status().ToString();
+      },
+      /*file_size_limit=*/2 << 20);
+  ASSERT_TRUE(child.exited) << "the build crashed or hung (signal " << child.signal << ")";
+  const std::string& got = child.report;
   EXPECT_NE(got.find("RESOURCE_EXHAUSTED"), std::string::npos) << got;
   EXPECT_NE(got.find("file too large"), std::string::npos) << got;
   EXPECT_FALSE(PageStore::Open(db).ok());

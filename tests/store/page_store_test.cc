@@ -18,6 +18,7 @@
 #include "gtest/gtest.h"
 #include "pbgi/store.h"
 #include "store/meta_codec.h"
+#include "tests/common/child_process.h"
 #include "tests/store/store_test_util.h"
 
 namespace pbgi {
@@ -498,41 +499,22 @@ TEST(PageStoreTest, FileSizeLimitIsAnErrorNotACrash) {
   // same way (EFBIG, or a short write), in a child process so the limit stays there.
   ScratchDir dir;
   const std::string path = dir.Sub("store");
-  int fds[2];
-  ASSERT_EQ(pipe(fds), 0);
-  const pid_t pid = fork();
-  ASSERT_GE(pid, 0);
-  if (pid == 0) {
-    close(fds[0]);
-    signal(SIGXFSZ, SIG_IGN);
-    rlimit lim{2 << 20, 2 << 20};
-    setrlimit(RLIMIT_FSIZE, &lim);
-    StoreOptions opt;
-    opt.batch_bytes = 1 << 20;
-    std::string report = "created";
-    auto w = PageWriter::Create(path, opt);
-    if (!w.ok()) {
-      report = std::string(w.status().ToString());
-    } else {
-      absl::Status s;
-      for (uint64_t i = 0; i < 128 && s.ok(); ++i) {
-        s = (*w)->Append(Section::kPoints, i, PageKind::kPoint, 1, {});
-      }
-      if (s.ok()) s = (*w)->Finish(StoreMeta{});
-      report = s.ToString();
-    }
-    (void)!write(fds[1], report.data(), report.size());
-    _exit(0);
-  }
-  close(fds[1]);
-  std::string got;
-  char buf[512];
-  ssize_t n;
-  while ((n = read(fds[0], buf, sizeof(buf))) > 0) got.append(buf, static_cast<size_t>(n));
-  close(fds[0]);
-  int status = 0;
-  ASSERT_EQ(waitpid(pid, &status, 0), pid);
-  ASSERT_TRUE(WIFEXITED(status)) << "the writer crashed";
+  const testing_common::ChildResult child = testing_common::RunInChild(
+      [&] {
+        StoreOptions opt;
+        opt.batch_bytes = 1 << 20;
+        auto w = PageWriter::Create(path, opt);
+        if (!w.ok()) return std::string(w.status().ToString());
+        absl::Status s;
+        for (uint64_t i = 0; i < 128 && s.ok(); ++i) {
+          s = (*w)->Append(Section::kPoints, i, PageKind::kPoint, 1, {});
+        }
+        if (s.ok()) s = (*w)->Finish(StoreMeta{});
+        return s.ToString();
+      },
+      /*file_size_limit=*/2 << 20);
+  ASSERT_TRUE(child.exited) << "the writer crashed (signal " << child.signal << ")";
+  const std::string& got = child.report;
   // LMDB sees a short write (EIO) or EFBIG; either way the writer names the limit.
   EXPECT_THAT(got, HasSubstr("RESOURCE_EXHAUSTED"));
   EXPECT_THAT(got, HasSubstr("file too large"));
