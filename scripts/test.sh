@@ -14,7 +14,10 @@ flags=(-DCMAKE_BUILD_TYPE=RelWithDebInfo -DPBGI_WERROR=ON)
 case "$san" in
   "") ;;
   asan) flags+=(-DPBGI_ASAN=ON) ;;
-  tsan) flags+=(-DPBGI_TSAN=ON) ;;
+  tsan)
+    flags+=(-DPBGI_TSAN=ON)
+    export TSAN_OPTIONS="suppressions=$here/tests/tsan.supp ${TSAN_OPTIONS:-}"
+    ;;
   *) echo "PBGI_SANITIZE must be asan or tsan" >&2; exit 2 ;;
 esac
 generator=()
