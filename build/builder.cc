@@ -216,19 +216,10 @@ absl::StatusOr<BuildStats> BuildToSink(SurfelSource& source, PageSink& sink,
       used = 0;
       PBGI_ASSIGN_OR_RETURN(slots, sorter.Reserve(kBatch));
     }
-    const glm::vec3 n = glm::vec3(glm::normalize(glm::dvec3(in.normal)));
-    SortRecord& r = slots[used++];
-    r.key = quant.Key(in.position);
-    r.position[0] = in.position.x;
-    r.position[1] = in.position.y;
-    r.position[2] = in.position.z;
-    r.normal[0] = n.x;
-    r.normal[1] = n.y;
-    r.normal[2] = n.z;
-    r.radius = in.radius;
-    r.radiance[0] = radiance ? in.radiance.x : 0.0f;
-    r.radiance[1] = radiance ? in.radiance.y : 0.0f;
-    r.radiance[2] = radiance ? in.radiance.z : 0.0f;
+    Surfel s = in;
+    s.normal = glm::vec3(glm::normalize(glm::dvec3(s.normal)));
+    if (!radiance) s.radiance = glm::vec3(0.0f);
+    slots[used++] = MakeSortRecord(quant.Key(s.position), s);
     return absl::OkStatus();
   }));
   sorter.Commit(used);

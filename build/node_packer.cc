@@ -106,10 +106,7 @@ absl::Status NodePacker::AppendUnit(PendingSet set) {
   return absl::OkStatus();
 }
 
-std::vector<std::vector<Group*>> NodePacker::PackLevels(std::vector<Group*> seq) const {
-  std::stable_sort(seq.begin(), seq.end(), [](const Group* a, const Group* b) {
-    return a->nodes[0].rec.common.depth < b->nodes[0].rec.common.depth;
-  });
+std::vector<std::vector<Group*>> NodePacker::PackNextFit(const std::vector<Group*>& seq) const {
   std::vector<std::vector<Group*>> pages;
   uint64_t fill = capacity_;
   for (Group* g : seq) {
@@ -121,6 +118,13 @@ std::vector<std::vector<Group*>> NodePacker::PackLevels(std::vector<Group*> seq)
     fill += g->nodes.size();
   }
   return pages;
+}
+
+absl::Status NodePacker::PlaceAndWritePages(const std::vector<std::vector<Group*>>& pages) {
+  // Place every page first (a parent may point at a later page), then write them in order.
+  for (size_t i = 0; i < pages.size(); ++i) PlaceInPage(next_page_ + i, pages[i]);
+  for (const auto& p : pages) PBGI_RETURN_IF_ERROR(WritePage(next_page_++, p));
+  return absl::OkStatus();
 }
 
 absl::Status NodePacker::WriteUpperSubtree(Group* top) {
@@ -143,10 +147,11 @@ absl::Status NodePacker::WriteUpperSubtree(Group* top) {
         absl::StrFormat("node packer: an upper subtree counts %d records but holds %d",
                         top->subtree_records, records));
   }
-  const std::vector<std::vector<Group*>> pages = PackLevels(seq);
-  // Place every page first (parents point at later pages), then write them in order.
-  for (size_t i = 0; i < pages.size(); ++i) PlaceInPage(next_page_ + i, pages[i]);
-  for (const auto& p : pages) PBGI_RETURN_IF_ERROR(WritePage(next_page_++, p));
+  // Level by level: pre-order restricted to one depth is that depth's Z-order.
+  std::stable_sort(seq.begin(), seq.end(), [](const Group* a, const Group* b) {
+    return a->nodes[0].rec.common.depth < b->nodes[0].rec.common.depth;
+  });
+  PBGI_RETURN_IF_ERROR(PlaceAndWritePages(PackNextFit(seq)));
   for (Group* g : seq) {
     g->written = true;
     g->nodes = std::vector<PendingNode>();  // a written group keeps only its ref
@@ -294,23 +299,7 @@ absl::Status NodePacker::WriteAllInMemory(Group* root) {
   if (order.size() != all_.size() + 1) {
     return absl::InternalError("node packer: breadth-first walk missed sibling groups");
   }
-  // Place every group first (refs resolve into parents), then serialize page by page.
-  std::vector<std::vector<Group*>> pages;
-  uint32_t fill = capacity_;
-  for (Group* g : order) {
-    if (fill + g->nodes.size() > capacity_) {
-      pages.emplace_back();
-      fill = 0;
-    }
-    g->ref = MakeNodeRef(next_page_ + pages.size() - 1, fill);
-    fill += static_cast<uint32_t>(g->nodes.size());
-    pages.back().push_back(g);
-    if (g->parent != nullptr) {
-      g->parent->rec.common.children = g->ref;
-      g->parent->child_group = nullptr;
-    }
-  }
-  for (auto& p : pages) PBGI_RETURN_IF_ERROR(WritePage(next_page_++, p));
+  PBGI_RETURN_IF_ERROR(PlaceAndWritePages(PackNextFit(order)));
   all_.clear();
   return absl::OkStatus();
 }

@@ -127,9 +127,10 @@ class NodePacker {
   // Writes the upper subtree below (and including) `top`, level by level.
   absl::Status WriteUpperSubtree(Group* top);
   absl::Status KeepUpperUnderLimit();
-  // Groups of one depth together, depths in increasing order, each depth in the order given
-  // (pre-order restricted to a depth is that depth's Z-order), packed next fit.
-  std::vector<std::vector<Group*>> PackLevels(std::vector<Group*> seq) const;
+  // Groups in the order given, packed next fit into pages (a group never straddles two).
+  std::vector<std::vector<Group*>> PackNextFit(const std::vector<Group*>& seq) const;
+  // Assigns refs to every page's groups from next_page_ on, then writes the pages.
+  absl::Status PlaceAndWritePages(const std::vector<std::vector<Group*>>& pages);
 
   Layout layout_;
   Channels channels_;

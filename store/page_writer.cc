@@ -48,10 +48,8 @@ struct PageWriter::Impl {
   MDB_dbi meta_dbi = 0, nodes = 0, points = 0;
   uint64_t map_size = 0;
   uint32_t env_page = 4096;  // LMDB's page size (the OS page size)
-  off_t written_end_ = 0;    // StreamOut: write-back started below this offset
-  off_t dropped_end_ = 0;    // StreamOut: written back and dropped from the page cache below this
-  int fstat_ok_ = 0;         // TrimMap: 0 not yet, 1 file_stat_ valid, -1 no stat
-  struct stat file_stat_ {};
+  off_t written_end = 0;     // StreamOut: write-back started below this offset
+  off_t dropped_end = 0;     // StreamOut: written back and dropped from the page cache below this
 
   // Pages reserved in the open write transaction, in append order: what a map-growth retry
   // must write again into the next transaction.
@@ -158,53 +156,52 @@ struct PageWriter::Impl {
     batch_bytes = 0;
     PBGI_RETURN_IF_ERROR(internal::LmdbWriteStatus(
         rc, absl::StrCat(Where(), ": committing a batch of pages"), tmp_path));
-    TrimMap();
-    StreamOut();
+    ReleaseCommittedPages();
     return absl::OkStatus();
   }
 
-  // A build writes each page once and does not read it back, so its file should not fill the
-  // page cache (which a memory cgroup charges to the build) or pile up as dirty memory that the
-  // kernel then throttles. After each batch: start the write-back of what it appended, wait for
-  // the previous batch's write-back (long done, as a rule) and drop those pages from the cache.
-  // LMDB's meta pages and the B-tree's few branch pages are rewritten in place and re-read from
-  // disk when needed. Best effort: errors here change nothing, Finish() still syncs everything.
-  void StreamOut() {
+  // After a batch commits, its pages are clean and the build will not read them again: release
+  // them from the map (TrimMap) and from the page cache (StreamOut). Best effort: a failure here
+  // changes nothing, Finish() still syncs everything.
+  void ReleaseCommittedPages() {
     int fd = -1;
     if (mdb_env_get_fd(env, &fd) != MDB_SUCCESS || fd < 0) return;
     struct stat st;
     if (fstat(fd, &st) != 0) return;
-    const off_t end = st.st_size;
-    if (end > written_end_) {
-      (void)sync_file_range(fd, written_end_, end - written_end_, SYNC_FILE_RANGE_WRITE);
-    }
-    if (written_end_ > dropped_end_) {
-      (void)sync_file_range(
-          fd, dropped_end_, written_end_ - dropped_end_,
-          SYNC_FILE_RANGE_WAIT_BEFORE | SYNC_FILE_RANGE_WRITE | SYNC_FILE_RANGE_WAIT_AFTER);
-      (void)posix_fadvise(fd, dropped_end_, written_end_ - dropped_end_, POSIX_FADV_DONTNEED);
-      dropped_end_ = written_end_;
-    }
-    written_end_ = std::max(written_end_, end);
+    TrimMap(st);
+    StreamOut(fd, st.st_size);
   }
 
   // The pages of data.mdb that LMDB reads through its map while appending (the B-tree's right
   // edge, and the neighbours that the kernel maps around each fault) count in the process's
   // RSS, and over a long build they add up to tens of MiB beyond the write batch. They are clean
   // (committed) file pages: dropping them from this process's map costs a re-fault of the few
-  // that the next batch touches, and keeps the build's peak RSS within --memory. Best effort:
-  // if /proc is not there, nothing is trimmed.
-  void TrimMap() {
-    struct stat st;
-    if (fstat_ok_ == 0) {
-      fstat_ok_ = stat(tmp_path.c_str(), &st) == 0 ? 1 : -1;
-      if (fstat_ok_ == 1) file_stat_ = st;
-    }
-    if (fstat_ok_ != 1) return;
-    absl::StatusOr<internal::FileMapping> m =
-        internal::FindFileMapping(file_stat_, nullptr, tmp_path);
+  // that the next batch touches, and keeps the build's peak RSS within --memory. Nothing is
+  // trimmed if /proc is not there.
+  void TrimMap(const struct stat& file) {
+    absl::StatusOr<internal::FileMapping> m = internal::FindFileMapping(file, nullptr, tmp_path);
     if (!m.ok()) return;
     (void)madvise(const_cast<uint8_t*>(m->start), m->bytes, MADV_DONTNEED);
+  }
+
+  // A build writes each page once and does not read it back, so its file should not fill the
+  // page cache (which a memory cgroup charges to the build) or pile up as dirty memory that the
+  // kernel then throttles. Start the write-back of what the batch appended, wait for the
+  // previous batch's write-back (long done, as a rule) and drop those pages from the cache.
+  // LMDB's meta pages and the B-tree's few branch pages are rewritten in place and re-read from
+  // disk when needed.
+  void StreamOut(int fd, off_t end) {
+    if (end > written_end) {
+      (void)sync_file_range(fd, written_end, end - written_end, SYNC_FILE_RANGE_WRITE);
+    }
+    if (written_end > dropped_end) {
+      (void)sync_file_range(
+          fd, dropped_end, written_end - dropped_end,
+          SYNC_FILE_RANGE_WAIT_BEFORE | SYNC_FILE_RANGE_WRITE | SYNC_FILE_RANGE_WAIT_AFTER);
+      (void)posix_fadvise(fd, dropped_end, written_end - dropped_end, POSIX_FADV_DONTNEED);
+      dropped_end = written_end;
+    }
+    written_end = std::max(written_end, end);
   }
 
   absl::Status PutMeta(const std::string& record) {
