@@ -353,7 +353,8 @@ absl::Status Reader::Impl::Gather(const Receiver& receiver, const Cut& cut, Gath
     }
     if (!NodeNearFieldSphere(node.near_centre, node.near_radius2, p) &&
         (ClearlyBelowCut(node, p, max_sa) ||
-         NodeSolidAngleFrom(node.centre, node.sh_area.data(), p) < max_sa)) {
+         BelowCut(NodeSolidAngleFrom(node.centre, node.sh_area.data(), p), cut,
+                  [&] { return NodeCutCosine(node.near_centre, node.near_radius2, p, n); }))) {
       // Built in place (C++20 aggregate initialization): no zeroing of ~200 bytes first.
       const float area = page->areas[slot];
       if (page->power) {

@@ -92,11 +92,13 @@ absl::Status CheckValidCut(const Gathered& result, absl::Span<const Surfel> surf
     if (NodeNearField(cl.bounds.lo, cl.bounds.hi, NodeReach(cl.area), p)) {
       return fail(name + " has the receiver in its near field (near-field rule)");
     }
-    const float sa = ClusterSolidAngle(cl, receiver);
-    if (!(sa < cut.max_solid_angle)) {
-      return fail(absl::StrFormat("%s subtends %g sr, not below the cut", name, sa));
-    }
     const float reach = NodeReach(cl.area);
+    const float sa = ClusterSolidAngle(cl, receiver);
+    const NearSphere near = NodeNearSphere(cl.bounds.lo, cl.bounds.hi, reach);
+    if (!BelowCut(sa, cut, [&] { return NodeCutCosine(near.centre, near.radius2, p, nrm); })) {
+      return fail(absl::StrFormat("%s subtends %g sr (cosine weight %g), not below the cut", name,
+                                  sa, NodeCutCosine(near.centre, near.radius2, p, nrm)));
+    }
     if (NodeWhollyBehind(cl.bounds.lo, cl.bounds.hi, reach, p, nrm)) {
       return fail(name + " lies wholly behind the tangent plane");
     }

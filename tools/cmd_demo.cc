@@ -27,6 +27,7 @@ struct DemoArgs {
   int height = 540;
   int threads = 0;
   float max_solid_angle = 0.03f;
+  std::string cut = "cosine";  // or "plain"
   int raster_res = 12;
   uint64_t seed = 1;
 };
@@ -85,6 +86,7 @@ absl::Status RunDemo(const DemoArgs& a) {
   PBGI_ASSIGN_OR_RETURN(std::unique_ptr<Tracer> tracer, Tracer::Create(*scene));
   ShadeJobOptions so;
   so.cut.max_solid_angle = a.max_solid_angle;
+  so.cut.cosine_weighted = a.cut == "cosine";
   so.raster.resolution = a.raster_res;
   so.raster.compute_radiance = scene->has_radiance;
   so.threads = a.threads;
@@ -139,9 +141,9 @@ absl::Status RunDemo(const DemoArgs& a) {
       100.0 * cs.shared.HitRate(), static_cast<unsigned long long>(cs.shared.pages_read),
       FormatBytes(cs.shared.bytes_read).c_str());
   std::printf(
-      "  cut            max_solid_angle %.3g, raster %d^2 x 6, %.1f clusters + %.1f "
+      "  cut            max_solid_angle %.3g (%s), raster %d^2 x 6, %.1f clusters + %.1f "
       "surfels per receiver\n",
-      a.max_solid_angle, a.raster_res,
+      a.max_solid_angle, a.cut.c_str(), a.raster_res,
       double(view.shade.query.clusters) / double(std::max<uint64_t>(1, view.receivers)),
       double(view.shade.query.surfels) / double(std::max<uint64_t>(1, view.receivers)));
   std::printf("  total          %.1f s, peak memory %s\n", Since(t_all),
@@ -172,6 +174,9 @@ CommandSetup Setup() {
     app->add_option("--threads", a->threads, "0: all cores")->capture_default_str();
     app->add_option("--max-solid-angle", a->max_solid_angle)
         ->check(CLI::Range(0.0f, 10.0f))
+        ->capture_default_str();
+    app->add_option("--cut", a->cut, "cosine (solid angle weighted by the cosine) or plain")
+        ->check(CLI::IsMember({"cosine", "plain"}))
         ->capture_default_str();
     app->add_option("--raster-res", a->raster_res)->check(CLI::Range(4, 64))->capture_default_str();
     app->add_option("--seed", a->seed)->capture_default_str();

@@ -33,6 +33,7 @@ struct ShadeArgs {
   std::string cache = "256M";
   int threads = 0;
   float max_solid_angle = 0.03f;
+  std::string cut = "cosine";  // or "plain"; glossy always uses the plain cut
   float max_distance = std::numeric_limits<float>::infinity();
   int raster_res = 12;
   float bias = 0.0f;
@@ -235,6 +236,8 @@ absl::Status RunShade(const ShadeArgs& a) {
   so.threads = a.threads;
   so.cut.max_solid_angle = a.max_solid_angle;
   so.cut.max_distance = a.max_distance;
+  // The cosine weight suits integrals against the cosine (occlusion, irradiance), not a lobe.
+  so.cut.cosine_weighted = a.cut == "cosine" && mode != Mode::kGlossy;
   so.raster.resolution = a.raster_res;
   so.raster.bias = a.bias;
   so.raster.max_distance = a.max_distance;
@@ -265,6 +268,11 @@ CommandSetup Setup() {
         ->check(BytesValidator())
         ->capture_default_str();
     app->add_option("--threads", a->threads, "0: all cores")->capture_default_str();
+    app->add_option("--cut", a->cut,
+                    "cosine: the solid angle weighted by the cosine to the normal (fewer clusters "
+                    "near the horizon; occlusion and irradiance only), or plain")
+        ->check(CLI::IsMember({"cosine", "plain"}))
+        ->capture_default_str();
     app->add_option("--max-solid-angle", a->max_solid_angle)
         ->check(CLI::Range(0.0f, 10.0f))
         ->capture_default_str();

@@ -26,7 +26,8 @@
 //    patch, whose zero-thickness box a receiver just off the patch is "outside") and
 //    ClusterSolidAngle() < max_solid_angle: the projected-area SH evaluated toward the
 //    receiver from the bounds centre, clamped at 0, over the squared distance to the centre
-//    (RenderMan's `maxsolidangle`, default 0.03).
+//    (RenderMan's `maxsolidangle`, default 0.03). With Cut::cosine_weighted, also if that
+//    solid angle times NodeCutCosine() of the near sphere is below max_solid_angle (BelowCut).
 // 3. Otherwise descend; at a leaf emit its surfels that are neither wholly behind nor beyond.
 //
 // Memory (one budget, DatabaseOptions::cache_bytes): decoded pages live only in the shared
@@ -89,7 +90,18 @@ struct Cut {
   float max_solid_angle = 0.03f;
   // Ignore what is farther than this.
   float max_distance = std::numeric_limits<float>::infinity();
+  // Weigh the solid angle by where the node lies above the horizon: also accept a node whose
+  // solid angle times NodeCutCosine() (the largest cos(angle to the receiver's normal) over
+  // its near sphere, at least kMinCutCosine) is below max_solid_angle. Occlusion and
+  // irradiance integrate against that cosine, so a node near the horizon contributes little
+  // and can be coarser for the same error; a node that reaches up toward the normal keeps the
+  // plain criterion. Not for glossy light, whose lobe is not the cosine.
+  bool cosine_weighted = false;
 };
+
+// The smallest cosine weight of the cosine-weighted cut: nodes at the horizon are at most
+// 1 / kMinCutCosine times the plain cut's solid angle.
+inline constexpr float kMinCutCosine = 0.05f;
 
 // Whether a surfel's disk lies wholly behind the receiver's tangent plane: the highest point of
 // the disk above the plane, n.(c - p) + r * sqrt(1 - (n.m)^2), is <= 0. A surfel lying in the
@@ -141,6 +153,34 @@ inline float NodeSolidAngle(const glm::vec3& lo, const glm::vec3& hi, const floa
 }
 inline float ClusterSolidAngle(const Cluster& c, const Receiver& r) {
   return NodeSolidAngle(c.bounds.lo, c.bounds.hi, c.sh_area.data(), r.position);
+}
+
+// The cosine-weighted cut's weight (Cut::cosine_weighted): the largest cosine between the
+// receiver's unit normal and a direction from p into the sphere (centre, radius^2 radius2) that
+// does not contain p, clamped to [kMinCutCosine, 1]. With theta the angle of the centre's
+// direction and alpha = asin(radius / distance) the sphere's half angle, it is 1 when
+// theta <= alpha, else cos(theta - alpha). The traversal passes the node's near sphere
+// (NodeNearSphere), the test harness the same sphere, so both get the same bits.
+inline float NodeCutCosine(const glm::vec3& centre, float radius2, const glm::vec3& p,
+                           const glm::vec3& unit_n) {
+  const glm::vec3 v = centre - p;
+  const float d2 = glm::dot(v, v);
+  if (!(d2 > radius2)) return 1.0f;
+  const float inv_d = 1.0f / std::sqrt(d2);
+  const float sin_a = std::sqrt(radius2) * inv_d;
+  const float cos_a = std::sqrt(std::max(0.0f, 1.0f - sin_a * sin_a));
+  const float cos_t = glm::dot(v, unit_n) * inv_d;
+  if (cos_t >= cos_a) return 1.0f;
+  const float sin_t = std::sqrt(std::max(0.0f, 1.0f - cos_t * cos_t));
+  return std::clamp(cos_t * cos_a + sin_t * sin_a, kMinCutCosine, 1.0f);
+}
+
+// Whether a node whose solid angle from the receiver is `solid_angle` passes the cut's
+// criterion; `cosine` is NodeCutCosine() of its near sphere, read only when cosine_weighted.
+template <typename CosineFn>
+inline bool BelowCut(float solid_angle, const Cut& cut, CosineFn&& cosine) {
+  if (solid_angle < cut.max_solid_angle) return true;
+  return cut.cosine_weighted && solid_angle * cosine() < cut.max_solid_angle;
 }
 
 // A conservative bound of how far a disk of a node reaches beyond its bounds: sqrt(area / pi).

@@ -110,6 +110,83 @@ TEST_P(GatherFakeTest, CutIsValidAgainstBruteForce) {
   EXPECT_GT(clusters, 800u);  // the cut does cluster
 }
 
+// NodeCutCosine against brute force: the largest cosine to the normal over many points of the
+// sphere's surface (where the maximum lies), for spheres all around the receiver.
+TEST(CutCosine, BoundsTheSphereTightlyAndHasItsAnalyticValues) {
+  const glm::vec3 p(0.2f, -0.1f, 0.3f), n = glm::normalize(glm::vec3(0.3f, -0.2f, 1.0f));
+  uint64_t state = 12345;
+  auto uniform = [&] {
+    state = state * 6364136223846793005ull + 1442695040888963407ull;
+    return static_cast<float>(state >> 40) / static_cast<float>(1 << 24);
+  };
+  auto unit = [&] {
+    for (;;) {
+      const glm::vec3 v(2 * uniform() - 1, 2 * uniform() - 1, 2 * uniform() - 1);
+      const float l2 = glm::dot(v, v);
+      if (l2 > 1e-4f && l2 <= 1.0f) return v / std::sqrt(l2);
+    }
+  };
+  int clamped = 0, inside = 0;
+  for (int k = 0; k < 2000; ++k) {
+    const float dist = 0.5f + 4.0f * uniform();
+    const float radius = dist * (0.02f + 0.9f * uniform());
+    const glm::vec3 c = p + dist * unit();
+    const float got = NodeCutCosine(c, radius * radius, p, n);
+    float best = -1.0f;
+    for (int i = 0; i < 4000; ++i) {
+      const glm::vec3 v = c + radius * unit() - p;
+      best = std::max(best, glm::dot(v, n) / glm::length(v));
+    }
+    const float want = std::clamp(best, kMinCutCosine, 1.0f);
+    ASSERT_GE(got, want - 1e-5f) << "k " << k;  // a bound: never below the sphere's cosines
+    ASSERT_LE(got, want + 0.02f) << "k " << k;  // and a tight one
+    clamped += got == kMinCutCosine ? 1 : 0;
+    inside += got == 1.0f ? 1 : 0;
+  }
+  EXPECT_GT(clamped, 50);  // both clamps were exercised
+  EXPECT_GT(inside, 50);
+  // Analytic: a small sphere centred on the horizon at distance d gives sin(alpha) = r / d; one
+  // on the normal gives 1; a receiver inside the sphere gives 1.
+  const glm::vec3 t = glm::normalize(glm::cross(n, glm::vec3(1, 0, 0)));
+  EXPECT_NEAR(NodeCutCosine(p + 2.0f * t, 0.3f * 0.3f, p, n), 0.15f, 1e-5f);
+  EXPECT_EQ(NodeCutCosine(p + 2.0f * n, 0.01f, p, n), 1.0f);
+  EXPECT_EQ(NodeCutCosine(p + 0.1f * t, 0.04f, p, n), 1.0f);
+  EXPECT_EQ(NodeCutCosine(p - 2.0f * n, 0.01f, p, n), kMinCutCosine);
+}
+
+// The cosine-weighted cut: valid against brute force, coarser than the plain cut at the same
+// max_solid_angle (which refines it), and never the same as it (it does coarsen).
+TEST_P(GatherFakeTest, CosineWeightedCutIsValidAndCoarsensThePlainOne) {
+  const Config cfg = GetParam();
+  std::vector<Surfel> input = testing::RandomSceneSurfels(3000, 11);
+  FakeDb fake = BuildFakeDb(input, {cfg.leaf_size, cfg.page_size, cfg.channels});
+  std::vector<Surfel> surfels = fake.surfels;
+  auto db = Open(fake);
+  auto reader = db->NewReader();
+  ASSERT_TRUE(reader.ok());
+  Cut plain{0.03f}, cosine{0.03f}, cosine_near{0.03f, 0.25f};
+  cosine.cosine_weighted = cosine_near.cosine_weighted = true;
+  Gathered gp, gc, gn;
+  size_t plain_elements = 0, cosine_elements = 0, rejected_as_plain = 0;
+  for (const Receiver& r : Receivers(surfels, 800, 5)) {
+    ASSERT_TRUE((*reader)->Gather(r, plain, &gp).ok());
+    ASSERT_TRUE((*reader)->Gather(r, cosine, &gc).ok());
+    ASSERT_TRUE((*reader)->Gather(r, cosine_near, &gn).ok());
+    absl::Status s = testing::CheckValidCut(gc, surfels, r, cosine);
+    ASSERT_TRUE(s.ok()) << s;
+    s = testing::CheckValidCut(gn, surfels, r, cosine_near);
+    ASSERT_TRUE(s.ok()) << s;
+    s = testing::CheckFinerCutNotSmaller(gc, gp, surfels, r, cosine, plain);
+    ASSERT_TRUE(s.ok()) << s;
+    plain_elements += gp.size();
+    cosine_elements += gc.size();
+    // The harness tells the two criteria apart.
+    rejected_as_plain += testing::CheckValidCut(gc, surfels, r, plain).ok() ? 0 : 1;
+  }
+  EXPECT_LT(cosine_elements, plain_elements);
+  EXPECT_GT(rejected_as_plain, 100);
+}
+
 INSTANTIATE_TEST_SUITE_P(LeafAndPageSizes, GatherFakeTest,
                          ::testing::Values(Config{1, 4096 - 16, Channels::kRadiance},
                                            Config{8, 4096 - 16, Channels::kRadiance},
