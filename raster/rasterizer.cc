@@ -69,19 +69,21 @@ void Rasterizer::SetFrame(const ShadeReceiver& r) {
   t_ = glm::vec3(1.0f + sign * n_.x * n_.x * a, sign * b, -sign * n_.x);
   b_ = glm::vec3(b, sign + n_.y * n_.y * a, -n_.y);
   origin_ = r.position + o_.bias * n_;
+  half_abs_n_ = 0.5f * glm::vec3(std::fabs(n_.x), std::fabs(n_.y), std::fabs(n_.z));
 }
 
+template <bool kRad>
 void Rasterizer::PrepareCluster(const Cluster& c, ShadeResult* out) {
-  if (c.bounds.Empty()) {
+  const Bounds& box = c.bounds;
+  if (box.Empty()) {
     ++out->culled;
     return;
   }
-  const glm::vec3 ext = c.bounds.Extent();
-  const glm::vec3 rel = c.bounds.Center() - origin_;
+  const glm::vec3 ext = box.hi - box.lo;
+  const glm::vec3 rel = 0.5f * (box.lo + box.hi) - origin_;
   const glm::vec3 local = ToLocal(rel);
   // Entirely behind (or in) the tangent plane: the box's highest corner along n.
-  const float top = local.z + 0.5f * (std::fabs(n_.x) * ext.x + std::fabs(n_.y) * ext.y +
-                                      std::fabs(n_.z) * ext.z);
+  const float top = local.z + glm::dot(half_abs_n_, ext);
   const float d2 = glm::dot(local, local);
   if (!(top > 0.0f) || !(d2 > 0.0f) || !std::isfinite(d2)) {
     ++out->culled;
@@ -94,42 +96,40 @@ void Rasterizer::PrepareCluster(const Cluster& c, ShadeResult* out) {
   }
   const float inv_d = 1.0f / d;
   const glm::vec3 to_receiver = rel * -inv_d;
-  const ClusterMoments m = MomentsFromSh(c.sh_area);
-  const float area = o_.cluster_model == ClusterModel::kMoments
-                         ? ProjectedArea(m, to_receiver, o_.hitsides)
-                         : ProjectedAreaShEval(c, to_receiver, o_.hitsides);
-  const float omega = std::min(area * (inv_d * inv_d), 2.0f * static_cast<float>(sh::kPi));
+  const ClusterSight view = ClusterView<kRad>(c, to_receiver, o_.hitsides, o_.cluster_model);
+  const float omega = std::min(view.area * (inv_d * inv_d), 2.0f * static_cast<float>(sh::kPi));
   if (!(omega > 0.0f)) {
     ++out->culled;
     return;
   }
   // Written in place: the splat is only counted once complete.
   PreparedSplat& s = mb_.splats_[count_];
+  Store4(s.rgb1, view.rgb1);
   s.dir = local * inv_d;
   s.omega = omega;
   s.depth = d;
   s.extent = 0.5f * glm::length(ext);
   // The mean normal, turned towards the receiver; a nearly flat cluster also gets its plane
   // through the box centre and its thickness along the normal (the box's half extent).
-  const float nl2 = glm::dot(m.normal_sum, m.normal_sum);
+  const glm::vec3& ns = view.normal_sum;
+  const float nl2 = glm::dot(ns, ns);
   s.normal = glm::vec3(0.0f);
   s.plane = 0.0f;
   s.thick = 0.0f;
   s.flat = 0;
   if (nl2 > 0.0f) {
     const float nl = std::sqrt(nl2);
-    const float towards = glm::dot(m.normal_sum, rel);
+    const float towards = glm::dot(ns, rel);
     const float scale = (towards > 0.0f ? -1.0f : 1.0f) / nl;
-    const glm::vec3 mw = m.normal_sum * scale;
+    const glm::vec3 mw = ns * scale;
     s.normal = ToLocal(mw);
-    if (nl > kFlatness * m.area) {
+    if (nl > kFlatness * view.total) {
       s.plane = towards * scale;
       s.thick =
           0.5f * (std::fabs(mw.x) * ext.x + std::fabs(mw.y) * ext.y + std::fabs(mw.z) * ext.z);
       s.flat = s.plane < 0.0f ? 1 : 0;
     }
   }
-  s.radiance = radiance_ ? ClusterRadiance(c, to_receiver, o_.hitsides) : glm::vec3(0.0f);
   s.near = 0;
   ++count_;
   ++out->clusters_drawn;
@@ -161,7 +161,11 @@ void Rasterizer::PrepareSurfel(const Surfel& sf, ShadeResult* out) {
   PreparedSplat& s = mb_.splats_[count_];  // counted only once complete
   s.depth = d;
   s.extent = r;
-  s.radiance = radiance_ ? sf.radiance : glm::vec3(0.0f);
+  if (radiance_) {
+    Store4(s.rgb1, V4{1.0f, sf.radiance.x, sf.radiance.y, sf.radiance.z});
+  } else {
+    Store4(s.rgb1, V4{1.0f, 0.0f, 0.0f, 0.0f});
+  }
   // The disk's plane, its normal turned towards the receiver (side != 0 here).
   const float facing = side > 0.0f ? 1.0f : -1.0f;
   s.normal = ToLocal(normal) * facing;
@@ -508,7 +512,11 @@ absl::Status Rasterizer::Run(const Gathered& g, const ShadeReceiver& r, ShadeRes
   // Written by index: a vector's push_back costs more than the rest of a small splat's setup.
   if (splats.size() < g.size()) splats.resize(g.size());
   count_ = 0;
-  for (const Cluster& c : g.clusters) PrepareCluster(c, out);
+  if (radiance_) {
+    for (const Cluster& c : g.clusters) PrepareCluster<true>(c, out);
+  } else {
+    for (const Cluster& c : g.clusters) PrepareCluster<false>(c, out);
+  }
   for (const Surfel& s : g.surfels) PrepareSurfel(s, out);
   const uint32_t count = count_;
   if (clamp_) {

@@ -12,6 +12,7 @@
 #include "glm/vec3.hpp"
 #include "pbgi/raster.h"
 #include "pbgi/surfel.h"
+#include "raster/simd.h"
 
 namespace pbgi::internal {
 
@@ -52,21 +53,23 @@ class Rasterizer {
   glm::vec3 ToLocal(const glm::vec3& v) const {
     return glm::vec3(glm::dot(t_, v), glm::dot(b_, v), glm::dot(n_, v));
   }
+  template <bool kRad>
   void PrepareCluster(const Cluster& c, ShadeResult* out);
   void PrepareSurfel(const Surfel& s, ShadeResult* out);
   void Integrate(const ShadeReceiver& r, ShadeResult* out);
 
-  // What Emit() needs of the element being drawn.
+  // What Emit() needs of the element being drawn, by value: through a pointer into the
+  // splats the compiler would reload it after every store to a pixel.
   struct Frag {
+    V4 rgb1;              // {1, radiance}
     float depth, lo, hi;  // centre distance and depth range [lo, hi]
-    const float* rgb;     // radiance
     glm::vec3 normal;     // unit, facing the receiver; 0 when unknown
     float plane, thick;   // flat: see PreparedSplat
     bool flat;
   };
   static Frag FragOf(const PreparedSplat& s) {
-    return Frag{s.depth, s.depth - s.extent, s.depth + s.extent, &s.radiance[0], s.normal, s.plane,
-                s.thick, s.flat != 0};
+    return Frag{Load4(s.rgb1), s.depth, s.depth - s.extent, s.depth + s.extent, s.normal,
+                s.plane,       s.thick, s.flat != 0};
   }
   template <bool kClamp, bool kRad>
   void Draw(uint32_t count);
@@ -114,9 +117,10 @@ class Rasterizer {
     PixelState& px = px_[p];
     px.depth = std::min(px.depth, f.depth);
     if constexpr (!kClamp) {
-      px.closed += cov;
       if constexpr (kRad) {
-        for (int ch = 0; ch < 3; ++ch) px.closed_rgb[ch] += cov * f.rgb[ch];
+        Store4(&px.closed, Load4(&px.closed) + cov * f.rgb1);  // lane 0: closed + cov
+      } else {
+        px.closed += cov;
       }
     } else {
       if (px.closed >= 1.0f) return;
@@ -133,9 +137,10 @@ class Rasterizer {
                  kChainCos) {
         px.far = std::max(px.far, hi);
       }
-      px.open += cov;
       if constexpr (kRad) {
-        for (int ch = 0; ch < 3; ++ch) px.open_rgb[ch] += cov * f.rgb[ch];
+        Store4(&px.open, Load4(&px.open) + cov * f.rgb1);
+      } else {
+        px.open += cov;
       }
     }
   }
@@ -150,15 +155,15 @@ class Rasterizer {
     const float e = px.closed == 0.0f && !behind
                         ? px.open
                         : std::min(px.open, std::max(0.0f, 1.0f - px.closed));
-    px.closed += e;
+    const float closed = px.closed + e;
     if constexpr (kRad) {
-      const float scale = e / px.open;
-      for (int ch = 0; ch < 3; ++ch) {
-        px.closed_rgb[ch] += scale * px.open_rgb[ch];
-        px.open_rgb[ch] = 0.0f;
-      }
+      const V4 open = Load4(&px.open);
+      Store4(&px.closed, Load4(&px.closed) + (e / px.open) * open);
+      Store4(&px.open, V4{0.0f, 0.0f, 0.0f, 0.0f});
+    } else {
+      px.open = 0.0f;
     }
-    px.open = 0.0f;
+    px.closed = closed;  // exactly closed + e, not closed + (e / open) * open
     px.far = 0.0f;
   }
 
@@ -172,7 +177,8 @@ class Rasterizer {
   const float* inv_omega_;
   const float max_width_;  // the largest pixel's angular width
   glm::vec3 origin_, t_, b_, n_;
-  uint32_t count_ = 0;  // prepared splats in mb_.splats_
+  glm::vec3 half_abs_n_;  // |n_| / 2 per axis: a box's half extent along n_ is its dot with ext
+  uint32_t count_ = 0;    // prepared splats in mb_.splats_
 };
 
 }  // namespace pbgi::internal

@@ -126,7 +126,9 @@ struct ShadeResult {
 
 namespace internal {
 // One element ready to splat (local frame), kept in the MicroBuffer to avoid allocation.
-struct PreparedSplat {
+// 64 bytes, the radiance first and 16-byte aligned so that Emit() adds it four lanes wide.
+struct alignas(16) PreparedSplat {
+  float rgb1[4];     // {1, radiance}: lane 0 carries the coverage (see PixelState)
   glm::vec3 dir;     // far: unit direction; near disk: centre
   float omega;       // far: solid angle; near disk: radius
   glm::vec3 normal;  // near disk: its normal; far: unit mean normal facing the receiver, or 0
@@ -135,20 +137,22 @@ struct PreparedSplat {
   // Far and flat: the element lies within `thick` of its plane {x : normal.x = plane} (x
   // relative to the receiver; plane < 0), which gives its depth along each pixel's ray.
   float plane, thick;
-  glm::vec3 radiance;
   uint8_t near;  // 1 for an exact disk
   uint8_t flat;  // far: 1 when plane and thick are set (a surfel, or a nearly flat cluster)
 };
 // A pixel's state: layers of fragments that overlap in depth (one surface) add up freely in
 // `open`; when a fragment lies wholly behind the open layer, the layer closes into `closed`.
-struct PixelState {
+// Each coverage is followed by its coverage-weighted radiance, four floats that the hot loops
+// update as one vector; 64 bytes, one cache line.
+struct alignas(16) PixelState {
   float closed;  // coverage of the closed layers
-  float open;    // coverage of the open layer
-  float far;     // far end of the open layer's depth range
-  float depth;   // nearest fragment's depth
   float closed_rgb[3];
+  float open;  // coverage of the open layer
   float open_rgb[3];
+  float far;        // far end of the open layer's depth range
+  float depth;      // nearest fragment's depth
   float normal[3];  // the open layer's first fragment's normal (0: none)
+  float unused;
 };
 struct PixelDir {
   float x, y, z;
