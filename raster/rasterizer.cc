@@ -9,6 +9,7 @@
 #include "glm/geometric.hpp"
 #include "pbgi/sh.h"
 #include "raster/cluster_model.h"
+#include "raster/cluster_prep.h"
 #include "raster/cube.h"
 
 namespace pbgi::internal {
@@ -69,70 +70,24 @@ void Rasterizer::SetFrame(const ShadeReceiver& r) {
   t_ = glm::vec3(1.0f + sign * n_.x * n_.x * a, sign * b, -sign * n_.x);
   b_ = glm::vec3(b, sign + n_.y * n_.y * a, -n_.y);
   origin_ = r.position + o_.bias * n_;
-  half_abs_n_ = 0.5f * glm::vec3(std::fabs(n_.x), std::fabs(n_.y), std::fabs(n_.z));
 }
 
 template <bool kRad>
-void Rasterizer::PrepareCluster(const Cluster& c, ShadeResult* out) {
-  const Bounds& box = c.bounds;
-  if (box.Empty()) {
-    ++out->culled;
-    return;
-  }
-  const glm::vec3 ext = box.hi - box.lo;
-  const glm::vec3 rel = 0.5f * (box.lo + box.hi) - origin_;
-  const glm::vec3 local = ToLocal(rel);
-  // Entirely behind (or in) the tangent plane: the box's highest corner along n.
-  const float top = local.z + glm::dot(half_abs_n_, ext);
-  const float d2 = glm::dot(local, local);
-  if (!(top > 0.0f) || !(d2 > 0.0f) || !std::isfinite(d2)) {
-    ++out->culled;
-    return;
-  }
-  const float d = std::sqrt(d2);
-  if (d > o_.max_distance) {
-    ++out->culled;
-    return;
-  }
-  const float inv_d = 1.0f / d;
-  const glm::vec3 to_receiver = rel * -inv_d;
-  const ClusterSight view = ClusterView<kRad>(c, to_receiver, o_.hitsides, o_.cluster_model);
-  const float omega = std::min(view.area * (inv_d * inv_d), 2.0f * static_cast<float>(sh::kPi));
-  if (!(omega > 0.0f)) {
-    ++out->culled;
-    return;
-  }
-  // Written in place: the splat is only counted once complete.
-  PreparedSplat& s = mb_.splats_[count_];
-  Store4(s.rgb1, view.rgb1);
-  s.dir = local * inv_d;
-  s.omega = omega;
-  s.depth = d;
-  s.extent = 0.5f * glm::length(ext);
-  // The mean normal, turned towards the receiver; a nearly flat cluster also gets its plane
-  // through the box centre and its thickness along the normal (the box's half extent).
-  const glm::vec3& ns = view.normal_sum;
-  const float nl2 = glm::dot(ns, ns);
-  s.normal = glm::vec3(0.0f);
-  s.plane = 0.0f;
-  s.thick = 0.0f;
-  s.flat = 0;
-  if (nl2 > 0.0f) {
-    const float nl = std::sqrt(nl2);
-    const float towards = glm::dot(ns, rel);
-    const float scale = (towards > 0.0f ? -1.0f : 1.0f) / nl;
-    const glm::vec3 mw = ns * scale;
-    s.normal = ToLocal(mw);
-    if (nl > kFlatness * view.total) {
-      s.plane = towards * scale;
-      s.thick =
-          0.5f * (std::fabs(mw.x) * ext.x + std::fabs(mw.y) * ext.y + std::fabs(mw.z) * ext.z);
-      s.flat = s.plane < 0.0f ? 1 : 0;
+void Rasterizer::PrepareClusters(const std::vector<Cluster>& clusters) {
+  const ClusterFrame frame(origin_, t_, b_, n_, o_.max_distance, o_.hitsides, o_.cluster_model);
+  PreparedSplat* splats = mb_.splats_.data();
+  const size_t n = clusters.size();
+  size_t i = 0;
+  // Four at a time while four remain: each writes at most four splats at count_ <= i, within
+  // the buffer of g.size() splats.
+  if (o_.cluster_model == ClusterModel::kMoments) {
+    const bool avx2 = CpuHasAvx2();
+    for (; i + 4 <= n; i += 4) {
+      count_ +=
+          static_cast<uint32_t>(PrepareClusters4<kRad>(&clusters[i], frame, splats + count_, avx2));
     }
   }
-  s.near = 0;
-  ++count_;
-  ++out->clusters_drawn;
+  for (; i < n; ++i) count_ += PrepareClusterOne<kRad>(clusters[i], frame, splats + count_) ? 1 : 0;
 }
 
 void Rasterizer::PrepareSurfel(const Surfel& sf, ShadeResult* out) {
@@ -513,10 +468,12 @@ absl::Status Rasterizer::Run(const Gathered& g, const ShadeReceiver& r, ShadeRes
   if (splats.size() < g.size()) splats.resize(g.size());
   count_ = 0;
   if (radiance_) {
-    for (const Cluster& c : g.clusters) PrepareCluster<true>(c, out);
+    PrepareClusters<true>(g.clusters);
   } else {
-    for (const Cluster& c : g.clusters) PrepareCluster<false>(c, out);
+    PrepareClusters<false>(g.clusters);
   }
+  out->clusters_drawn = count_;
+  out->culled = static_cast<uint32_t>(g.clusters.size()) - count_;
   for (const Surfel& s : g.surfels) PrepareSurfel(s, out);
   const uint32_t count = count_;
   if (clamp_) {

@@ -6,6 +6,7 @@
 
 #include <algorithm>
 #include <cstdint>
+#include <vector>
 
 #include "absl/status/status.h"
 #include "glm/geometric.hpp"
@@ -54,7 +55,7 @@ class Rasterizer {
     return glm::vec3(glm::dot(t_, v), glm::dot(b_, v), glm::dot(n_, v));
   }
   template <bool kRad>
-  void PrepareCluster(const Cluster& c, ShadeResult* out);
+  void PrepareClusters(const std::vector<Cluster>& clusters);
   void PrepareSurfel(const Surfel& s, ShadeResult* out);
   void Integrate(const ShadeReceiver& r, ShadeResult* out);
 
@@ -177,8 +178,7 @@ class Rasterizer {
   const float* inv_omega_;
   const float max_width_;  // the largest pixel's angular width
   glm::vec3 origin_, t_, b_, n_;
-  glm::vec3 half_abs_n_;  // |n_| / 2 per axis: a box's half extent along n_ is its dot with ext
-  uint32_t count_ = 0;    // prepared splats in mb_.splats_
+  uint32_t count_ = 0;  // prepared splats in mb_.splats_
 };
 
 }  // namespace pbgi::internal
