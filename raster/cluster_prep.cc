@@ -1,6 +1,7 @@
 // Cluster preparation, one at a time and four lanes at a time (see cluster_prep.h).
 #include "raster/cluster_prep.h"
 
+#include <atomic>
 #include <cmath>
 #include <cstddef>
 #include <cstring>
@@ -287,6 +288,14 @@ bool CpuHasAvx2() {
   return false;
 #endif
 }
+
+namespace {
+std::atomic<bool> force_baseline{false};
+}  // namespace
+
+bool UseAvx2() { return CpuHasAvx2() && !force_baseline.load(std::memory_order_relaxed); }
+
+void ForceBaselineIsaForTesting(bool force) { force_baseline.store(force); }
 
 template <bool kRad>
 int PrepareClusters4(const Cluster* c, const ClusterFrame& f, PreparedSplat* out, bool avx2) {

@@ -38,8 +38,12 @@ bool PrepareClusterOne(const Cluster& c, const ClusterFrame& f, PreparedSplat* o
 template <bool kRad>
 int PrepareClusters4(const Cluster* c, const ClusterFrame& f, PreparedSplat* out, bool avx2);
 
-// Whether this CPU runs the AVX2 build of PrepareClusters4 (x86-64 with AVX2; checked once).
+// Whether this CPU can run the AVX2 builds of PrepareClusters4 and of the rasterizer's
+// splatting (x86-64 with AVX2; checked once).
 bool CpuHasAvx2();
+// Whether Shade() uses them: CpuHasAvx2() unless a test asked for the baseline build.
+bool UseAvx2();
+void ForceBaselineIsaForTesting(bool force);
 
 #if defined(__x86_64__) && (defined(__GNUC__) || defined(__clang__))
 #define PBGI_RASTER_HAS_AVX2 1

@@ -22,7 +22,7 @@ constexpr float kBilinearMax = 1.0f;
 
 // LSD radix sort of (depth, index) on the top 20 bits of the depth (positive floats sort as
 // integers; 20 bits keep 11 mantissa bits, a relative depth step of 5e-4), two 10-bit passes.
-void Rasterizer::SortByDepth() {
+inline void Rasterizer::SortByDepth() {
   const PreparedSplat* splats = mb_.splats_.data();
   auto& order = mb_.order_;
   auto& tmp = mb_.order_tmp_;
@@ -81,7 +81,7 @@ void Rasterizer::PrepareClusters(const std::vector<Cluster>& clusters) {
   // Four at a time while four remain: each writes at most four splats at count_ <= i, within
   // the buffer of g.size() splats.
   if (o_.cluster_model == ClusterModel::kMoments) {
-    const bool avx2 = CpuHasAvx2();
+    const bool avx2 = avx2_;
     for (; i + 4 <= n; i += 4) {
       count_ +=
           static_cast<uint32_t>(PrepareClusters4<kRad>(&clusters[i], frame, splats + count_, avx2));
@@ -378,7 +378,7 @@ void Rasterizer::SplatDisk(const PreparedSplat& s) {
   }
 }
 
-void Rasterizer::Integrate(const ShadeReceiver& r, ShadeResult* out) {
+inline void Rasterizer::Integrate(const ShadeReceiver& r, ShadeResult* out) {
   const size_t n = mb_.hemisphere_.size();
   const uint32_t* hp = mb_.hemisphere_.data();
   const float* om = mb_.hemi_omega_.data();
@@ -459,6 +459,27 @@ void Rasterizer::Draw(uint32_t count) {
   }
 }
 
+template <bool kClamp, bool kRad>
+void Rasterizer::DrawOn(uint32_t count) {
+#if PBGI_RASTER_HAS_AVX2
+  if (avx2_) {
+    DrawAvx2<kClamp, kRad>(count);
+    return;
+  }
+#endif
+  Draw<kClamp, kRad>(count);
+}
+
+void Rasterizer::IntegrateOn(const ShadeReceiver& r, ShadeResult* out) {
+#if PBGI_RASTER_HAS_AVX2
+  if (avx2_) {
+    IntegrateAvx2(r, out);
+    return;
+  }
+#endif
+  Integrate(r, out);
+}
+
 absl::Status Rasterizer::Run(const Gathered& g, const ShadeReceiver& r, ShadeResult* out) {
   *out = ShadeResult{};
   SetFrame(r);
@@ -478,18 +499,18 @@ absl::Status Rasterizer::Run(const Gathered& g, const ShadeReceiver& r, ShadeRes
   const uint32_t count = count_;
   if (clamp_) {
     if (radiance_) {
-      Draw<true, true>(count);
+      DrawOn<true, true>(count);
     } else {
-      Draw<true, false>(count);
+      DrawOn<true, false>(count);
     }
   } else {
     if (radiance_) {
-      Draw<false, true>(count);
+      DrawOn<false, true>(count);
     } else {
-      Draw<false, false>(count);
+      DrawOn<false, false>(count);
     }
   }
-  Integrate(r, out);
+  IntegrateOn(r, out);
   return absl::OkStatus();
 }
 

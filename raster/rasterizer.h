@@ -13,6 +13,7 @@
 #include "glm/vec3.hpp"
 #include "pbgi/raster.h"
 #include "pbgi/surfel.h"
+#include "raster/cluster_prep.h"
 #include "raster/simd.h"
 
 namespace pbgi::internal {
@@ -43,7 +44,8 @@ class Rasterizer {
         dirs_(mb->dirs_.data()),
         omega_(mb->omega_f_.data()),
         inv_omega_(mb->inv_omega_f_.data()),
-        max_width_(mb->max_width_) {}
+        max_width_(mb->max_width_),
+        avx2_(UseAvx2()) {}
 
   absl::Status Run(const Gathered& g, const ShadeReceiver& r, ShadeResult* out);
 
@@ -74,6 +76,25 @@ class Rasterizer {
   }
   template <bool kClamp, bool kRad>
   void Draw(uint32_t count);
+  // Draw() and Integrate(), on the AVX2 build when avx2_ is set.
+  template <bool kClamp, bool kRad>
+  void DrawOn(uint32_t count);
+  void IntegrateOn(const ShadeReceiver& r, ShadeResult* out);
+#if PBGI_RASTER_HAS_AVX2
+  // The same code compiled for AVX2 with every call below it inlined (flatten: nothing compiled
+  // for AVX2 escapes into code that the baseline path could link to). VEX encoding's
+  // three-operand instructions need fewer register copies: ~10% fewer instructions. Same
+  // results bit for bit: no FMA, and ISO C++ neither contracts nor reassociates.
+  template <bool kClamp, bool kRad>
+  __attribute__((target("avx2"), flatten)) void DrawAvx2(uint32_t count) {
+    Draw<kClamp, kRad>(count);
+  }
+  __attribute__((target("avx2"), flatten)) void IntegrateAvx2(const ShadeReceiver& r,
+                                                              ShadeResult* out) {
+    Integrate(r, out);
+  }
+#endif
+
   template <bool kClamp, bool kRad>
   void SplatCone(const PreparedSplat& s);
   // A square footprint of half side h pixels centred at (u, v) (pixel-edge coordinates) on
@@ -177,6 +198,7 @@ class Rasterizer {
   const float* omega_;
   const float* inv_omega_;
   const float max_width_;  // the largest pixel's angular width
+  const bool avx2_;        // run the AVX2 builds (UseAvx2())
   glm::vec3 origin_, t_, b_, n_;
   uint32_t count_ = 0;  // prepared splats in mb_.splats_
 };
