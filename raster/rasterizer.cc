@@ -185,7 +185,13 @@ void Rasterizer::SplatCone(const PreparedSplat& s) {
     const float w[4] = {(1 - tx) * (1 - ty), tx * (1 - ty), (1 - tx) * ty, tx * ty};
     const uint32_t p[4] = {static_cast<uint32_t>(r0 + c0), static_cast<uint32_t>(r0 + c1),
                            static_cast<uint32_t>(r1 + c0), static_cast<uint32_t>(r1 + c1)};
-    for (int i = 0; i < 4; ++i) Emit<kClamp, kRad>(p[i], s.omega * w[i] * inv_omega_[p[i]], fr);
+    float cov[4];
+    for (int i = 0; i < 4; ++i) cov[i] = s.omega * w[i] * inv_omega_[p[i]];
+    if (ix >= 0 && iy >= 0 && ix + 1 < res_ && iy + 1 < res_) {
+      Emit2x2<kClamp, kRad>(p[0], cov, fr);  // no pixel clamped to the face: a 2 x 2 block
+    } else {
+      for (int i = 0; i < 4; ++i) Emit<kClamp, kRad>(p[i], cov[i], fr);
+    }
     return;
   }
   // Up to two pixels wide: a square footprint of the cone's solid angle on the home face, each

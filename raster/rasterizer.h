@@ -6,6 +6,7 @@
 
 #include <algorithm>
 #include <cstdint>
+#include <cstring>
 #include <vector>
 
 #include "absl/status/status.h"
@@ -44,6 +45,10 @@ class Rasterizer {
         dirs_(mb->dirs_.data()),
         omega_(mb->omega_f_.data()),
         inv_omega_(mb->inv_omega_f_.data()),
+        dir_x_(mb->dir_x_.data()),
+        dir_y_(mb->dir_y_.data()),
+        dir_z_(mb->dir_z_.data()),
+        half_width_(mb->half_width_.data()),
         max_width_(mb->max_width_),
         avx2_(UseAvx2()) {}
 
@@ -148,23 +153,65 @@ class Rasterizer {
       if (px.closed >= 1.0f) return;
       float lo = f.lo, hi = f.hi;
       if (f.flat) PlaneRange(p, f, &lo, &hi);
-      if (lo > px.far && px.open > 0.0f) {
-        Close<kRad>(px, /*behind=*/true);
-        if (px.closed >= 1.0f) return;
+      Layer<kRad>(px, cov, f, lo, hi);
+    }
+  }
+
+  // Emit() with clamp once the fragment's depth range in the pixel is known.
+  template <bool kRad>
+  [[gnu::always_inline]] void Layer(PixelState& px, float cov, const Frag& f, float lo, float hi) {
+    if (lo > px.far && px.open > 0.0f) {
+      Close<kRad>(px, /*behind=*/true);
+      if (px.closed >= 1.0f) return;
+    }
+    if (!(px.open > 0.0f)) {
+      px.far = hi;
+      px.normal[0] = f.normal.x, px.normal[1] = f.normal.y, px.normal[2] = f.normal.z;
+    } else if (f.normal.x * px.normal[0] + f.normal.y * px.normal[1] + f.normal.z * px.normal[2] >
+               kChainCos) {
+      px.far = std::max(px.far, hi);
+    }
+    if constexpr (kRad) {
+      Store4(&px.open, Load4(&px.open) + cov * f.rgb1);
+    } else {
+      px.open += cov;
+    }
+  }
+
+  // Emit() into the 2 x 2 block of pixels p0, p0 + 1, p0 + res, p0 + res + 1 with coverages
+  // cov[0..3]: the same, with the four plane ranges computed in four lanes.
+  template <bool kClamp, bool kRad>
+  [[gnu::always_inline]] void Emit2x2(uint32_t p0, const float* cov, const Frag& f) {
+    const uint32_t p[4] = {p0, p0 + 1, p0 + res_, p0 + res_ + 1};
+    if constexpr (!kClamp) {
+      for (int i = 0; i < 4; ++i) Emit<kClamp, kRad>(p[i], cov[i], f);
+    } else {
+      V4 lo = Splat4(f.lo), hi = Splat4(f.hi);
+      if (f.flat) {
+        // PlaneRange() four lanes wide (the same expressions, so the same values).
+        const V4 ux = Load2x2(dir_x_ + p0), uy = Load2x2(dir_y_ + p0), uz = Load2x2(dir_z_ + p0);
+        const V4 mu = f.normal.x * ux + f.normal.y * uy + f.normal.z * uz;
+        const V4i ok = mu < -kMinPlaneCos;
+        const V4 inv = -1.0f / mu;
+        const V4 t = -f.plane * inv;
+        const V4 half = (f.thick + t * Load2x2(half_width_ + p0)) * inv;
+        lo = ok ? t - half : lo;
+        hi = ok ? t + half : hi;
       }
-      if (!(px.open > 0.0f)) {
-        px.far = hi;
-        px.normal[0] = f.normal.x, px.normal[1] = f.normal.y, px.normal[2] = f.normal.z;
-      } else if (f.normal.x * px.normal[0] + f.normal.y * px.normal[1] + f.normal.z * px.normal[2] >
-                 kChainCos) {
-        px.far = std::max(px.far, hi);
-      }
-      if constexpr (kRad) {
-        Store4(&px.open, Load4(&px.open) + cov * f.rgb1);
-      } else {
-        px.open += cov;
+      for (int i = 0; i < 4; ++i) {
+        PixelState& px = px_[p[i]];
+        px.depth = std::min(px.depth, f.depth);
+        if (px.closed >= 1.0f) continue;
+        Layer<kRad>(px, cov[i], f, lo[i], hi[i]);
       }
     }
+  }
+  // {a[0], a[1], a[res], a[res + 1]}.
+  V4 Load2x2(const float* a) const {
+    V2 top, bottom;
+    std::memcpy(&top, a, sizeof top);
+    std::memcpy(&bottom, a + res_, sizeof bottom);
+    return __builtin_shufflevector(top, bottom, 0, 1, 2, 3);
   }
 
   // `behind`: a fragment wholly behind the layer closes it. The first layer keeps its free sum
@@ -197,6 +244,7 @@ class Rasterizer {
   const PixelDir* dirs_;
   const float* omega_;
   const float* inv_omega_;
+  const float *dir_x_, *dir_y_, *dir_z_, *half_width_;
   const float max_width_;  // the largest pixel's angular width
   const bool avx2_;        // run the AVX2 builds (UseAvx2())
   glm::vec3 origin_, t_, b_, n_;

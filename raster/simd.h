@@ -13,6 +13,7 @@
 namespace pbgi::internal {
 
 typedef float V4 __attribute__((vector_size(16)));
+typedef float V2 __attribute__((vector_size(8)));
 typedef int V4i __attribute__((vector_size(16)));  // comparison masks: -1 true, 0 false
 
 // Unaligned load and store through memcpy (no aliasing questions; one movups each).

@@ -202,10 +202,12 @@ class MicroBuffer {
   std::vector<internal::PixelDir> dirs_;
   std::vector<double> omega_, omega_above_, cos_weight_;
   std::vector<float> omega_f_, inv_omega_f_;  // omega_ and 1 / omega_ for the hot loops
-  float max_width_ = 0.0f;                    // largest pixel's angular width, sqrt(solid angle)
-  std::vector<uint32_t> hemisphere_;          // pixels with omega_above_ > 0
-  std::vector<float> hemi_weight_;            // cos_weight_ of hemisphere_ pixels
-  std::vector<float> hemi_omega_;             // omega_above_ of hemisphere_ pixels
+  // dirs_ by component, for four pixels at a time (the bilinear splat's 2 x 2 block)
+  std::vector<float> dir_x_, dir_y_, dir_z_, half_width_;
+  float max_width_ = 0.0f;            // largest pixel's angular width, sqrt(solid angle)
+  std::vector<uint32_t> hemisphere_;  // pixels with omega_above_ > 0
+  std::vector<float> hemi_weight_;    // cos_weight_ of hemisphere_ pixels
+  std::vector<float> hemi_omega_;     // omega_above_ of hemisphere_ pixels
   std::vector<internal::PixelState> pixels_;
   std::vector<internal::PreparedSplat> splats_;
   std::vector<uint64_t> order_, order_tmp_;            // (depth key << 32) | splat index
