@@ -22,6 +22,8 @@ constexpr float kBilinearMax = 1.0f;
 
 // LSD radix sort of (depth, index) on the top 20 bits of the depth (positive floats sort as
 // integers; 20 bits keep 11 mantissa bits, a relative depth step of 5e-4), two 10-bit passes.
+// The high digit (exponent and two mantissa bits) of a receiver's splats spans a few dozen of
+// its 1024 buckets: its prefix sum runs over that span only.
 inline void Rasterizer::SortByDepth() {
   const PreparedSplat* splats = mb_.splats_.data();
   auto& order = mb_.order_;
@@ -31,17 +33,22 @@ inline void Rasterizer::SortByDepth() {
   tmp.resize(n);
   constexpr int kBits = 10, kBuckets = 1 << kBits;
   uint32_t count[2][kBuckets] = {};
+  uint32_t high_lo = kBuckets - 1, high_hi = 0;
   for (size_t i = 0; i < n; ++i) {
     uint32_t key;
     std::memcpy(&key, &splats[i].depth, sizeof key);
     key >>= 12;
     order[i] = (static_cast<uint64_t>(key) << 32) | i;
     ++count[0][key & (kBuckets - 1)];
-    ++count[1][(key >> kBits) & (kBuckets - 1)];
+    const uint32_t high = (key >> kBits) & (kBuckets - 1);
+    ++count[1][high];
+    high_lo = std::min(high_lo, high);
+    high_hi = std::max(high_hi, high);
   }
   for (int pass = 0; pass < 2; ++pass) {
     uint32_t sum = 0;
-    for (int b = 0; b < kBuckets; ++b) {
+    const uint32_t b0 = pass == 0 ? 0 : high_lo, b1 = pass == 0 ? kBuckets - 1 : high_hi;
+    for (uint32_t b = b0; b <= b1; ++b) {
       const uint32_t c = count[pass][b];
       count[pass][b] = sum;
       sum += c;
