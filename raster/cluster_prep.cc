@@ -13,6 +13,10 @@
 #include "raster/rasterizer.h"
 #include "raster/simd.h"
 
+#if PBGI_RASTER_HAS_AVX2
+#include <immintrin.h>
+#endif
+
 namespace pbgi::internal {
 namespace {
 
@@ -40,9 +44,6 @@ V4 LoadAt(const Cluster& c, size_t offset) {
   return Load4(reinterpret_cast<const float*>(reinterpret_cast<const char*>(&c) + offset));
 }
 
-inline V4 Abs4(V4 v) { return reinterpret_cast<V4>(reinterpret_cast<V4i>(v) & 0x7fffffff); }
-inline V4 Select(V4i mask, V4 a, V4 b) { return mask ? a : b; }
-
 }  // namespace
 
 ClusterFrame::ClusterFrame(const glm::vec3& origin, const glm::vec3& t, const glm::vec3& b,
@@ -55,16 +56,7 @@ ClusterFrame::ClusterFrame(const glm::vec3& origin, const glm::vec3& t, const gl
       half_abs_n(0.5f * glm::vec3(std::fabs(n.x), std::fabs(n.y), std::fabs(n.z))),
       max_distance(max_distance),
       sides(sides),
-      model(model) {
-  for (int k = 0; k < 3; ++k) {
-    origin4[k] = Splat4(origin[k]);
-    t4[k] = Splat4(t[k]);
-    b4[k] = Splat4(b[k]);
-    n4[k] = Splat4(n[k]);
-    half_abs_n4[k] = Splat4(half_abs_n[k]);
-  }
-  max_distance4 = Splat4(max_distance);
-}
+      model(model) {}
 
 template <bool kRad>
 bool PrepareClusterOne(const Cluster& c, const ClusterFrame& f, PreparedSplat* out) {
@@ -115,167 +107,69 @@ bool PrepareClusterOne(const Cluster& c, const ClusterFrame& f, PreparedSplat* o
   return true;
 }
 
-// PrepareClusterOne and ClusterView (moment model) in four lanes, one cluster per lane: the
-// clusters are transposed in (4 x 4 blocks of consecutive floats), every branch becomes a mask,
-// and the splats are transposed back out; a culled lane's splat is written and then
-// overwritten by the next one.
+// Lane-parallel preparation, one cluster per lane, L::kWidth lanes: the clusters are
+// transposed in (blocks of four consecutive floats), every branch becomes a mask, and the
+// splats are transposed back out; a culled lane's splat is written and then overwritten by the
+// next one. The expressions are PrepareClusterOne's and ClusterView's, in the same order.
 namespace {
-
-template <bool kRad>
-[[gnu::always_inline]] inline int Prepare4(const Cluster* c, const ClusterFrame& f,
-                                           PreparedSplat* out) {
-  using namespace cluster_model_internal;
-  // Block 0: lo.x lo.y lo.z hi.x; 1: hi.y hi.z area c0; 2: c1..c4; 3: c5..c8 (c: area SH).
-  V4 lox = LoadAt(c[0], kLoOffset), loy = LoadAt(c[1], kLoOffset), loz = LoadAt(c[2], kLoOffset),
-     hix = LoadAt(c[3], kLoOffset);
-  Transpose4(lox, loy, loz, hix);
-  V4 hiy = LoadAt(c[0], kLoOffset + 16), hiz = LoadAt(c[1], kLoOffset + 16),
-     unused = LoadAt(c[2], kLoOffset + 16), a0 = LoadAt(c[3], kLoOffset + 16);
-  Transpose4(hiy, hiz, unused, a0);
-  V4 a1 = LoadAt(c[0], kLoOffset + 32), a2 = LoadAt(c[1], kLoOffset + 32),
-     a3 = LoadAt(c[2], kLoOffset + 32), a4 = LoadAt(c[3], kLoOffset + 32);
-  Transpose4(a1, a2, a3, a4);
-  V4 a5 = LoadAt(c[0], kLoOffset + 48), a6 = LoadAt(c[1], kLoOffset + 48),
-     a7 = LoadAt(c[2], kLoOffset + 48), a8 = LoadAt(c[3], kLoOffset + 48);
-  Transpose4(a5, a6, a7, a8);
-
-  const V4 zero = Splat4(0.0f), one = Splat4(1.0f);
-  const V4i empty = (lox > hix) | (loy > hiy) | (loz > hiz);
-  const V4 ex = hix - lox, ey = hiy - loy, ez = hiz - loz;
-  const V4* o = f.origin4;
-  const V4 rx = 0.5f * (lox + hix) - o[0], ry = 0.5f * (loy + hiy) - o[1],
-           rz = 0.5f * (loz + hiz) - o[2];
-  auto to_frame = [](const V4* axis, V4 x, V4 y, V4 z) {
-    return axis[0] * x + axis[1] * y + axis[2] * z;
-  };
-  const V4 lx = to_frame(f.t4, rx, ry, rz);
-  const V4 ly = to_frame(f.b4, rx, ry, rz);
-  const V4 lz = to_frame(f.n4, rx, ry, rz);
-  const V4 top = lz + to_frame(f.half_abs_n4, ex, ey, ez);
-  const V4 d2 = lx * lx + ly * ly + lz * lz;
-  const V4 d = Sqrt4(d2);
-  constexpr float kInf = std::numeric_limits<float>::infinity();
-  // d2 < inf also rejects NaN; !(d > max_distance) as in the scalar path.
-  V4i ok = ~empty & (top > 0.0f) & (d2 > 0.0f) & (d2 < kInf) & ~(d > f.max_distance4);
-  const V4 inv_d = one / d;
-  const V4 wx = rx * -inv_d, wy = ry * -inv_d, wz = rz * -inv_d;
-
-  // The area SH at w (ClusterView): band 2 and band 1.
-  const V4 y1 = kY1 * wy, y2 = kY1 * wz, y3 = kY1 * wx;
-  const V4 y4 = kY2 * wx * wy, y5 = kY2 * wy * wz, y6 = kY6 * (3.0f * wz * wz - 1.0f),
-           y7 = kY2 * wx * wz, y8 = kY8 * (wx * wx - wy * wy);
-  const V4 even2 = ((a4 * y4 + a6 * y6) + (a5 * y5 + a7 * y7)) + a8 * y8;
-  const V4 odd = a2 * y2 + (a1 * y1 + a3 * y3);
-  const V4 total = a0 * static_cast<float>(1.0 / kBand0);
-  const V4 m2 = (total + 6.4f * even2) * (1.0f / 3.0f);
-  const V4 q = ((a4 * a4 + a6 * a6) + (a5 * a5 + a7 * a7)) + a8 * a8;
-  V4 t = 3.2f * q / (a0 * a0);
-  t = Select(t < 0.0f, zero, Select(1.0f < t, one, t));
-  constexpr float kIso = 0.8660254037844386f;
-  const V4 even_factor = kIso + (1.0f - kIso) * t;
-  const V4 n_dot_w = odd * static_cast<float>(1.0 / (kBand1 * kY1));
-  const V4 root = Sqrt4(Max4(zero, total * m2)) * even_factor;
-  const V4 abs_ndw = Abs4(n_dot_w);
-  const V4 even = Select(root < abs_ndw, abs_ndw, root);
-  V4 area = f.sides == HitSides::kFront  ? 0.5f * (even + n_dot_w)
-            : f.sides == HitSides::kBack ? 0.5f * (even - n_dot_w)
-                                         : even;
-  area = Select(total > 0.0f, area, zero);
-  V4 omega = area * (inv_d * inv_d);
-  omega = Select(kTwoPi < omega, Splat4(kTwoPi), omega);
-  ok &= omega > 0.0f;
-  const int mask = Movemask4(ok);
-  if (mask == 0) return 0;
-
-  // Radiance: the three power SH at the same basis, regularised as in ClusterRadiance.
-  V4 red = zero, green = zero, blue = zero;
-  if constexpr (kRad) {
-    constexpr size_t kP = offsetof(Cluster, sh_power);
-    V4 p[28];
-    for (int j = 0; j < 7; ++j) {
-      p[4 * j] = LoadAt(c[0], kP + 16 * j);
-      p[4 * j + 1] = LoadAt(c[1], kP + 16 * j);
-      p[4 * j + 2] = LoadAt(c[2], kP + 16 * j);
-      p[4 * j + 3] = LoadAt(c[3], kP + 16 * j);
-      Transpose4(p[4 * j], p[4 * j + 1], p[4 * j + 2], p[4 * j + 3]);
-    }
-    auto side = [&](V4 e, V4 o) {
-      const V4 front = Max4(zero, e + o), back = Max4(zero, e - o);
-      return f.sides == HitSides::kFront ? front : f.sides == HitSides::kBack ? back : front + back;
-    };
-    const V4 den = side(a0 * kY0 + even2, odd) + kRadianceBlend * (kY0 * a0);
-    const V4i lit = den > 0.0f;
-    V4 rgb[3];
-    for (int ch = 0; ch < 3; ++ch) {
-      const V4* s = p + 9 * ch;
-      const V4 e = s[0] * kY0 + (((s[4] * y4 + s[6] * y6) + (s[5] * y5 + s[7] * y7)) + s[8] * y8);
-      const V4 o = s[2] * y2 + (s[1] * y1 + s[3] * y3);
-      const V4 num = side(e, o) + kRadianceBlend * Max4(zero, kY0 * s[0]);
-      rgb[ch] = Select(lit, num / den, zero);
-    }
-    red = rgb[0], green = rgb[1], blue = rgb[2];
-  }
-
-  // The mean normal, turned towards the receiver, and a flat cluster's plane.
-  constexpr float kInv1 = static_cast<float>(1.0 / kBand1);
-  const V4 nx = a3 * kInv1, ny = a1 * kInv1, nz = a2 * kInv1;
-  const V4 nl2 = nx * nx + ny * ny + nz * nz;
-  const V4i has_normal = nl2 > 0.0f;
-  const V4 nl = Sqrt4(nl2);
-  const V4 towards = nx * rx + ny * ry + nz * rz;
-  const V4 scale = Select(towards > 0.0f, Splat4(-1.0f), one) / nl;
-  const V4 mx = nx * scale, my = ny * scale, mz = nz * scale;
-  const V4 snx = Select(has_normal, to_frame(f.t4, mx, my, mz), zero);
-  const V4 sny = Select(has_normal, to_frame(f.b4, mx, my, mz), zero);
-  const V4 snz = Select(has_normal, to_frame(f.n4, mx, my, mz), zero);
-  const V4i flat = has_normal & (nl > kFlatness * total);
-  const V4 plane = Select(flat, towards * scale, zero);
-  const V4 thick = Select(flat, 0.5f * (Abs4(mx) * ex + Abs4(my) * ey + Abs4(mz) * ez), zero);
-  const V4i flat_flag = flat & (plane < 0.0f);
-
-  // Out, one splat per block of four: {1, rgb}, {dir, omega}, {normal, depth},
-  // {extent, plane, thick, -}.
-  V4 g0 = one, g1 = red, g2 = green, g3 = blue;
-  Transpose4(g0, g1, g2, g3);
-  V4 h0 = lx * inv_d, h1 = ly * inv_d, h2 = lz * inv_d, h3 = omega;
-  Transpose4(h0, h1, h2, h3);
-  V4 k0 = snx, k1 = sny, k2 = snz, k3 = d;
-  Transpose4(k0, k1, k2, k3);
-  V4 m0 = 0.5f * Sqrt4(ex * ex + ey * ey + ez * ez), m1 = plane, m2b = thick, m3 = zero;
-  Transpose4(m0, m1, m2b, m3);
-  const int flat_bits = Movemask4(flat_flag);
-  int n = 0;
-  auto put = [&](int i, V4 rgb1, V4 dir, V4 normal, V4 rest) {
-    PreparedSplat& s = out[n];
-    Store4(s.rgb1, rgb1);
-    Store4(&s.dir.x, dir);
-    Store4(&s.normal.x, normal);
-    Store4(&s.extent, rest);
-    s.near = 0;
-    s.flat = static_cast<uint8_t>((flat_bits >> i) & 1);
-    n += (mask >> i) & 1;
-  };
-  put(0, g0, h0, k0, m0);
-  put(1, g1, h1, k1, m1);
-  put(2, g2, h2, k2, m2b);
-  put(3, g3, h3, k3, m3);
-  return n;
-}
+namespace baseline {
+#include "raster/cluster_lanes.inc"
+}  // namespace baseline
 
 #if PBGI_RASTER_HAS_AVX2
-// The same code in VEX encoding: three-operand instructions need none of the register copies
-// that SSE's two-operand ones do (about a quarter of the SSE2 instructions). No FMA: with
-// -ffp-contract=off (ISO C++) the results are bit-identical to the SSE2 build.
+#pragma GCC push_options
+#pragma GCC target("avx2")
+namespace avx2 {
+typedef float V8 __attribute__((vector_size(32)));
+typedef int V8i __attribute__((vector_size(32)));
+
+#include "raster/cluster_lanes.inc"
+
+// Eight lanes.
+struct Lanes8 {
+  using V = V8;
+  using Vi = V8i;
+  static constexpr int kWidth = 8;
+  [[gnu::always_inline]] static void Gather(const Cluster* c, size_t offset, V& x0, V& x1, V& x2,
+                                            V& x3) {
+    V4 l0, l1, l2, l3, h0, h1, h2, h3;
+    Lanes4::Gather(c, offset, l0, l1, l2, l3);
+    Lanes4::Gather(c + 4, offset, h0, h1, h2, h3);
+    x0 = __builtin_shufflevector(l0, h0, 0, 1, 2, 3, 4, 5, 6, 7);
+    x1 = __builtin_shufflevector(l1, h1, 0, 1, 2, 3, 4, 5, 6, 7);
+    x2 = __builtin_shufflevector(l2, h2, 0, 1, 2, 3, 4, 5, 6, 7);
+    x3 = __builtin_shufflevector(l3, h3, 0, 1, 2, 3, 4, 5, 6, 7);
+  }
+  template <class Rows>
+  [[gnu::always_inline]] static void Scatter(V a, V b, V c, V d, Rows lane_rows) {
+    Lanes4::Scatter(Low(a), Low(b), Low(c), Low(d), lane_rows);
+    Lanes4::Scatter(High(a), High(b), High(c), High(d), [&](int i) { return lane_rows(i + 4); });
+  }
+  [[gnu::always_inline]] static V Sqrt(V v) { return _mm256_sqrt_ps(v); }
+  [[gnu::always_inline]] static int Mask(Vi m) {
+    return _mm256_movemask_ps(reinterpret_cast<__m256>(m));
+  }
+  [[gnu::always_inline]] static V4 Low(V v) { return __builtin_shufflevector(v, v, 0, 1, 2, 3); }
+  [[gnu::always_inline]] static V4 High(V v) { return __builtin_shufflevector(v, v, 4, 5, 6, 7); }
+};
+}  // namespace avx2
+#pragma GCC pop_options
+#endif
+
+#if PBGI_RASTER_HAS_AVX2
+// Eight lanes, in VEX encoding (whose three-operand instructions also need none of the
+// register copies of SSE's two-operand ones). No FMA: with -ffp-contract=off (ISO C++) the
+// results are bit-identical to the baseline build.
 template <bool kRad>
-__attribute__((target("avx2"))) int Prepare4Avx2(const Cluster* c, const ClusterFrame& f,
-                                                 PreparedSplat* out) {
-  return Prepare4<kRad>(c, f, out);
+__attribute__((target("avx2"))) int PrepareAvx2(const Cluster* c, size_t count,
+                                                const ClusterFrame& f, PreparedSplat* out) {
+  return avx2::PrepareAll<avx2::Lanes8, kRad>(c, count, f, out);
 }
 #endif
 
 template <bool kRad>
-int Prepare4Baseline(const Cluster* c, const ClusterFrame& f, PreparedSplat* out) {
-  return Prepare4<kRad>(c, f, out);
+int PrepareBaseline(const Cluster* c, size_t count, const ClusterFrame& f, PreparedSplat* out) {
+  return baseline::PrepareAll<baseline::Lanes4, kRad>(c, count, f, out);
 }
 
 }  // namespace
@@ -298,17 +192,25 @@ bool UseAvx2() { return CpuHasAvx2() && !force_baseline.load(std::memory_order_r
 void ForceBaselineIsaForTesting(bool force) { force_baseline.store(force); }
 
 template <bool kRad>
-int PrepareClusters4(const Cluster* c, const ClusterFrame& f, PreparedSplat* out, bool avx2) {
+int PrepareClusters(const Cluster* c, size_t count, const ClusterFrame& f, PreparedSplat* out,
+                    bool avx2) {
+  if (f.model != ClusterModel::kMoments) {
+    int n = 0;
+    for (size_t i = 0; i < count; ++i) n += PrepareClusterOne<kRad>(c[i], f, out + n) ? 1 : 0;
+    return n;
+  }
 #if PBGI_RASTER_HAS_AVX2
-  if (avx2) return Prepare4Avx2<kRad>(c, f, out);
+  if (avx2) return PrepareAvx2<kRad>(c, count, f, out);
 #endif
   (void)avx2;
-  return Prepare4Baseline<kRad>(c, f, out);
+  return PrepareBaseline<kRad>(c, count, f, out);
 }
 
 template bool PrepareClusterOne<true>(const Cluster&, const ClusterFrame&, PreparedSplat*);
 template bool PrepareClusterOne<false>(const Cluster&, const ClusterFrame&, PreparedSplat*);
-template int PrepareClusters4<true>(const Cluster*, const ClusterFrame&, PreparedSplat*, bool);
-template int PrepareClusters4<false>(const Cluster*, const ClusterFrame&, PreparedSplat*, bool);
+template int PrepareClusters<true>(const Cluster*, size_t, const ClusterFrame&, PreparedSplat*,
+                                   bool);
+template int PrepareClusters<false>(const Cluster*, size_t, const ClusterFrame&, PreparedSplat*,
+                                    bool);
 
 }  // namespace pbgi::internal

@@ -7,10 +7,11 @@
 #ifndef PBGI_RASTER_CLUSTER_PREP_H_
 #define PBGI_RASTER_CLUSTER_PREP_H_
 
+#include <cstddef>
+
 #include "glm/vec3.hpp"
 #include "pbgi/raster.h"
 #include "pbgi/surfel.h"
-#include "raster/simd.h"
 
 namespace pbgi::internal {
 
@@ -23,8 +24,6 @@ struct ClusterFrame {
   float max_distance;
   HitSides sides;
   ClusterModel model;
-  // The same, broadcast to four lanes for PrepareClusters4.
-  V4 origin4[3], t4[3], b4[3], n4[3], half_abs_n4[3], max_distance4;
 };
 
 // Prepares one cluster into *out; false (and *out partly written) when it is culled: empty
@@ -32,11 +31,13 @@ struct ClusterFrame {
 template <bool kRad>
 bool PrepareClusterOne(const Cluster& c, const ClusterFrame& f, PreparedSplat* out);
 
-// Prepares c[0..3] (the moment model only) and writes the splats of those not culled to
-// out[0..], in order; returns how many. out[0..3] must be writable. `avx2` (only where
-// CpuHasAvx2()) runs the same code compiled for AVX2, with the same results.
+// Prepares c[0..count) into out[0..], the splats of the clusters not culled, in order; returns
+// how many. out[0..count) must be writable. With the moment model, eight clusters at a time in
+// SIMD lanes with `avx2` (only where CpuHasAvx2()), else four, and the last few one at a time:
+// the same results as PrepareClusterOne bit for bit.
 template <bool kRad>
-int PrepareClusters4(const Cluster* c, const ClusterFrame& f, PreparedSplat* out, bool avx2);
+int PrepareClusters(const Cluster* c, size_t count, const ClusterFrame& f, PreparedSplat* out,
+                    bool avx2);
 
 // Whether this CPU can run the AVX2 builds of PrepareClusters4 and of the rasterizer's
 // splatting (x86-64 with AVX2; checked once).

@@ -82,19 +82,8 @@ void Rasterizer::SetFrame(const ShadeReceiver& r) {
 template <bool kRad>
 void Rasterizer::PrepareClusters(const std::vector<Cluster>& clusters) {
   const ClusterFrame frame(origin_, t_, b_, n_, o_.max_distance, o_.hitsides, o_.cluster_model);
-  PreparedSplat* splats = mb_.splats_.data();
-  const size_t n = clusters.size();
-  size_t i = 0;
-  // Four at a time while four remain: each writes at most four splats at count_ <= i, within
-  // the buffer of g.size() splats.
-  if (o_.cluster_model == ClusterModel::kMoments) {
-    const bool avx2 = avx2_;
-    for (; i + 4 <= n; i += 4) {
-      count_ +=
-          static_cast<uint32_t>(PrepareClusters4<kRad>(&clusters[i], frame, splats + count_, avx2));
-    }
-  }
-  for (; i < n; ++i) count_ += PrepareClusterOne<kRad>(clusters[i], frame, splats + count_) ? 1 : 0;
+  count_ += static_cast<uint32_t>(internal::PrepareClusters<kRad>(
+      clusters.data(), clusters.size(), frame, mb_.splats_.data(), avx2_));
 }
 
 void Rasterizer::PrepareSurfel(const Surfel& sf, ShadeResult* out) {

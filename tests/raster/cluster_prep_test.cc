@@ -1,5 +1,6 @@
-// Cluster preparation: the four-lane path (SSE2 / NEON baseline, and AVX2 where the CPU has it)
-// against the one-at-a-time path, on clusters that cover every cull and every branch.
+// Cluster preparation: the lane-parallel paths (four lanes on the baseline ISA, eight with AVX2
+// where the CPU has it) against the one-at-a-time path, on clusters that cover every cull and every
+// branch.
 #include "raster/cluster_prep.h"
 
 #include <cmath>
@@ -69,8 +70,8 @@ void ExpectSameSplat(const PreparedSplat& a, const PreparedSplat& b, int index) 
 
 // Every side rule, with and without radiance, both instruction sets the machine has, several
 // receivers (one with a max_distance that culls part of the set).
-TEST(ClusterPrepTest, FourLanesMatchOneAtATime) {
-  const std::vector<Cluster> clusters = RandomClusters(400, 3);
+TEST(ClusterPrepTest, LanesMatchOneAtATime) {
+  const std::vector<Cluster> clusters = RandomClusters(403, 3);
   std::vector<bool> isas = {false};
   if (internal::CpuHasAvx2()) isas.push_back(true);
   int drawn = 0, culled = 0;
@@ -84,20 +85,28 @@ TEST(ClusterPrepTest, FourLanesMatchOneAtATime) {
                              ClusterModel::kMoments);
         for (bool avx2 : isas) {
           for (bool rad : {false, true}) {
-            std::vector<PreparedSplat> one(clusters.size()), four(clusters.size());
-            int n1 = 0, n4 = 0;
-            for (const Cluster& c : clusters) {
-              n1 += rad ? internal::PrepareClusterOne<true>(c, f, &one[n1])
-                        : internal::PrepareClusterOne<false>(c, f, &one[n1]);
+            // Counts that leave every tail: eight-lane blocks, a four-lane block, single ones.
+            for (size_t count : {clusters.size(), clusters.size() - 1, clusters.size() - 5,
+                                 size_t{7}, size_t{3}, size_t{0}}) {
+              SCOPED_TRACE(testing::Message()
+                           << "avx2 " << avx2 << " radiance " << rad << " count " << count);
+              std::vector<PreparedSplat> one(count + 1), lanes(count + 1);
+              int n1 = 0;
+              for (size_t i = 0; i < count; ++i) {
+                n1 += rad ? internal::PrepareClusterOne<true>(clusters[i], f, &one[n1])
+                          : internal::PrepareClusterOne<false>(clusters[i], f, &one[n1]);
+              }
+              const int n = rad ? internal::PrepareClusters<true>(clusters.data(), count, f,
+                                                                  lanes.data(), avx2)
+                                : internal::PrepareClusters<false>(clusters.data(), count, f,
+                                                                   lanes.data(), avx2);
+              ASSERT_EQ(n, n1);
+              for (int i = 0; i < n1; ++i) ExpectSameSplat(lanes[i], one[i], i);
+              if (count == clusters.size()) {
+                drawn += n1;
+                culled += static_cast<int>(count) - n1;
+              }
             }
-            for (size_t i = 0; i < clusters.size(); i += 4) {
-              n4 += rad ? internal::PrepareClusters4<true>(&clusters[i], f, &four[n4], avx2)
-                        : internal::PrepareClusters4<false>(&clusters[i], f, &four[n4], avx2);
-            }
-            ASSERT_EQ(n1, n4) << "avx2 " << avx2 << " radiance " << rad;
-            for (int i = 0; i < n1; ++i) ExpectSameSplat(four[i], one[i], i);
-            drawn += n1;
-            culled += static_cast<int>(clusters.size()) - n1;
           }
         }
       }
