@@ -62,7 +62,7 @@ inline void Rasterizer::SortByDepth() {
   }
 }
 
-void Rasterizer::Reset() {
+inline void Rasterizer::Reset() {
   PixelState empty{};
   empty.depth = std::numeric_limits<float>::infinity();
   std::fill(mb_.pixels_.begin(), mb_.pixels_.end(), empty);
@@ -86,7 +86,7 @@ void Rasterizer::PrepareClusters(const std::vector<Cluster>& clusters) {
       clusters.data(), clusters.size(), frame, mb_.splats_.data(), avx2_));
 }
 
-void Rasterizer::PrepareSurfel(const Surfel& sf, ShadeResult* out) {
+inline void Rasterizer::PrepareSurfel(const Surfel& sf, ShadeResult* out) {
   const glm::vec3 rel = sf.position - origin_;
   const float r = sf.radius;
   const float nn = glm::dot(sf.normal, sf.normal);
@@ -183,7 +183,9 @@ void Rasterizer::SplatCone(const PreparedSplat& s) {
                            static_cast<uint32_t>(r1 + c0), static_cast<uint32_t>(r1 + c1)};
     float cov[4];
     for (int i = 0; i < 4; ++i) cov[i] = s.omega * w[i] * inv_omega_[p[i]];
-    if (ix >= 0 && iy >= 0 && ix + 1 < res_ && iy + 1 < res_) {
+    // ix, iy in [0, res - 2] (one unsigned comparison each).
+    const uint32_t last = static_cast<uint32_t>(res_ - 1);
+    if (static_cast<uint32_t>(ix) < last && static_cast<uint32_t>(iy) < last) {
       Emit2x2<kClamp, kRad>(p[0], cov, fr);  // no pixel clamped to the face: a 2 x 2 block
     } else {
       for (int i = 0; i < 4; ++i) Emit<kClamp, kRad>(p[i], cov[i], fr);
@@ -385,12 +387,10 @@ inline void Rasterizer::Integrate(const ShadeReceiver& r, ShadeResult* out) {
   const uint32_t* hp = mb_.hemisphere_.data();
   const float* om = mb_.hemi_omega_.data();
   const float* w = mb_.hemi_weight_.data();
-  for (PixelState& px : mb_.pixels_) {
-    if (radiance_) {
-      Close<true>(px, /*behind=*/false);
-    } else {
-      Close<false>(px, /*behind=*/false);
-    }
+  if (radiance_) {
+    for (PixelState& px : mb_.pixels_) Close<true>(px, /*behind=*/false);
+  } else {
+    for (PixelState& px : mb_.pixels_) Close<false>(px, /*behind=*/false);
   }
   // Coverage and radiance in four double lanes: the same products and sums, in the same order,
   // as one scalar accumulator each.
@@ -473,30 +473,27 @@ void Rasterizer::Draw(uint32_t count) {
 }
 
 template <bool kClamp, bool kRad>
-void Rasterizer::DrawOn(uint32_t count) {
-#if PBGI_RASTER_HAS_AVX2
-  if (avx2_) {
-    DrawAvx2<kClamp, kRad>(count);
-    return;
-  }
-#endif
-  Draw<kClamp, kRad>(count);
+void Rasterizer::Finish(const Gathered& g, const ShadeReceiver& r, ShadeResult* out) {
+  Reset();
+  for (const Surfel& s : g.surfels) PrepareSurfel(s, out);
+  Draw<kClamp, kRad>(count_);
+  Integrate(r, out);
 }
 
-void Rasterizer::IntegrateOn(const ShadeReceiver& r, ShadeResult* out) {
+template <bool kClamp, bool kRad>
+void Rasterizer::FinishOn(const Gathered& g, const ShadeReceiver& r, ShadeResult* out) {
 #if PBGI_RASTER_HAS_AVX2
   if (avx2_) {
-    IntegrateAvx2(r, out);
+    FinishAvx2<kClamp, kRad>(g, r, out);
     return;
   }
 #endif
-  Integrate(r, out);
+  Finish<kClamp, kRad>(g, r, out);
 }
 
 absl::Status Rasterizer::Run(const Gathered& g, const ShadeReceiver& r, ShadeResult* out) {
   *out = ShadeResult{};
   SetFrame(r);
-  Reset();
   auto& splats = mb_.splats_;
   // Written by index: a vector's push_back costs more than the rest of a small splat's setup.
   if (splats.size() < g.size()) splats.resize(g.size());
@@ -508,22 +505,19 @@ absl::Status Rasterizer::Run(const Gathered& g, const ShadeReceiver& r, ShadeRes
   }
   out->clusters_drawn = count_;
   out->culled = static_cast<uint32_t>(g.clusters.size()) - count_;
-  for (const Surfel& s : g.surfels) PrepareSurfel(s, out);
-  const uint32_t count = count_;
   if (clamp_) {
     if (radiance_) {
-      DrawOn<true, true>(count);
+      FinishOn<true, true>(g, r, out);
     } else {
-      DrawOn<true, false>(count);
+      FinishOn<true, false>(g, r, out);
     }
   } else {
     if (radiance_) {
-      DrawOn<false, true>(count);
+      FinishOn<false, true>(g, r, out);
     } else {
-      DrawOn<false, false>(count);
+      FinishOn<false, false>(g, r, out);
     }
   }
-  IntegrateOn(r, out);
   return absl::OkStatus();
 }
 

@@ -81,22 +81,22 @@ class Rasterizer {
   }
   template <bool kClamp, bool kRad>
   void Draw(uint32_t count);
-  // Draw() and Integrate(), on the AVX2 build when avx2_ is set.
+  // Everything after cluster preparation: Reset(), the surfels, Draw(), Integrate(); on the
+  // AVX2 build when avx2_ is set.
   template <bool kClamp, bool kRad>
-  void DrawOn(uint32_t count);
-  void IntegrateOn(const ShadeReceiver& r, ShadeResult* out);
+  void Finish(const Gathered& g, const ShadeReceiver& r, ShadeResult* out);
+  template <bool kClamp, bool kRad>
+  void FinishOn(const Gathered& g, const ShadeReceiver& r, ShadeResult* out);
 #if PBGI_RASTER_HAS_AVX2
   // The same code compiled for AVX2 with every call below it inlined (flatten: nothing compiled
   // for AVX2 escapes into code that the baseline path could link to). VEX encoding's
   // three-operand instructions need fewer register copies: ~10% fewer instructions. Same
   // results bit for bit: no FMA, and ISO C++ neither contracts nor reassociates.
   template <bool kClamp, bool kRad>
-  __attribute__((target("avx2"), flatten)) void DrawAvx2(uint32_t count) {
-    Draw<kClamp, kRad>(count);
-  }
-  __attribute__((target("avx2"), flatten)) void IntegrateAvx2(const ShadeReceiver& r,
-                                                              ShadeResult* out) {
-    Integrate(r, out);
+  __attribute__((target("avx2"), flatten)) void FinishAvx2(const Gathered& g,
+                                                          const ShadeReceiver& r,
+                                                          ShadeResult* out) {
+    Finish<kClamp, kRad>(g, r, out);
   }
 #endif
 
@@ -182,8 +182,8 @@ class Rasterizer {
   // cov[0..3]: the same, with the four plane ranges computed in four lanes.
   template <bool kClamp, bool kRad>
   [[gnu::always_inline]] void Emit2x2(uint32_t p0, const float* cov, const Frag& f) {
-    const uint32_t p[4] = {p0, p0 + 1, p0 + res_, p0 + res_ + 1};
     if constexpr (!kClamp) {
+      const uint32_t p[4] = {p0, p0 + 1, p0 + res_, p0 + res_ + 1};
       for (int i = 0; i < 4; ++i) Emit<kClamp, kRad>(p[i], cov[i], f);
     } else {
       V4 lo = Splat4(f.lo), hi = Splat4(f.hi);
@@ -198,12 +198,16 @@ class Rasterizer {
         lo = ok ? t - half : lo;
         hi = ok ? t + half : hi;
       }
-      for (int i = 0; i < 4; ++i) {
-        PixelState& px = px_[p[i]];
+      // Unrolled by hand: the loop stayed a loop, with the lanes going through memory.
+      auto one = [&](uint32_t q, float c, float l, float h) [[gnu::always_inline]] {
+        PixelState& px = px_[q];
         px.depth = std::min(px.depth, f.depth);
-        if (px.closed >= 1.0f) continue;
-        Layer<kRad>(px, cov[i], f, lo[i], hi[i]);
-      }
+        if (px.closed < 1.0f) Layer<kRad>(px, c, f, l, h);
+      };
+      one(p0, cov[0], lo[0], hi[0]);
+      one(p0 + 1, cov[1], lo[1], hi[1]);
+      one(p0 + res_, cov[2], lo[2], hi[2]);
+      one(p0 + res_ + 1, cov[3], lo[3], hi[3]);
     }
   }
   // {a[0], a[1], a[res], a[res + 1]}.
