@@ -7,6 +7,7 @@
 #include "glm/geometric.hpp"
 #include "pbgi/raster.h"
 #include "raster/cube.h"
+#include "raster/rasterizer.h"
 
 namespace pbgi {
 namespace internal {
@@ -166,8 +167,17 @@ glm::vec3 MicroBuffer::PixelDirection(int p) const {
   return glm::vec3(dirs_[p].x, dirs_[p].y, dirs_[p].z);
 }
 
+// Shade() closes the open layers of the pixels above the horizon only; these close a copy, which
+// is a no-op for those.
+float MicroBuffer::PixelCoverage(int p) const {
+  internal::PixelState px = pixels_[p];
+  internal::Rasterizer::Close<false>(px, /*behind=*/false);
+  return px.closed;
+}
+
 glm::vec3 MicroBuffer::PixelRadiance(int p) const {
-  const internal::PixelState& px = pixels_[p];
+  internal::PixelState px = pixels_[p];
+  internal::Rasterizer::Close<true>(px, /*behind=*/false);
   return glm::vec3(px.closed_rgb[0], px.closed_rgb[1], px.closed_rgb[2]);
 }
 

@@ -387,11 +387,8 @@ inline void Rasterizer::Integrate(const ShadeReceiver& r, ShadeResult* out) {
   const uint32_t* hp = mb_.hemisphere_.data();
   const float* om = mb_.hemi_omega_.data();
   const float* w = mb_.hemi_weight_.data();
-  if (radiance_) {
-    for (PixelState& px : mb_.pixels_) Close<true>(px, /*behind=*/false);
-  } else {
-    for (PixelState& px : mb_.pixels_) Close<false>(px, /*behind=*/false);
-  }
+  // Each hemisphere pixel's open layer is closed as it is summed; the pixels below the horizon
+  // count for nothing and stay open (MicroBuffer's accessors close them on reading).
   // Coverage and radiance in four double lanes: the same products and sums, in the same order,
   // as one scalar accumulator each.
   typedef double V4d __attribute__((vector_size(32)));
@@ -399,14 +396,16 @@ inline void Rasterizer::Integrate(const ShadeReceiver& r, ShadeResult* out) {
   double cover = 0.0;
   if (radiance_) {
     for (size_t i = 0; i < n; ++i) {
-      const PixelState& px = px_[hp[i]];
+      PixelState& px = px_[hp[i]];
+      Close<true>(px, /*behind=*/false);
       sum += __builtin_convertvector(Load4(&px.closed), V4d) * static_cast<double>(w[i]);
       cover += static_cast<double>(std::min(1.0f, px.closed)) * om[i];
     }
   } else {
     double occ = 0.0;
     for (size_t i = 0; i < n; ++i) {
-      const PixelState& px = px_[hp[i]];
+      PixelState& px = px_[hp[i]];
+      Close<false>(px, /*behind=*/false);
       occ += static_cast<double>(px.closed) * w[i];
       cover += static_cast<double>(std::min(1.0f, px.closed)) * om[i];
     }

@@ -54,6 +54,28 @@ class Rasterizer {
 
   absl::Status Run(const Gathered& g, const ShadeReceiver& r, ShadeResult* out);
 
+  // `behind`: a fragment wholly behind the layer closes it. The first layer keeps its free sum
+  // only when nothing lies behind it (a lone surface whose splats' overlaps and gaps cancel);
+  // with a surface behind, the gaps are filled by that surface, so the overlaps must not count
+  // twice: the layer is clamped at 1 like the later ones (bug: hidden_surface_overcount).
+  template <bool kRad>
+  static void Close(PixelState& px, bool behind) {
+    if (!(px.open > 0.0f)) return;
+    const float e = px.closed == 0.0f && !behind
+                        ? px.open
+                        : std::min(px.open, std::max(0.0f, 1.0f - px.closed));
+    const float closed = px.closed + e;
+    if constexpr (kRad) {
+      const V4 open = Load4(&px.open);
+      Store4(&px.closed, Load4(&px.closed) + (e / px.open) * open);
+      Store4(&px.open, V4{0.0f, 0.0f, 0.0f, 0.0f});
+    } else {
+      px.open = 0.0f;
+    }
+    px.closed = closed;  // exactly closed + e, not closed + (e / open) * open
+    px.far = 0.0f;
+  }
+
  private:
   void Reset();
   void SortByDepth();
@@ -94,8 +116,8 @@ class Rasterizer {
   // results bit for bit: no FMA, and ISO C++ neither contracts nor reassociates.
   template <bool kClamp, bool kRad>
   __attribute__((target("avx2"), flatten)) void FinishAvx2(const Gathered& g,
-                                                          const ShadeReceiver& r,
-                                                          ShadeResult* out) {
+                                                           const ShadeReceiver& r,
+                                                           ShadeResult* out) {
     Finish<kClamp, kRad>(g, r, out);
   }
 #endif
@@ -216,28 +238,6 @@ class Rasterizer {
     std::memcpy(&top, a, sizeof top);
     std::memcpy(&bottom, a + res_, sizeof bottom);
     return __builtin_shufflevector(top, bottom, 0, 1, 2, 3);
-  }
-
-  // `behind`: a fragment wholly behind the layer closes it. The first layer keeps its free sum
-  // only when nothing lies behind it (a lone surface whose splats' overlaps and gaps cancel);
-  // with a surface behind, the gaps are filled by that surface, so the overlaps must not count
-  // twice: the layer is clamped at 1 like the later ones (bug: hidden_surface_overcount).
-  template <bool kRad>
-  static void Close(PixelState& px, bool behind) {
-    if (!(px.open > 0.0f)) return;
-    const float e = px.closed == 0.0f && !behind
-                        ? px.open
-                        : std::min(px.open, std::max(0.0f, 1.0f - px.closed));
-    const float closed = px.closed + e;
-    if constexpr (kRad) {
-      const V4 open = Load4(&px.open);
-      Store4(&px.closed, Load4(&px.closed) + (e / px.open) * open);
-      Store4(&px.open, V4{0.0f, 0.0f, 0.0f, 0.0f});
-    } else {
-      px.open = 0.0f;
-    }
-    px.closed = closed;  // exactly closed + e, not closed + (e / open) * open
-    px.far = 0.0f;
   }
 
   MicroBuffer& mb_;

@@ -191,9 +191,9 @@ class MicroBuffer {
   double PixelCosineWeight(int p) const { return cos_weight_[p]; }
 
   // What the last Shade() left in the pixel.
-  float PixelCoverage(int p) const { return pixels_[p].closed; }  // may exceed 1 (see top)
-  float PixelDepth(int p) const { return pixels_[p].depth; }      // +inf where nothing drew
-  glm::vec3 PixelRadiance(int p) const;                           // coverage-weighted
+  float PixelCoverage(int p) const;                           // may exceed 1 (see top)
+  float PixelDepth(int p) const { return pixels_[p].depth; }  // +inf where nothing drew
+  glm::vec3 PixelRadiance(int p) const;                       // coverage-weighted
 
  private:
   friend class internal::Rasterizer;
