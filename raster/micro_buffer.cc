@@ -7,6 +7,7 @@
 #include "glm/geometric.hpp"
 #include "pbgi/raster.h"
 #include "raster/cube.h"
+#include "raster/rasterizer.h"
 
 namespace pbgi {
 namespace internal {
@@ -113,6 +114,7 @@ absl::Status MicroBuffer::Prepare(int resolution) {
   pixels_.assign(n, internal::PixelState{});
   for (internal::PixelState& px : pixels_) px.depth = std::numeric_limits<float>::infinity();
   fragments_.resize(n);
+  for (auto* v : {&dir_x_, &dir_y_, &dir_z_, &half_width_}) v->assign(n, 0.0f);
 
   const double step = 2.0 / res_;
   for (int f = 0; f < 6; ++f) {
@@ -138,6 +140,8 @@ absl::Status MicroBuffer::Prepare(int resolution) {
                                       static_cast<float>(centre.z),
                                       static_cast<float>(1.0 / std::sqrt(omega_[p])),
                                       static_cast<float>(0.5 * std::sqrt(omega_[p]))};
+        dir_x_[p] = dirs_[p].x, dir_y_[p] = dirs_[p].y, dir_z_[p] = dirs_[p].z;
+        half_width_[p] = dirs_[p].half_width;
         // The part above the horizon z >= 0. On the side faces z is the row coordinate b
         // (k2 == 2), so clipping keeps a rectangle; +z is all above, -z all below.
         double c0 = b0;
@@ -163,8 +167,17 @@ glm::vec3 MicroBuffer::PixelDirection(int p) const {
   return glm::vec3(dirs_[p].x, dirs_[p].y, dirs_[p].z);
 }
 
+// Shade() closes the open layers of the pixels above the horizon only; these close a copy, which
+// is a no-op for those.
+float MicroBuffer::PixelCoverage(int p) const {
+  internal::PixelState px = pixels_[p];
+  internal::Rasterizer::Close<false>(px, /*behind=*/false);
+  return px.closed;
+}
+
 glm::vec3 MicroBuffer::PixelRadiance(int p) const {
-  const internal::PixelState& px = pixels_[p];
+  internal::PixelState px = pixels_[p];
+  internal::Rasterizer::Close<true>(px, /*behind=*/false);
   return glm::vec3(px.closed_rgb[0], px.closed_rgb[1], px.closed_rgb[2]);
 }
 

@@ -9,6 +9,7 @@
 #include "glm/geometric.hpp"
 #include "pbgi/sh.h"
 #include "raster/cluster_model.h"
+#include "raster/cluster_prep.h"
 #include "raster/cube.h"
 
 namespace pbgi::internal {
@@ -21,7 +22,9 @@ constexpr float kBilinearMax = 1.0f;
 
 // LSD radix sort of (depth, index) on the top 20 bits of the depth (positive floats sort as
 // integers; 20 bits keep 11 mantissa bits, a relative depth step of 5e-4), two 10-bit passes.
-void Rasterizer::SortByDepth() {
+// The high digit (exponent and two mantissa bits) of a receiver's splats spans a few dozen of
+// its 1024 buckets: its prefix sum runs over that span only.
+inline void Rasterizer::SortByDepth() {
   const PreparedSplat* splats = mb_.splats_.data();
   auto& order = mb_.order_;
   auto& tmp = mb_.order_tmp_;
@@ -30,17 +33,22 @@ void Rasterizer::SortByDepth() {
   tmp.resize(n);
   constexpr int kBits = 10, kBuckets = 1 << kBits;
   uint32_t count[2][kBuckets] = {};
+  uint32_t high_lo = kBuckets - 1, high_hi = 0;
   for (size_t i = 0; i < n; ++i) {
     uint32_t key;
     std::memcpy(&key, &splats[i].depth, sizeof key);
     key >>= 12;
     order[i] = (static_cast<uint64_t>(key) << 32) | i;
     ++count[0][key & (kBuckets - 1)];
-    ++count[1][(key >> kBits) & (kBuckets - 1)];
+    const uint32_t high = (key >> kBits) & (kBuckets - 1);
+    ++count[1][high];
+    high_lo = std::min(high_lo, high);
+    high_hi = std::max(high_hi, high);
   }
   for (int pass = 0; pass < 2; ++pass) {
     uint32_t sum = 0;
-    for (int b = 0; b < kBuckets; ++b) {
+    const uint32_t b0 = pass == 0 ? 0 : high_lo, b1 = pass == 0 ? kBuckets - 1 : high_hi;
+    for (uint32_t b = b0; b <= b1; ++b) {
       const uint32_t c = count[pass][b];
       count[pass][b] = sum;
       sum += c;
@@ -54,7 +62,7 @@ void Rasterizer::SortByDepth() {
   }
 }
 
-void Rasterizer::Reset() {
+inline void Rasterizer::Reset() {
   PixelState empty{};
   empty.depth = std::numeric_limits<float>::infinity();
   std::fill(mb_.pixels_.begin(), mb_.pixels_.end(), empty);
@@ -71,71 +79,14 @@ void Rasterizer::SetFrame(const ShadeReceiver& r) {
   origin_ = r.position + o_.bias * n_;
 }
 
-void Rasterizer::PrepareCluster(const Cluster& c, ShadeResult* out) {
-  if (c.bounds.Empty()) {
-    ++out->culled;
-    return;
-  }
-  const glm::vec3 ext = c.bounds.Extent();
-  const glm::vec3 rel = c.bounds.Center() - origin_;
-  const glm::vec3 local = ToLocal(rel);
-  // Entirely behind (or in) the tangent plane: the box's highest corner along n.
-  const float top = local.z + 0.5f * (std::fabs(n_.x) * ext.x + std::fabs(n_.y) * ext.y +
-                                      std::fabs(n_.z) * ext.z);
-  const float d2 = glm::dot(local, local);
-  if (!(top > 0.0f) || !(d2 > 0.0f) || !std::isfinite(d2)) {
-    ++out->culled;
-    return;
-  }
-  const float d = std::sqrt(d2);
-  if (d > o_.max_distance) {
-    ++out->culled;
-    return;
-  }
-  const float inv_d = 1.0f / d;
-  const glm::vec3 to_receiver = rel * -inv_d;
-  const ClusterMoments m = MomentsFromSh(c.sh_area);
-  const float area = o_.cluster_model == ClusterModel::kMoments
-                         ? ProjectedArea(m, to_receiver, o_.hitsides)
-                         : ProjectedAreaShEval(c, to_receiver, o_.hitsides);
-  const float omega = std::min(area * (inv_d * inv_d), 2.0f * static_cast<float>(sh::kPi));
-  if (!(omega > 0.0f)) {
-    ++out->culled;
-    return;
-  }
-  // Written in place: the splat is only counted once complete.
-  PreparedSplat& s = mb_.splats_[count_];
-  s.dir = local * inv_d;
-  s.omega = omega;
-  s.depth = d;
-  s.extent = 0.5f * glm::length(ext);
-  // The mean normal, turned towards the receiver; a nearly flat cluster also gets its plane
-  // through the box centre and its thickness along the normal (the box's half extent).
-  const float nl2 = glm::dot(m.normal_sum, m.normal_sum);
-  s.normal = glm::vec3(0.0f);
-  s.plane = 0.0f;
-  s.thick = 0.0f;
-  s.flat = 0;
-  if (nl2 > 0.0f) {
-    const float nl = std::sqrt(nl2);
-    const float towards = glm::dot(m.normal_sum, rel);
-    const float scale = (towards > 0.0f ? -1.0f : 1.0f) / nl;
-    const glm::vec3 mw = m.normal_sum * scale;
-    s.normal = ToLocal(mw);
-    if (nl > kFlatness * m.area) {
-      s.plane = towards * scale;
-      s.thick =
-          0.5f * (std::fabs(mw.x) * ext.x + std::fabs(mw.y) * ext.y + std::fabs(mw.z) * ext.z);
-      s.flat = s.plane < 0.0f ? 1 : 0;
-    }
-  }
-  s.radiance = radiance_ ? ClusterRadiance(c, to_receiver, o_.hitsides) : glm::vec3(0.0f);
-  s.near = 0;
-  ++count_;
-  ++out->clusters_drawn;
+template <bool kRad>
+void Rasterizer::PrepareClusters(const std::vector<Cluster>& clusters) {
+  const ClusterFrame frame(origin_, t_, b_, n_, o_.max_distance, o_.hitsides, o_.cluster_model);
+  count_ += static_cast<uint32_t>(internal::PrepareClusters<kRad>(
+      clusters.data(), clusters.size(), frame, mb_.splats_.data(), avx2_));
 }
 
-void Rasterizer::PrepareSurfel(const Surfel& sf, ShadeResult* out) {
+inline void Rasterizer::PrepareSurfel(const Surfel& sf, ShadeResult* out) {
   const glm::vec3 rel = sf.position - origin_;
   const float r = sf.radius;
   const float nn = glm::dot(sf.normal, sf.normal);
@@ -161,7 +112,11 @@ void Rasterizer::PrepareSurfel(const Surfel& sf, ShadeResult* out) {
   PreparedSplat& s = mb_.splats_[count_];  // counted only once complete
   s.depth = d;
   s.extent = r;
-  s.radiance = radiance_ ? sf.radiance : glm::vec3(0.0f);
+  if (radiance_) {
+    Store4(s.rgb1, V4{1.0f, sf.radiance.x, sf.radiance.y, sf.radiance.z});
+  } else {
+    Store4(s.rgb1, V4{1.0f, 0.0f, 0.0f, 0.0f});
+  }
   // The disk's plane, its normal turned towards the receiver (side != 0 here).
   const float facing = side > 0.0f ? 1.0f : -1.0f;
   s.normal = ToLocal(normal) * facing;
@@ -226,7 +181,15 @@ void Rasterizer::SplatCone(const PreparedSplat& s) {
     const float w[4] = {(1 - tx) * (1 - ty), tx * (1 - ty), (1 - tx) * ty, tx * ty};
     const uint32_t p[4] = {static_cast<uint32_t>(r0 + c0), static_cast<uint32_t>(r0 + c1),
                            static_cast<uint32_t>(r1 + c0), static_cast<uint32_t>(r1 + c1)};
-    for (int i = 0; i < 4; ++i) Emit<kClamp, kRad>(p[i], s.omega * w[i] * inv_omega_[p[i]], fr);
+    float cov[4];
+    for (int i = 0; i < 4; ++i) cov[i] = s.omega * w[i] * inv_omega_[p[i]];
+    // ix, iy in [0, res - 2] (one unsigned comparison each).
+    const uint32_t last = static_cast<uint32_t>(res_ - 1);
+    if (static_cast<uint32_t>(ix) < last && static_cast<uint32_t>(iy) < last) {
+      Emit2x2<kClamp, kRad>(p[0], cov, fr);  // no pixel clamped to the face: a 2 x 2 block
+    } else {
+      for (int i = 0; i < 4; ++i) Emit<kClamp, kRad>(p[i], cov[i], fr);
+    }
     return;
   }
   // Up to two pixels wide: a square footprint of the cone's solid angle on the home face, each
@@ -419,29 +382,37 @@ void Rasterizer::SplatDisk(const PreparedSplat& s) {
   }
 }
 
-void Rasterizer::Integrate(const ShadeReceiver& r, ShadeResult* out) {
+inline void Rasterizer::Integrate(const ShadeReceiver& r, ShadeResult* out) {
   const size_t n = mb_.hemisphere_.size();
   const uint32_t* hp = mb_.hemisphere_.data();
   const float* om = mb_.hemi_omega_.data();
   const float* w = mb_.hemi_weight_.data();
-  for (PixelState& px : mb_.pixels_) {
-    if (radiance_) {
+  // Each hemisphere pixel's open layer is closed as it is summed; the pixels below the horizon
+  // count for nothing and stay open (MicroBuffer's accessors close them on reading).
+  // Coverage and radiance in four double lanes: the same products and sums, in the same order,
+  // as one scalar accumulator each.
+  typedef double V4d __attribute__((vector_size(32)));
+  V4d sum = {0.0, 0.0, 0.0, 0.0};
+  double cover = 0.0;
+  if (radiance_) {
+    for (size_t i = 0; i < n; ++i) {
+      PixelState& px = px_[hp[i]];
       Close<true>(px, /*behind=*/false);
-    } else {
+      sum += __builtin_convertvector(Load4(&px.closed), V4d) * static_cast<double>(w[i]);
+      cover += static_cast<double>(std::min(1.0f, px.closed)) * om[i];
+    }
+  } else {
+    double occ = 0.0;
+    for (size_t i = 0; i < n; ++i) {
+      PixelState& px = px_[hp[i]];
       Close<false>(px, /*behind=*/false);
+      occ += static_cast<double>(px.closed) * w[i];
+      cover += static_cast<double>(std::min(1.0f, px.closed)) * om[i];
     }
+    sum[0] = occ;
   }
-  double occ = 0.0, cover = 0.0;
-  glm::dvec3 e(0.0);
-  for (size_t i = 0; i < n; ++i) {
-    const PixelState& px = px_[hp[i]];
-    occ += static_cast<double>(px.closed) * w[i];
-    cover += static_cast<double>(std::min(1.0f, px.closed)) * om[i];
-    if (radiance_) {
-      e += glm::dvec3(px.closed_rgb[0], px.closed_rgb[1], px.closed_rgb[2]) *
-           static_cast<double>(w[i]);
-    }
-  }
+  const double occ = sum[0];
+  const glm::dvec3 e(sum[1], sum[2], sum[3]);
   out->occlusion = static_cast<float>(occ / sh::kPi);
   out->coverage = static_cast<float>(cover / (2.0 * sh::kPi));
   out->irradiance = glm::vec3(e);
@@ -500,31 +471,52 @@ void Rasterizer::Draw(uint32_t count) {
   }
 }
 
+template <bool kClamp, bool kRad>
+void Rasterizer::Finish(const Gathered& g, const ShadeReceiver& r, ShadeResult* out) {
+  Reset();
+  for (const Surfel& s : g.surfels) PrepareSurfel(s, out);
+  Draw<kClamp, kRad>(count_);
+  Integrate(r, out);
+}
+
+template <bool kClamp, bool kRad>
+void Rasterizer::FinishOn(const Gathered& g, const ShadeReceiver& r, ShadeResult* out) {
+#if PBGI_RASTER_HAS_AVX2
+  if (avx2_) {
+    FinishAvx2<kClamp, kRad>(g, r, out);
+    return;
+  }
+#endif
+  Finish<kClamp, kRad>(g, r, out);
+}
+
 absl::Status Rasterizer::Run(const Gathered& g, const ShadeReceiver& r, ShadeResult* out) {
   *out = ShadeResult{};
   SetFrame(r);
-  Reset();
   auto& splats = mb_.splats_;
   // Written by index: a vector's push_back costs more than the rest of a small splat's setup.
   if (splats.size() < g.size()) splats.resize(g.size());
   count_ = 0;
-  for (const Cluster& c : g.clusters) PrepareCluster(c, out);
-  for (const Surfel& s : g.surfels) PrepareSurfel(s, out);
-  const uint32_t count = count_;
+  if (radiance_) {
+    PrepareClusters<true>(g.clusters);
+  } else {
+    PrepareClusters<false>(g.clusters);
+  }
+  out->clusters_drawn = count_;
+  out->culled = static_cast<uint32_t>(g.clusters.size()) - count_;
   if (clamp_) {
     if (radiance_) {
-      Draw<true, true>(count);
+      FinishOn<true, true>(g, r, out);
     } else {
-      Draw<true, false>(count);
+      FinishOn<true, false>(g, r, out);
     }
   } else {
     if (radiance_) {
-      Draw<false, true>(count);
+      FinishOn<false, true>(g, r, out);
     } else {
-      Draw<false, false>(count);
+      FinishOn<false, false>(g, r, out);
     }
   }
-  Integrate(r, out);
   return absl::OkStatus();
 }
 

@@ -126,7 +126,9 @@ struct ShadeResult {
 
 namespace internal {
 // One element ready to splat (local frame), kept in the MicroBuffer to avoid allocation.
-struct PreparedSplat {
+// 64 bytes, the radiance first and 16-byte aligned so that Emit() adds it four lanes wide.
+struct alignas(16) PreparedSplat {
+  float rgb1[4];     // {1, radiance}: lane 0 carries the coverage (see PixelState)
   glm::vec3 dir;     // far: unit direction; near disk: centre
   float omega;       // far: solid angle; near disk: radius
   glm::vec3 normal;  // near disk: its normal; far: unit mean normal facing the receiver, or 0
@@ -135,20 +137,22 @@ struct PreparedSplat {
   // Far and flat: the element lies within `thick` of its plane {x : normal.x = plane} (x
   // relative to the receiver; plane < 0), which gives its depth along each pixel's ray.
   float plane, thick;
-  glm::vec3 radiance;
   uint8_t near;  // 1 for an exact disk
   uint8_t flat;  // far: 1 when plane and thick are set (a surfel, or a nearly flat cluster)
 };
 // A pixel's state: layers of fragments that overlap in depth (one surface) add up freely in
 // `open`; when a fragment lies wholly behind the open layer, the layer closes into `closed`.
-struct PixelState {
+// Each coverage is followed by its coverage-weighted radiance, four floats that the hot loops
+// update as one vector; 64 bytes, one cache line.
+struct alignas(16) PixelState {
   float closed;  // coverage of the closed layers
-  float open;    // coverage of the open layer
-  float far;     // far end of the open layer's depth range
-  float depth;   // nearest fragment's depth
   float closed_rgb[3];
+  float open;  // coverage of the open layer
   float open_rgb[3];
+  float far;        // far end of the open layer's depth range
+  float depth;      // nearest fragment's depth
   float normal[3];  // the open layer's first fragment's normal (0: none)
+  float unused;
 };
 struct PixelDir {
   float x, y, z;
@@ -187,9 +191,9 @@ class MicroBuffer {
   double PixelCosineWeight(int p) const { return cos_weight_[p]; }
 
   // What the last Shade() left in the pixel.
-  float PixelCoverage(int p) const { return pixels_[p].closed; }  // may exceed 1 (see top)
-  float PixelDepth(int p) const { return pixels_[p].depth; }      // +inf where nothing drew
-  glm::vec3 PixelRadiance(int p) const;                           // coverage-weighted
+  float PixelCoverage(int p) const;                           // may exceed 1 (see top)
+  float PixelDepth(int p) const { return pixels_[p].depth; }  // +inf where nothing drew
+  glm::vec3 PixelRadiance(int p) const;                       // coverage-weighted
 
  private:
   friend class internal::Rasterizer;
@@ -198,10 +202,12 @@ class MicroBuffer {
   std::vector<internal::PixelDir> dirs_;
   std::vector<double> omega_, omega_above_, cos_weight_;
   std::vector<float> omega_f_, inv_omega_f_;  // omega_ and 1 / omega_ for the hot loops
-  float max_width_ = 0.0f;                    // largest pixel's angular width, sqrt(solid angle)
-  std::vector<uint32_t> hemisphere_;          // pixels with omega_above_ > 0
-  std::vector<float> hemi_weight_;            // cos_weight_ of hemisphere_ pixels
-  std::vector<float> hemi_omega_;             // omega_above_ of hemisphere_ pixels
+  // dirs_ by component, for four pixels at a time (the bilinear splat's 2 x 2 block)
+  std::vector<float> dir_x_, dir_y_, dir_z_, half_width_;
+  float max_width_ = 0.0f;            // largest pixel's angular width, sqrt(solid angle)
+  std::vector<uint32_t> hemisphere_;  // pixels with omega_above_ > 0
+  std::vector<float> hemi_weight_;    // cos_weight_ of hemisphere_ pixels
+  std::vector<float> hemi_omega_;     // omega_above_ of hemisphere_ pixels
   std::vector<internal::PixelState> pixels_;
   std::vector<internal::PreparedSplat> splats_;
   std::vector<uint64_t> order_, order_tmp_;            // (depth key << 32) | splat index
