@@ -53,6 +53,16 @@ run eval "$pbgi" eval cornell -o "$dir/eval" --points 30000 --receivers 40 --ray
   --ray-sweep 16 64 --solid-angles 0.1 0.03 --raster-res 8 12
 [ -s "$dir/eval/eval.json" ] && [ -s "$dir/eval/eval.png" ] && ok || fail "eval wrote no json/chart"
 grep -q '"speedup_at_equal_error"' "$dir/eval/eval.json" && ok || fail "eval.json lacks the speed ratio"
+# Both cut criteria in one sweep; the cosine-weighted cut gathers fewer clusters at equal msa.
+run eval_cuts "$pbgi" eval cornell -o "$dir/eval_cuts" --points 30000 --receivers 40 --rays 256 \
+  --ray-sweep 16 --solid-angles 0.03 --raster-res 8 --cuts plain cosine
+plain=$(awk '$1 == "pbgi" && $6 == "plain" {print $11}' "$dir/eval_cuts.out")
+cosine=$(awk '$1 == "pbgi" && $6 == "cos" {print $11}' "$dir/eval_cuts.out")
+awk -v p="$plain" -v c="$cosine" 'BEGIN {exit !(p > 0 && c > 0 && c < p)}' && ok ||
+  fail "eval --cuts: cosine clusters '$cosine' not fewer than plain '$plain'"
+run shade_plain "$pbgi" shade "$dir/c.pbgi" --receivers "$dir/c.ply" -o "$dir/shaded_plain.ply" \
+  --mode occlusion --raster-res 8 --cut plain
+refuse bad_cut "cut" "$pbgi" shade "$dir/c.pbgi" --receivers "$dir/c.ply" -o "$dir/x.ply" --cut sideways
 
 # Errors: what and where.
 refuse missing_db "no such|not found|does not exist" "$pbgi" info "$dir/nope.pbgi"
