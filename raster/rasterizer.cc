@@ -20,12 +20,10 @@ constexpr float kRampSlope = 1.0f;
 constexpr float kBilinearMax = 1.0f;
 }  // namespace
 
-// Sorts (depth, index) by the top 20 bits of the depth (positive floats sort as integers; 20
-// bits keep 11 mantissa bits, a relative depth step of 5e-4), ties by index. One counting pass
-// into about n / 2 buckets of the keys' span (key - min) >> shift, then a stable insertion sort
-// of each bucket (a few splats) on the whole key: the same order as a stable LSD radix sort of
-// two 10-bit passes, without that sort's passes over all 1024 buckets of each digit. A bucket of
-// more than kMaxRun splats (keys bunched at one depth) falls back to the radix sort.
+// LSD radix sort of (depth, index) on the top 20 bits of the depth (positive floats sort as
+// integers; 20 bits keep 11 mantissa bits, a relative depth step of 5e-4), two 10-bit passes.
+// The high digit (exponent and two mantissa bits) of a receiver's splats spans a few dozen of
+// its 1024 buckets: its prefix sum runs over that span only.
 inline void Rasterizer::SortByDepth() {
   const PreparedSplat* splats = mb_.splats_.data();
   auto& order = mb_.order_;
@@ -33,75 +31,34 @@ inline void Rasterizer::SortByDepth() {
   const size_t n = count_;
   order.resize(n);
   tmp.resize(n);
-  if (n == 0) return;
   constexpr int kBits = 10, kBuckets = 1 << kBits;
-  constexpr uint32_t kMaxRun = 32;
-  uint32_t key_lo = ~0u, key_hi = 0;
+  uint32_t count[2][kBuckets] = {};
+  uint32_t high_lo = kBuckets - 1, high_hi = 0;
   for (size_t i = 0; i < n; ++i) {
     uint32_t key;
     std::memcpy(&key, &splats[i].depth, sizeof key);
     key >>= 12;
-    tmp[i] = (static_cast<uint64_t>(key) << 32) | i;
-    key_lo = std::min(key_lo, key);
-    key_hi = std::max(key_hi, key);
+    order[i] = (static_cast<uint64_t>(key) << 32) | i;
+    ++count[0][key & (kBuckets - 1)];
+    const uint32_t high = (key >> kBits) & (kBuckets - 1);
+    ++count[1][high];
+    high_lo = std::min(high_lo, high);
+    high_hi = std::max(high_hi, high);
   }
-  // The fewest buckets >= n / 2 (at least 16, at most kBuckets), and the shift that maps the
-  // keys' span into them.
-  uint32_t buckets = 16;
-  while (buckets < kBuckets && 2 * buckets < n) buckets *= 2;
-  int shift = 0;
-  while (((key_hi - key_lo) >> shift) >= buckets) ++shift;
-  const uint32_t used = ((key_hi - key_lo) >> shift) + 1;
-  uint32_t count[kBuckets + 1];
-  std::fill(count, count + used + 1, 0u);
-  for (size_t i = 0; i < n; ++i) {
-    ++count[((static_cast<uint32_t>(tmp[i] >> 32) - key_lo) >> shift) + 1];
-  }
-  // count[b + 1] = size of bucket b; count[b] becomes the start of bucket b.
-  uint32_t largest = 0, sum = 0;
-  for (uint32_t b = 0; b < used; ++b) {
-    const uint32_t c = count[b + 1];
-    largest = std::max(largest, c);
-    count[b] = sum;
-    sum += c;
-  }
-  if (largest > kMaxRun) {
-    // Two stable 10-bit passes (low digit, then high digit).
-    for (int pass = 0; pass < 2; ++pass) {
-      uint32_t digit[kBuckets] = {};
-      const int s = 32 + pass * kBits;
-      for (size_t i = 0; i < n; ++i) ++digit[(tmp[i] >> s) & (kBuckets - 1)];
-      uint32_t start = 0;
-      for (uint32_t b = 0; b < kBuckets; ++b) {
-        const uint32_t c = digit[b];
-        digit[b] = start;
-        start += c;
-      }
-      for (size_t i = 0; i < n; ++i) {
-        const uint64_t o = tmp[i];
-        order[digit[(o >> s) & (kBuckets - 1)]++] = o;
-      }
-      order.swap(tmp);
+  for (int pass = 0; pass < 2; ++pass) {
+    uint32_t sum = 0;
+    const uint32_t b0 = pass == 0 ? 0 : high_lo, b1 = pass == 0 ? kBuckets - 1 : high_hi;
+    for (uint32_t b = b0; b <= b1; ++b) {
+      const uint32_t c = count[pass][b];
+      count[pass][b] = sum;
+      sum += c;
+    }
+    const int shift = 32 + pass * kBits;
+    for (size_t i = 0; i < n; ++i) {
+      const uint64_t o = order[i];
+      tmp[count[pass][(o >> shift) & (kBuckets - 1)]++] = o;
     }
     order.swap(tmp);
-    return;
-  }
-  uint64_t* out = order.data();
-  for (size_t i = 0; i < n; ++i) {
-    const uint64_t o = tmp[i];
-    out[count[(static_cast<uint32_t>(o >> 32) - key_lo) >> shift]++] = o;
-  }
-  // The buckets are contiguous, in key order, and in index order within each: a stable
-  // insertion sort on the whole (key << 32 | index) sorts each by key, ties by index, and no
-  // element moves past its bucket's start.
-  for (size_t i = 1; i < n; ++i) {
-    const uint64_t o = out[i];
-    size_t j = i;
-    while (j > 0 && out[j - 1] > o) {
-      out[j] = out[j - 1];
-      --j;
-    }
-    out[j] = o;
   }
 }
 
