@@ -9,9 +9,9 @@
 namespace pbgi::internal {
 namespace {
 
-constexpr float kY0 = 0.282094791773878f;
-// Weight of the mean radiance in the regularised ratio P(w) / A(w).
-constexpr float kRadianceBlend = 0.1f;
+// The same constants as ClusterView's (cluster_model.h), which must agree with this reference.
+using cluster_model_internal::kRadianceBlend;
+using cluster_model_internal::kY0;
 
 // The basis at w; the basis at -w flips the sign of band 1 only.
 struct Basis9 {

@@ -154,7 +154,7 @@ template <bool kRad>
   } else {
     const V4 e = hi0 * y_hi, o = lo0 * y_odd;
     even2[0] = (e[0] + e[2]) + (e[1] + e[3]) + sa[8] * y8;
-    odd[0] = o[2] + (o[1] + o[3]);  // the order of Hsum4 (and of PrepareClusters4)
+    odd[0] = o[2] + (o[1] + o[3]);  // the order of Hsum4 (and of the lane path, cluster_lanes.inc)
   }
   if (model == ClusterModel::kShEval) {
     out.area = ProjectedAreaShEval(c, w, sides);

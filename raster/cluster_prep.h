@@ -1,9 +1,9 @@
 // Cluster preparation: a gathered cluster in the receiver's frame, culled or turned into a
 // PreparedSplat (direction, solid angle, depth, mean normal and plane, radiance). Two paths
-// with the same results to float rounding: one cluster at a time (any model), and four at a
-// time in SIMD lanes (the moment model), which the rasterizer uses for all but the last
-// clusters. Preparation is most of a receiver's instructions at the default cut (~600 clusters,
-// ~35 surfels), and lane-parallel it costs about a third of the scalar path.
+// with the same results bit for bit: one cluster at a time (any model), and eight (AVX2) or
+// four (baseline ISA) at a time in SIMD lanes (the moment model), which the rasterizer uses for
+// all but the last clusters. Preparation is most of a receiver's instructions at the default cut
+// (~600 clusters, ~35 surfels), and lane-parallel it costs about a third of the scalar path.
 #ifndef PBGI_RASTER_CLUSTER_PREP_H_
 #define PBGI_RASTER_CLUSTER_PREP_H_
 
@@ -39,7 +39,7 @@ template <bool kRad>
 int PrepareClusters(const Cluster* c, size_t count, const ClusterFrame& f, PreparedSplat* out,
                     bool avx2);
 
-// Whether this CPU can run the AVX2 builds of PrepareClusters4 and of the rasterizer's
+// Whether this CPU can run the AVX2 builds of PrepareClusters and of the rasterizer's
 // splatting (x86-64 with AVX2; checked once).
 bool CpuHasAvx2();
 // Whether Shade() uses them: CpuHasAvx2() unless a test asked for the baseline build.

@@ -61,6 +61,9 @@ double Since(Clock::time_point t) {
   return std::chrono::duration<double>(Clock::now() - t).count();
 }
 
+// The short name of a --cuts value in a row's setting and the chart's series.
+const char* CutTag(const std::string& cut) { return cut == "cosine" ? "cos" : "plain"; }
+
 // One scalar per receiver: occlusion, or the mean of the irradiance's channels.
 Errors Compare(const std::vector<double>& got, const std::vector<double>& truth) {
   Errors e;
@@ -249,30 +252,31 @@ absl::Status RunEval(const EvalArgs& a) {
   DatabaseOptions dbo;
   dbo.cache_bytes = cache;
   PBGI_ASSIGN_OR_RETURN(std::unique_ptr<Database> db, Database::Open(db_path, dbo));
-  // One untimed pass at the finest cut first, so that every timed row finds the pages decoded
-  // in the cache, as they are for all but the first of a frame's receivers (the database is
-  // built for this run and fits the cache).
-  {
+  auto job = [&](float msa, int res, bool cosine) {
     ShadeJobOptions so;
     so.threads = threads;
-    so.cut.max_solid_angle = *std::min_element(a.solid_angles.begin(), a.solid_angles.end());
-    so.raster.resolution = a.resolutions.front();
+    so.cut.max_solid_angle = msa;
+    so.cut.cosine_weighted = cosine;
+    so.raster.resolution = res;
     so.raster.compute_radiance = !occlusion;
+    return so;
+  };
+  // One untimed pass at the finest plain cut first (it touches every page the others do), so
+  // that every timed row finds the pages decoded in the cache, as they are for all but the
+  // first of a frame's receivers (the database is built for this run and fits the cache).
+  {
     std::vector<ShadeResult> results;
     ShadeJobStats st;
-    PBGI_RETURN_IF_ERROR(ShadeReceivers(*db, receivers, {}, so, &results, &st));
+    const float finest = *std::min_element(a.solid_angles.begin(), a.solid_angles.end());
+    PBGI_RETURN_IF_ERROR(ShadeReceivers(
+        *db, receivers, {}, job(finest, a.resolutions.front(), /*cosine=*/false), &results, &st));
   }
   size_t default_row = 0;
   bool found_default = false;
   for (const std::string& cut : a.cuts) {
     for (int res : a.resolutions) {
       for (float msa : a.solid_angles) {
-        ShadeJobOptions so;
-        so.threads = threads;
-        so.cut.max_solid_angle = msa;
-        so.cut.cosine_weighted = cut == "cosine";
-        so.raster.resolution = res;
-        so.raster.compute_radiance = !occlusion;
+        const ShadeJobOptions so = job(msa, res, cut == "cosine");
         std::vector<ShadeResult> results;
         ShadeJobStats st;
         std::vector<double> times, gather, raster;
@@ -292,8 +296,7 @@ absl::Status RunEval(const EvalArgs& a) {
         }
         Row r;
         r.method = "pbgi";
-        r.setting =
-            absl::StrFormat("msa %.3g res %d %s", msa, res, cut == "cosine" ? "cos" : "plain");
+        r.setting = absl::StrFormat("msa %.3g res %d %s", msa, res, CutTag(cut));
         r.seconds_per_receiver = Median(times);
         r.gather_us = Median(gather);
         r.raster_us = Median(raster);
@@ -428,7 +431,7 @@ absl::Status RunEval(const EvalArgs& a) {
   size_t color = 0;
   for (const std::string& cut : a.cuts) {
     for (int res : a.resolutions) {
-      const std::string tag = absl::StrFormat("res %d %s", res, cut == "cosine" ? "cos" : "plain");
+      const std::string tag = absl::StrFormat("res %d %s", res, CutTag(cut));
       ChartSeries s{"pbgi " + tag, colors[color++ % 4], true, {}, {}};
       for (const Row& r : rows) {
         if (r.method == "pbgi" && absl::EndsWith(r.setting, tag)) {
