@@ -86,24 +86,33 @@ struct Config {
   Channels channels;
 };
 
-class GatherFakeTest : public ::testing::TestWithParam<Config> {};
+// A random scene in a fake database of the parameter's layout, and a Reader of it.
+class GatherFakeTest : public ::testing::TestWithParam<Config> {
+ protected:
+  void SetUp() override {
+    const Config cfg = GetParam();
+    FakeDb fake = BuildFakeDb(testing::RandomSceneSurfels(3000, 11),
+                              {cfg.leaf_size, cfg.page_size, cfg.channels});
+    surfels = fake.surfels;
+    db = Open(fake);
+    auto r = db->NewReader();
+    ASSERT_TRUE(r.ok());
+    reader = std::move(*r);
+  }
+  std::vector<Surfel> surfels;  // in database order
+  std::unique_ptr<Database> db;
+  std::unique_ptr<Reader> reader;
+};
 
 TEST_P(GatherFakeTest, CutIsValidAgainstBruteForce) {
-  const Config cfg = GetParam();
-  std::vector<Surfel> input = testing::RandomSceneSurfels(3000, 11);
-  FakeDb fake = BuildFakeDb(input, {cfg.leaf_size, cfg.page_size, cfg.channels});
-  std::vector<Surfel> surfels = fake.surfels;
-  auto db = Open(fake);
-  auto reader = db->NewReader();
-  ASSERT_TRUE(reader.ok());
   Gathered coarse, fine, exact, near;
   const Cut coarse_cut{0.3f}, fine_cut{0.03f}, exact_cut{0.0f}, near_cut{0.03f, 0.25f};
   size_t clusters = 0;
   for (const Receiver& r : Receivers(surfels, 800, 5)) {
-    ASSERT_TRUE((*reader)->Gather(r, coarse_cut, &coarse).ok());
-    ASSERT_TRUE((*reader)->Gather(r, fine_cut, &fine).ok());
-    ASSERT_TRUE((*reader)->Gather(r, exact_cut, &exact).ok());
-    ASSERT_TRUE((*reader)->Gather(r, near_cut, &near).ok());
+    ASSERT_TRUE(reader->Gather(r, coarse_cut, &coarse).ok());
+    ASSERT_TRUE(reader->Gather(r, fine_cut, &fine).ok());
+    ASSERT_TRUE(reader->Gather(r, exact_cut, &exact).ok());
+    ASSERT_TRUE(reader->Gather(r, near_cut, &near).ok());
     absl::Status s = testing::CheckValidCut(coarse, surfels, r, coarse_cut);
     ASSERT_TRUE(s.ok()) << s;
     s = testing::CheckValidCut(fine, surfels, r, fine_cut);
@@ -169,21 +178,14 @@ TEST(CutCosine, BoundsTheSphereTightlyAndHasItsAnalyticValues) {
 // The cosine-weighted cut: valid against brute force, coarser than the plain cut at the same
 // max_solid_angle (which refines it), and never the same as it (it does coarsen).
 TEST_P(GatherFakeTest, CosineWeightedCutIsValidAndCoarsensThePlainOne) {
-  const Config cfg = GetParam();
-  std::vector<Surfel> input = testing::RandomSceneSurfels(3000, 11);
-  FakeDb fake = BuildFakeDb(input, {cfg.leaf_size, cfg.page_size, cfg.channels});
-  std::vector<Surfel> surfels = fake.surfels;
-  auto db = Open(fake);
-  auto reader = db->NewReader();
-  ASSERT_TRUE(reader.ok());
   Cut plain{0.03f}, cosine{0.03f}, cosine_near{0.03f, 0.25f};
   cosine.cosine_weighted = cosine_near.cosine_weighted = true;
   Gathered gp, gc, gn;
   size_t plain_elements = 0, cosine_elements = 0, rejected_as_plain = 0;
   for (const Receiver& r : Receivers(surfels, 800, 5)) {
-    ASSERT_TRUE((*reader)->Gather(r, plain, &gp).ok());
-    ASSERT_TRUE((*reader)->Gather(r, cosine, &gc).ok());
-    ASSERT_TRUE((*reader)->Gather(r, cosine_near, &gn).ok());
+    ASSERT_TRUE(reader->Gather(r, plain, &gp).ok());
+    ASSERT_TRUE(reader->Gather(r, cosine, &gc).ok());
+    ASSERT_TRUE(reader->Gather(r, cosine_near, &gn).ok());
     absl::Status s = testing::CheckValidCut(gc, surfels, r, cosine);
     ASSERT_TRUE(s.ok()) << s;
     s = testing::CheckValidCut(gn, surfels, r, cosine_near);
