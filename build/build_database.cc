@@ -1,5 +1,4 @@
 // BuildDatabase and VerifyTree over the LMDB store.
-#include <chrono>
 #include <condition_variable>
 #include <cstring>
 #include <filesystem>
@@ -12,6 +11,8 @@
 #include <vector>
 
 #include "absl/strings/str_format.h"
+#include "base/proc.h"
+#include "base/stopwatch.h"
 #include "build/builder.h"
 #include "pbgi/build.h"
 #include "pbgi/status.h"
@@ -186,24 +187,23 @@ absl::StatusOr<BuildStats> BuildDatabase(SurfelSource& source, const std::string
   PBGI_ASSIGN_OR_RETURN(std::unique_ptr<PageWriter> writer, PageWriter::Create(db_path, so));
   StoreMeta meta;
   BuildStats stats;
-  std::chrono::steady_clock::time_point t;
+  internal::Stopwatch finish;
   if (plan.threads > 1) {
     AsyncWriterSink sink(std::move(writer), kWriterSlots);
     PBGI_ASSIGN_OR_RETURN(stats, internal::BuildToSink(source, sink, options, tmp_dir, &meta));
-    t = std::chrono::steady_clock::now();
+    finish.Restart();
     PBGI_RETURN_IF_ERROR(sink.Finish(meta));
   } else {
     WriterSink sink(writer.get());
     PBGI_ASSIGN_OR_RETURN(stats, internal::BuildToSink(source, sink, options, tmp_dir, &meta));
-    t = std::chrono::steady_clock::now();
+    finish.Restart();
     PBGI_RETURN_IF_ERROR(writer->Finish(meta));
     writer.reset();
   }
-  stats.seconds_finish =
-      std::chrono::duration<double>(std::chrono::steady_clock::now() - t).count();
+  stats.seconds_finish = finish.Seconds();
   stats.seconds_total += stats.seconds_finish;
   stats.bytes_on_disk = DirectoryBytes(db_path);
-  stats.peak_rss_bytes = internal::PeakRss();
+  stats.peak_rss_bytes = internal::PeakRssBytes();
   return stats;
 }
 

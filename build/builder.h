@@ -38,9 +38,6 @@ absl::StatusOr<BuildStats> BuildToSink(SurfelSource& source, PageSink& sink,
 // VerifyTree over any page source (see pbgi/build.h).
 absl::Status VerifyTreePages(const StoreMeta& meta, PageGetter& pages);
 
-// VmHWM of this process in bytes (0 if unknown).
-uint64_t PeakRss();
-
 }  // namespace pbgi::internal
 
 #endif  // PBGI_BUILD_BUILDER_H_

@@ -25,7 +25,7 @@ bool Finite3(const float* v) {
 
 float ProjectedAreaBound(const float* c) {
   auto sq = [&](int i) { return double{c[i]} * double{c[i]}; };
-  const double band0 = std::abs(double{c[0]}) * 0.282094791773878;
+  const double band0 = std::abs(double{c[0]}) * sh::kY0;
   const double band1 = std::sqrt(sq(1) + sq(2) + sq(3)) * std::sqrt(3.0 / (4.0 * sh::kPi));
   const double band2 =
       std::sqrt(sq(4) + sq(5) + sq(6) + sq(7) + sq(8)) * std::sqrt(5.0 / (4.0 * sh::kPi));

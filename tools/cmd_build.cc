@@ -9,6 +9,7 @@
 #include <string>
 
 #include "absl/strings/str_format.h"
+#include "base/proc.h"
 #include "pbgi/build.h"
 #include "pbgi/ply.h"
 #include "pbgi/status.h"
@@ -135,7 +136,7 @@ absl::Status Run(const Args& a) {
   const BuildStats& s = *st;
   // The library's own VmHWM reading is taken after Finish; ours includes the PLY reader too.
   BuildStats shown = s;
-  shown.peak_rss_bytes = std::max(s.peak_rss_bytes, PeakRssBytes());
+  shown.peak_rss_bytes = std::max(s.peak_rss_bytes, internal::PeakRssBytes());
   const double pps = s.seconds_total > 0 ? double(s.points) / s.seconds_total : 0;
   std::printf("built %s from %s (%s layout, %s)\n", a.output.c_str(), a.input.c_str(),
               LayoutName(o.layout), a.channels.c_str());

@@ -7,6 +7,7 @@
 #include <string>
 
 #include "absl/strings/str_format.h"
+#include "base/proc.h"
 #include "pbgi/build.h"
 #include "pbgi/query.h"
 #include "pbgi/scene.h"
@@ -147,7 +148,7 @@ absl::Status RunDemo(const DemoArgs& a) {
       double(view.shade.query.clusters) / double(std::max<uint64_t>(1, view.receivers)),
       double(view.shade.query.surfels) / double(std::max<uint64_t>(1, view.receivers)));
   std::printf("  total          %.1f s, peak memory %s\n", Since(t_all),
-              FormatBytes(PeakRssBytes()).c_str());
+              FormatBytes(internal::PeakRssBytes()).c_str());
   std::printf("  database       %s\n", db_path.c_str());
   for (const Out& o : outs) {
     std::printf("  image          %s_%s.png (.exr)\n", base.c_str(), o.name);

@@ -12,6 +12,7 @@
 
 #include "absl/strings/match.h"
 #include "absl/strings/str_format.h"
+#include "base/proc.h"
 #include "pbgi/ply.h"
 #include "pbgi/query.h"
 #include "pbgi/raster.h"
@@ -142,7 +143,7 @@ void PrintSummary(const char* what, uint64_t receivers, const ShadeJobStats& s, 
       FormatBytes(cache).c_str(),
       lookups ? 100.0 * double(cs.reader.hits) / double(lookups) : 100.0,
       100.0 * cs.shared.HitRate(), static_cast<unsigned long long>(cs.shared.pages_read),
-      FormatBytes(cs.shared.bytes_read).c_str(), FormatBytes(PeakRssBytes()).c_str());
+      FormatBytes(cs.shared.bytes_read).c_str(), FormatBytes(internal::PeakRssBytes()).c_str());
 }
 
 absl::Status ShadePoints(const ShadeArgs& a, Database& db, const ShadeJobOptions& so, Mode mode,

@@ -20,6 +20,7 @@
 #include <string>
 #include <vector>
 
+#include "base/proc.h"
 #include "benchmark/benchmark.h"
 #include "build/builder.h"
 #include "build/external_sort.h"
@@ -91,15 +92,6 @@ class GeneratedSource final : public SurfelSource {
   uint64_t i_ = 0;
 };
 
-uint64_t CurrentRss() {
-  std::ifstream in("/proc/self/status");
-  std::string line;
-  while (std::getline(in, line)) {
-    if (line.rfind("VmRSS:", 0) == 0) return std::strtoull(line.c_str() + 6, nullptr, 10) * 1024;
-  }
-  return 0;
-}
-
 // Returns freed heap to the system (earlier benchmarks in this process) and restarts VmHWM at
 // the current RSS, which it returns.
 uint64_t ResetPeakRss() {
@@ -107,7 +99,7 @@ uint64_t ResetPeakRss() {
   std::ofstream f("/proc/self/clear_refs");
   f << "5";
   f.close();
-  return CurrentRss();
+  return internal::CurrentRssBytes();
 }
 
 std::string TmpDir() {
@@ -275,7 +267,7 @@ void BM_BuildInMemory(benchmark::State& state) {
     auto t2 = std::chrono::steady_clock::now();
     t_sort = std::chrono::duration<double>(t1 - t0).count();
     t_tree = std::chrono::duration<double>(t2 - t1).count();
-    peak = internal::PeakRss();
+    peak = internal::PeakRssBytes();
   }
   state.counters["points_per_s"] =
       benchmark::Counter(double(n) * state.iterations(), benchmark::Counter::kIsRate);

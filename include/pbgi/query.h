@@ -129,15 +129,15 @@ inline bool SurfelBeyond(const Surfel& s, const Receiver& r, float max_distance)
 inline float ProjectedAreaToward(const float* c, const glm::vec3& w) {
   const float x = w.x, y = w.y, z = w.z;
   float v = 0.0f;
-  v += c[0] * float(0.282094791773878);
-  v += c[1] * (float(0.488602511902920) * y);
-  v += c[2] * (float(0.488602511902920) * z);
-  v += c[3] * (float(0.488602511902920) * x);
-  v += c[4] * (float(1.092548430592079) * x * y);
-  v += c[5] * (float(1.092548430592079) * y * z);
-  v += c[6] * (float(0.315391565252520) * (3.0f * z * z - 1.0f));
-  v += c[7] * (float(1.092548430592079) * x * z);
-  v += c[8] * (float(0.546274215296040) * (x * x - y * y));
+  v += c[0] * float(sh::kY0);
+  v += c[1] * (float(sh::kY1) * y);
+  v += c[2] * (float(sh::kY1) * z);
+  v += c[3] * (float(sh::kY1) * x);
+  v += c[4] * (float(sh::kY2) * x * y);
+  v += c[5] * (float(sh::kY2) * y * z);
+  v += c[6] * (float(sh::kY6) * (3.0f * z * z - 1.0f));
+  v += c[7] * (float(sh::kY2) * x * z);
+  v += c[8] * (float(sh::kY8) * (x * x - y * y));
   return v;
 }
 inline float NodeSolidAngleFrom(const glm::vec3& centre, const float* sh_area, const glm::vec3& p) {
