@@ -12,8 +12,8 @@
 #include "build/octree_builder.h"
 #include "build/sort_record.h"
 #include "pbgi/status.h"
-#include "store/morton.h"
-#include "store/page_format.h"
+#include "tree/format.h"
+#include "tree/morton.h"
 
 namespace pbgi {
 

@@ -20,10 +20,10 @@
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
 #include "build/node_packer.h"
-#include "build/page_sink.h"
 #include "build/sort_record.h"
 #include "pbgi/surfel.h"
-#include "store/page_format.h"
+#include "store/page_io.h"
+#include "tree/format.h"
 
 namespace pbgi::internal {
 

@@ -12,20 +12,32 @@
 #include "absl/strings/str_format.h"
 #include "pbgi/query.h"
 #include "pbgi/status.h"
-#include "query/decoded_page.h"
+#include "query/database_internal.h"
 #include "query/front_cache.h"
 #include "query/page_cache.h"
-#include "query/page_source.h"
-#include "store/morton.h"
-#include "store/page_format.h"
+#include "store/page_io.h"
+#include "tree/cut.h"
+#include "tree/decoded_page.h"
+#include "tree/format.h"
+#include "tree/morton.h"
 
 namespace pbgi {
 
+using internal::AbsMax;
+using internal::BelowCut;
+using internal::CachedPage;
 using internal::DecodedPage;
+using internal::NodeBeyondMargin;
+using internal::NodeCutCosine;
 using internal::NodeHot;
+using internal::NodeMarginOf;
+using internal::NodeNearFieldSphere;
 using internal::NodeRef;
+using internal::NodeSolidAngleFrom;
+using internal::NodeWhollyBehindFar;
 using internal::PageCache;
 using internal::PageKey;
+using internal::SurfelWhollyBehindUnit;
 
 void QueryStats::Add(const QueryStats& o) {
   queries += o.queries;
@@ -83,7 +95,7 @@ void CountersToArray(const CacheStats& s, uint64_t v[10]) {
 Database::Database(std::unique_ptr<internal::PageSource> source, const DatabaseOptions& options)
     : source_(std::move(source)), options_(options), totals_(new Totals) {
   const StoreMeta& m = source_->meta();
-  // A decoded page costs about its stored size (see DecodedPage::Charge).
+  // A decoded page costs about its stored size (see CachedPage::Charge).
   const uint64_t page_charge = std::max<uint64_t>(m.page_size, 4096);
   page_charge_ = page_charge;
   const int bits = options_.cache_shard_bits >= 0
@@ -94,9 +106,17 @@ Database::Database(std::unique_ptr<internal::PageSource> source, const DatabaseO
 
 Database::~Database() = default;
 
-absl::StatusOr<std::unique_ptr<Database>> Database::OpenSource(
+absl::StatusOr<std::unique_ptr<Database>> Database::Open(const std::string& path,
+                                                         const DatabaseOptions& options) {
+  absl::StatusOr<std::unique_ptr<internal::PageSource>> source =
+      internal::OpenStorePageSource(path, options.verify_checksums, options.copy_pages);
+  if (!source.ok()) return source.status();
+  return internal::OpenDatabase(std::move(*source), options);
+}
+
+absl::StatusOr<std::unique_ptr<Database>> internal::OpenDatabase(
     std::unique_ptr<internal::PageSource> source, const DatabaseOptions& options) {
-  if (source == nullptr) return absl::InvalidArgumentError("Database::OpenSource: no source");
+  if (source == nullptr) return absl::InvalidArgumentError("OpenDatabase: no source");
   const StoreMeta& m = source->meta();
   if (m.page_size <= sizeof(PageHeader) + internal::NodeRecordSize(m.channels)) {
     return absl::FailedPreconditionError(
@@ -240,12 +260,12 @@ absl::Status Reader::Impl::FetchSlow(Section section, uint64_t page_no, uint64_t
     absl::StatusOr<PageView> view = source->Read(section, page_no);
     if (!view.ok()) return view.status();
     bytes = meta.page_size;  // pages are stored at their fixed size
-    absl::StatusOr<std::unique_ptr<DecodedPage>> page =
-        internal::DecodePage(*view, section, page_no, meta, db->path());
-    if (!page.ok()) return page.status();
+    auto page = std::make_unique<CachedPage>();
+    PBGI_RETURN_IF_ERROR(
+        internal::DecodePage(*view, section, page_no, meta, db->path(), &page->page));
     PageCache::Loaded loaded;
-    loaded.charge = (*page)->Charge();
-    loaded.value = std::move(*page);
+    loaded.charge = page->Charge();
+    loaded.value = std::move(page);
     return loaded;
   };
   PageCache::Outcome outcome;
@@ -282,7 +302,7 @@ absl::Status Reader::Impl::EmitLeafPoints(uint64_t first, uint64_t count, const 
     for (uint64_t k = 0; k < run; ++k) {
       const Surfel& s = pts[k];
       if (SurfelWhollyBehindUnit(s, p, n)) continue;
-      if (check_distance && SurfelBeyond(s, Receiver{p, n}, max_distance)) continue;
+      if (check_distance && internal::SurfelBeyondPoint(s, p, max_distance)) continue;
       out->surfels.push_back(s);
       out->surfel_ids.push_back(i + k);
     }
@@ -344,7 +364,7 @@ absl::Status Reader::Impl::Gather(const Receiver& receiver, const Cut& cut, Gath
     ++q.nodes_visited;
     ++q.nodes[level];
 
-    // The public tests of query.h with the node's terms precomputed in its decoded page.
+    // The tests of tree/cut.h with the node's terms precomputed in its decoded page.
     const float margin = NodeMarginOf(node.abs_max, p_abs_max);
     if (NodeWhollyBehindFar(internal::NodeCorner(node, far_word), node.reach, p, n, margin) ||
         (check_distance && NodeBeyondMargin(node.lo, node.hi, node.reach, p, max_d, margin))) {
@@ -493,7 +513,7 @@ absl::Status Reader::ReadPoints(uint64_t first, uint64_t count, std::vector<Surf
 // ---------------------------------------------------------------------------------------------
 // Z-order of receivers
 
-// Receivers are sorted by the same Morton key as the points on disk (store/morton.h), inside
+// Receivers are sorted by the same Morton key as the points on disk (tree/morton.h), inside
 // their own bounds, so consecutive receivers walk neighbouring subtrees.
 std::vector<uint32_t> ZOrder(absl::Span<const Receiver> receivers) {
   Bounds b;

@@ -31,8 +31,9 @@
 #include "pbgi/ply.h"
 #include "pbgi/sh.h"
 #include "pbgi/store.h"
-#include "store/morton.h"
-#include "store/page_format.h"
+#include "store/page_io.h"
+#include "tree/format.h"
+#include "tree/morton.h"
 
 namespace pbgi {
 namespace {
@@ -196,19 +197,6 @@ struct InMemoryBuilder {
   }
 };
 
-class WriterSink final : public internal::PageSink {
- public:
-  explicit WriterSink(PageWriter* w) : w_(w) {}
-  uint32_t page_size() const override { return w_->page_size(); }
-  absl::Status Append(Section s, uint64_t no, PageKind k, uint32_t count,
-                      absl::Span<const uint8_t> payload) override {
-    return w_->Append(s, no, k, count, payload);
-  }
-
- private:
-  PageWriter* w_;
-};
-
 void BM_BuildInMemory(benchmark::State& state) {
   const uint64_t n = static_cast<uint64_t>(state.range(0));
   const std::string dir = TmpDir();
@@ -239,7 +227,7 @@ void BM_BuildInMemory(benchmark::State& state) {
       state.SkipWithError("PageWriter::Create failed");
       break;
     }
-    WriterSink sink(w->get());
+    internal::StoreWriterSink sink(w->get());
     internal::NodePacker packer(Layout::kCoherent, Channels::kRadiance, &sink, 1);
     internal::PointPageWriter points(Channels::kRadiance, &sink);
     for (const auto& r : recs) (void)points.Add(r);

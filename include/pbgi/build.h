@@ -36,7 +36,7 @@
 namespace pbgi {
 
 // How node records are ordered in node pages. All layouts keep sibling groups contiguous in one
-// page (store/page_format.h); only kCoherent is meant for production.
+// page (tree/format.h); only kCoherent is meant for production.
 enum class Layout {
   kCoherent,      // treelets: a sibling group and as many levels below it as fit in a page
   kPostOrder,     // sibling groups in the order their parents close, packed sequentially

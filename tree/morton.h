@@ -1,9 +1,9 @@
 // Morton (Z-order) keys: 21 bits per axis interleaved into 63 bits (Morton 1966). Z-order is the
 // depth-first order of the octree whose cell at depth d is the key prefix of 3*d bits. The point
-// order on disk is this order (store/page_format.h); the builder sorts by it and the query layer
+// order on disk is this order (tree/format.h); the builder sorts by it and the query layer
 // orders receivers by it.
-#ifndef PBGI_STORE_MORTON_H_
-#define PBGI_STORE_MORTON_H_
+#ifndef PBGI_TREE_MORTON_H_
+#define PBGI_TREE_MORTON_H_
 
 #include <algorithm>
 #include <cmath>
@@ -74,4 +74,4 @@ class MortonQuantizer {
 
 }  // namespace pbgi::internal
 
-#endif  // PBGI_STORE_MORTON_H_
+#endif  // PBGI_TREE_MORTON_H_
