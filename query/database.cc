@@ -516,17 +516,7 @@ absl::Status Reader::ReadPoints(uint64_t first, uint64_t count, std::vector<Surf
 // Receivers are sorted by the same Morton key as the points on disk (tree/morton.h), inside
 // their own bounds, so consecutive receivers walk neighbouring subtrees.
 std::vector<uint32_t> ZOrder(absl::Span<const Receiver> receivers) {
-  Bounds b;
-  for (const Receiver& r : receivers) b.Extend(r.position);
-  const internal::MortonQuantizer quantizer(b);
-  std::vector<std::pair<uint64_t, uint32_t>> keyed(receivers.size());
-  for (size_t i = 0; i < receivers.size(); ++i) {
-    keyed[i] = {quantizer.Key(receivers[i].position), static_cast<uint32_t>(i)};
-  }
-  std::sort(keyed.begin(), keyed.end());
-  std::vector<uint32_t> order(receivers.size());
-  for (size_t i = 0; i < keyed.size(); ++i) order[i] = keyed[i].second;
-  return order;
+  return internal::MortonOrder(receivers.size(), [&](size_t i) { return receivers[i].position; });
 }
 
 }  // namespace pbgi

@@ -85,15 +85,15 @@ absl::Status RunDemo(const DemoArgs& a) {
   dbo.cache_bytes = cache;
   PBGI_ASSIGN_OR_RETURN(std::unique_ptr<Database> db, Database::Open(db_path, dbo));
   PBGI_ASSIGN_OR_RETURN(std::unique_ptr<Tracer> tracer, Tracer::Create(*scene));
-  ShadeJobOptions so;
+  ShadeOptions so;
   so.cut.max_solid_angle = a.max_solid_angle;
   so.cut.cosine_weighted = a.cut == "cosine";
   so.raster.resolution = a.raster_res;
   so.raster.compute_radiance = scene->has_radiance;
   so.threads = a.threads;
-  so.progress = [&](uint64_t done) {
+  so.progress = [&](const ShadeProgress& p) {
     std::fprintf(stderr, tty ? "\rdemo: shade %llu receivers" : "demo: shade %llu receivers\n",
-                 static_cast<unsigned long long>(done));
+                 static_cast<unsigned long long>(p.done));
   };
   const Camera camera = DefaultCamera(*scene, a.width, a.height);
   PBGI_ASSIGN_OR_RETURN(ViewImages view, RenderView(*tracer, *db, camera, so));
@@ -133,7 +133,7 @@ absl::Status RunDemo(const DemoArgs& a) {
       "trace %.2f s\n",
       shade_seconds, static_cast<unsigned long long>(view.receivers), a.width, a.height,
       view.shade.seconds * 1e6 / double(std::max<uint64_t>(1, view.receivers)),
-      a.threads > 0 ? a.threads : DefaultThreads(), view.trace_seconds);
+      a.threads > 0 ? a.threads : DefaultShadeThreads(), view.trace_seconds);
   std::printf(
       "  cache          %s cap, reader hits %.2f%%, shared hits %.2f%%, %llu pages read "
       "(%s)\n",

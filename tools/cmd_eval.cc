@@ -20,11 +20,11 @@
 #include "pbgi/build.h"
 #include "pbgi/query.h"
 #include "pbgi/scene.h"
+#include "pbgi/shade.h"
 #include "pbgi/status.h"
 #include "tools/chart.h"
 #include "tools/command.h"
 #include "tools/scene_views.h"
-#include "tools/shading.h"
 
 namespace pbgi::tools {
 namespace {
@@ -136,7 +136,7 @@ absl::Status RunEval(const EvalArgs& a) {
   std::error_code ec;
   std::filesystem::create_directories(a.out_dir, ec);
   if (ec) return absl::UnavailableError(absl::StrFormat("cannot create %s", a.out_dir));
-  const int threads = a.threads > 0 ? a.threads : DefaultThreads();
+  const int threads = a.threads > 0 ? a.threads : DefaultShadeThreads();
   tbb::global_control limit(tbb::global_control::max_allowed_parallelism, threads);
 
   PBGI_ASSIGN_OR_RETURN(std::shared_ptr<const Scene> scene, LoadScene(a.scene, a.seed, a.size));
@@ -253,7 +253,7 @@ absl::Status RunEval(const EvalArgs& a) {
   dbo.cache_bytes = cache;
   PBGI_ASSIGN_OR_RETURN(std::unique_ptr<Database> db, Database::Open(db_path, dbo));
   auto job = [&](float msa, int res, bool cosine) {
-    ShadeJobOptions so;
+    ShadeOptions so;
     so.threads = threads;
     so.cut.max_solid_angle = msa;
     so.cut.cosine_weighted = cosine;
@@ -264,24 +264,25 @@ absl::Status RunEval(const EvalArgs& a) {
   // One untimed pass at the finest plain cut first (it touches every page the others do), so
   // that every timed row finds the pages decoded in the cache, as they are for all but the
   // first of a frame's receivers (the database is built for this run and fits the cache).
+  const std::vector<ShadeReceiver> shade_receivers = ShadeReceiversOf(receivers);
   {
-    std::vector<ShadeResult> results;
-    ShadeJobStats st;
+    std::vector<ShadeResult> results(receivers.size());
     const float finest = *std::min_element(a.solid_angles.begin(), a.solid_angles.end());
-    PBGI_RETURN_IF_ERROR(ShadeReceivers(
-        *db, receivers, {}, job(finest, a.resolutions.front(), /*cosine=*/false), &results, &st));
+    PBGI_RETURN_IF_ERROR(ShadeBatch(*db, shade_receivers,
+                                    job(finest, a.resolutions.front(), /*cosine=*/false),
+                                    absl::MakeSpan(results)));
   }
   size_t default_row = 0;
   bool found_default = false;
   for (const std::string& cut : a.cuts) {
     for (int res : a.resolutions) {
       for (float msa : a.solid_angles) {
-        const ShadeJobOptions so = job(msa, res, cut == "cosine");
-        std::vector<ShadeResult> results;
-        ShadeJobStats st;
+        const ShadeOptions so = job(msa, res, cut == "cosine");
+        std::vector<ShadeResult> results(receivers.size());
+        ShadeStats st;
         std::vector<double> times, gather, raster;
         for (int k = 0; k < a.repeat; ++k) {
-          PBGI_RETURN_IF_ERROR(ShadeReceivers(*db, receivers, {}, so, &results, &st));
+          PBGI_RETURN_IF_ERROR(ShadeBatch(*db, shade_receivers, so, absl::MakeSpan(results), &st));
           times.push_back(st.seconds / n);
           gather.push_back(st.gather_seconds / n * 1e6);
           raster.push_back(st.raster_seconds / n * 1e6);

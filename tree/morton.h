@@ -8,6 +8,8 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <utility>
+#include <vector>
 
 #include "glm/vec3.hpp"
 #include "pbgi/surfel.h"
@@ -71,6 +73,24 @@ class MortonQuantizer {
   glm::dvec3 origin_;
   double scale_;
 };
+
+// The order that visits `count` points in Z-order inside their own bounds: indices sorted by
+// the Morton key of position(i) (ties by index). Receivers are visited in this order (ZOrder in
+// pbgi/query.h, the shading driver) so that consecutive ones walk neighbouring subtrees.
+template <typename PositionFn>
+std::vector<uint32_t> MortonOrder(size_t count, PositionFn&& position) {
+  Bounds b;
+  for (size_t i = 0; i < count; ++i) b.Extend(position(i));
+  const MortonQuantizer quantizer(b);
+  std::vector<std::pair<uint64_t, uint32_t>> keyed(count);
+  for (size_t i = 0; i < count; ++i) {
+    keyed[i] = {quantizer.Key(position(i)), static_cast<uint32_t>(i)};
+  }
+  std::sort(keyed.begin(), keyed.end());
+  std::vector<uint32_t> order(count);
+  for (size_t i = 0; i < keyed.size(); ++i) order[i] = keyed[i].second;
+  return order;
+}
 
 }  // namespace pbgi::internal
 

@@ -1,5 +1,5 @@
-// The shading driver (gather + raster on several threads) and the image writers of tools/.
-#include "tools/shading.h"
+// The image writers and the chart of tools/.
+#include "tools/image_io.h"
 
 #include <cstdio>
 #include <filesystem>
@@ -8,9 +8,7 @@
 
 #include "ImfRgbaFile.h"
 #include "gtest/gtest.h"
-#include "pbgi/testing.h"
 #include "tools/chart.h"
-#include "tools/image_io.h"
 
 #define STB_IMAGE_IMPLEMENTATION
 #include "stb/stb_image.h"
@@ -24,65 +22,6 @@ std::string TempDir(const std::string& name) {
   std::filesystem::remove_all(dir);
   std::filesystem::create_directories(dir);
   return dir;
-}
-
-class ShadingTest : public ::testing::Test {
- protected:
-  void SetUp() override {
-    surfels_ = pbgi::testing::RandomSceneSurfels(20000, 7);
-    auto db = pbgi::testing::TempDatabase::Create(surfels_);
-    ASSERT_TRUE(db.ok()) << db.status();
-    db_ = std::move(db).value();
-    receivers_ = pbgi::testing::RandomReceivers(600, 11);
-  }
-  std::vector<Surfel> surfels_;
-  std::unique_ptr<pbgi::testing::TempDatabase> db_;
-  std::vector<Receiver> receivers_;
-};
-
-// Each receiver's result depends only on that receiver: not on the thread that shaded it, nor on
-// the order in which receivers were visited.
-TEST_F(ShadingTest, ThreadsAndOrderDoNotChangeResults) {
-  ShadeJobOptions one;
-  one.threads = 1;
-  one.z_order = false;
-  std::vector<ShadeResult> a, b;
-  ShadeJobStats sa, sb;
-  ASSERT_TRUE(ShadeReceivers(db_->db(), receivers_, {}, one, &a, &sa).ok());
-  ShadeJobOptions two = one;
-  two.threads = 2;
-  two.z_order = true;
-  ASSERT_TRUE(ShadeReceivers(db_->db(), receivers_, {}, two, &b, &sb).ok());
-  ASSERT_EQ(a.size(), receivers_.size());
-  ASSERT_EQ(b.size(), receivers_.size());
-  int open = 0;
-  for (size_t i = 0; i < a.size(); ++i) {
-    EXPECT_EQ(a[i].occlusion, b[i].occlusion) << i;
-    EXPECT_EQ(a[i].irradiance, b[i].irradiance) << i;
-    EXPECT_GE(a[i].occlusion, 0.0f);
-    EXPECT_LE(a[i].occlusion, 1.0f);
-    if (a[i].occlusion < 1.0f) ++open;
-  }
-  EXPECT_GT(open, 0);
-  EXPECT_EQ(sa.receivers, receivers_.size());
-  EXPECT_EQ(sa.query.clusters + sa.query.surfels, sb.query.clusters + sb.query.surfels);
-  EXPECT_GT(sa.query.nodes_visited, 0u);
-}
-
-TEST_F(ShadingTest, RejectsBadReceiversByIndex) {
-  std::vector<Receiver> bad = receivers_;
-  bad[17].normal = glm::vec3(0.0f);
-  std::vector<ShadeResult> out;
-  absl::Status s = ShadeReceivers(db_->db(), bad, {}, ShadeJobOptions{}, &out, nullptr);
-  EXPECT_EQ(s.code(), absl::StatusCode::kInvalidArgument);
-  EXPECT_NE(s.message().find("receiver 17"), absl::string_view::npos) << s;
-  bad[17].normal = glm::vec3(0, 0, 1);
-  bad[3].position.x = std::numeric_limits<float>::quiet_NaN();
-  s = ShadeReceivers(db_->db(), bad, {}, ShadeJobOptions{}, &out, nullptr);
-  EXPECT_NE(s.message().find("receiver 3"), absl::string_view::npos) << s;
-  std::vector<glm::vec3> wrong(5);
-  s = ShadeReceivers(db_->db(), receivers_, wrong, ShadeJobOptions{}, &out, nullptr);
-  EXPECT_EQ(s.code(), absl::StatusCode::kInvalidArgument);
 }
 
 TEST(ImageIoTest, ExrRoundTripAndPngDecodes) {
