@@ -93,8 +93,8 @@ MemoryPlan PlanFor(const BuildOptions& o, int64_t known_count, int threads) {
   // Node packer pending sets, page buffers, the look-ahead window, the PLY reader, LMDB's own
   // allocations and the process's baseline (code, libraries). Threads add the merge's block
   // pipe and the LMDB writer's page slots, and LMDB's dirty pages then come from the writer
-  // thread's malloc arena, which keeps about one more batch of freed pages resident (measured:
-  // 16 M points, 256 MiB, +16 MiB anonymous memory during the merge).
+  // thread's malloc arena, which keeps about one more batch of freed pages resident
+  // (docs/format.md, "Memory plan").
   const uint64_t fixed =
       24 * kMiB + 4 * uint64_t{o.page_size} + (threads > 1 ? 4 * kMiB + p.batch_bytes : 0);
   uint64_t sort_bytes = m > p.batch_bytes + fixed ? m - p.batch_bytes - fixed : 0;

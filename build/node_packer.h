@@ -1,4 +1,4 @@
-// Packs closed octree nodes into node pages (DESIGN.md, "Build" step 5).
+// Packs closed octree nodes into node pages (docs/design.md, "Build" step 5).
 //
 // Nodes arrive in post-order, children before parents. The children of one node (a sibling
 // group) always share one page, so a parent points at them with one NodeRef and a count

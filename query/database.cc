@@ -1,4 +1,4 @@
-// Database, Reader and the gather traversal (DESIGN.md, "Query"; the cut is documented in
+// Database, Reader and the gather traversal (docs/design.md, "Query"; the cut is documented in
 // include/pbgi/query.h).
 #include <algorithm>
 #include <atomic>

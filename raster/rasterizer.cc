@@ -192,9 +192,8 @@ void Rasterizer::SplatCone(const PreparedSplat& s) {
   // pixel's coverage its overlap with the square (separable: no per-pixel direction or square
   // root). On the face plane at distance 1, a solid angle omega around the axis spans an area
   // omega / z^3 (z = the axis's component along the face normal). Larger squares lose more
-  // where the depth layers clamp (ShadeTest.ClosedBoxMixedCut, corner receiver: 0.9927 with
-  // squares up to 2 pixels, 0.9905 up to 3, 0.9882 up to 4; the ramp alone 0.9954), so larger
-  // cones take the ramp below.
+  // where the depth layers clamp (docs/raster.md, "Square splats"), so larger cones take the
+  // ramp below.
   const float side = std::sqrt(s.omega * inv * inv * inv) * half;  // in pixels
   if (side <= 2.0f * kBoxMaxHalf) {
     SplatBox<kClamp, kRad>(s, base, x + 0.5f, y + 0.5f, 0.5f * side, q);

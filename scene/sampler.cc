@@ -1,5 +1,5 @@
 // The scene surfel sampler: a streaming SurfelSource that stratifies surfels over the area of a
-// scene's instanced triangles and bakes direct light into them (DESIGN.md, "Scenes").
+// scene's instanced triangles and bakes direct light into them (docs/design.md, "Scenes").
 //
 // Counts per triangle come from systematic sampling along the cumulative area, measured in
 // surfels: triangle i owns the surfels s with floor(C_i + u) <= s < floor(C_{i+1} + u), where

@@ -1,6 +1,6 @@
 // The Embree wrapper: device and scenes held by RAII handles, one RTCScene per mesh instanced
 // into a top-level scene; camera rays, shadow rays, the lighting function that bakes surfels,
-// and the reference integrator that checks PBGI against ray tracing (DESIGN.md, "Accuracy").
+// and the reference integrator that checks PBGI against ray tracing (docs/design.md, "Accuracy").
 #include <embree3/rtcore.h>
 
 #include <algorithm>

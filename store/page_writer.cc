@@ -1,5 +1,5 @@
 // PageWriter: appends fixed-size pages to a new store with MDB_APPEND | MDB_RESERVE, in batches,
-// growing the map on MDB_MAP_FULL, and commits the meta record last (DESIGN.md, "Store").
+// growing the map on MDB_MAP_FULL, and commits the meta record last (docs/design.md, "Store").
 #include <fcntl.h>
 #include <lmdb.h>
 #include <sys/mman.h>

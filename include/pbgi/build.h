@@ -1,4 +1,4 @@
-// pbgi::BuildDatabase: the out-of-core octree builder (DESIGN.md, "Build"; Kontkanen, Tabellion,
+// pbgi::BuildDatabase: the out-of-core octree builder (docs/design.md, "Build"; Kontkanen, Tabellion,
 // Overbeck, EGSR 2011; Salmon & Warren 1997).
 //
 // The builder pulls surfels from any SurfelSource, computes 63-bit Morton keys inside the cubed,

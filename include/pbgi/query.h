@@ -1,5 +1,5 @@
 // pbgi::Database and pbgi::Reader: gather the octree cut for a receiver from many threads at
-// once, inside one memory cap, touching only the pages the answer needs (DESIGN.md, "Query").
+// once, inside one memory cap, touching only the pages the answer needs (docs/design.md, "Query").
 //
 //   auto db = pbgi::Database::Open("scene.pbgi", {.cache_bytes = 512 << 20});
 //   auto reader = (*db)->NewReader();          // one per thread

@@ -1,4 +1,4 @@
-// pbgi::PageStore: fixed-size pages in one LMDB environment (DESIGN.md, "Store").
+// pbgi::PageStore: fixed-size pages in one LMDB environment (docs/design.md, "Store").
 //
 // A store has three named sections: `meta` (one meta record, committed last), `nodes` and
 // `points` (key: page number, value: one fixed-size page). A PageWriter appends pages in
