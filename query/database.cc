@@ -77,20 +77,24 @@ uint64_t QueryStats::TotalSharedMisses() const { return Sum(shared_misses); }
 // Counters of all Readers, exact whenever asked: each live Reader publishes its own on a cache
 // line of its own (single writer, relaxed stores, nothing shared on the gather path), and a
 // Reader adds its final counters to `retired` when it goes.
-struct Database::Totals {
-  std::mutex mu;
-  uint64_t retired[10] ABSL_GUARDED_BY(mu) = {};
-  std::vector<const std::atomic<uint64_t>*> live ABSL_GUARDED_BY(mu);
-};
-
 namespace {
-void CountersToArray(const CacheStats& s, uint64_t v[10]) {
-  const uint64_t a[10] = {
-      s.reader.hits, s.reader.misses, s.reader.pages_read, s.reader.bytes_read, s.reader.evictions,
-      s.shared.hits, s.shared.misses, s.shared.pages_read, s.shared.bytes_read, s.shared.evictions};
-  std::memcpy(v, a, sizeof(a));
+// The counters of CacheStats in one fixed order: the one list that a Reader's published copy
+// and Database::TotalStats share. f(counter) for each, `s` a CacheStats or a const one.
+constexpr int kCacheCounters = 10;
+template <typename Stats, typename F>
+void ForEachCounter(Stats& s, F&& f) {
+  for (auto* level : {&s.reader, &s.shared}) {
+    f(level->hits), f(level->misses), f(level->pages_read), f(level->bytes_read);
+    f(level->evictions);
+  }
 }
 }  // namespace
+
+struct Database::Totals {
+  std::mutex mu;
+  CacheStats retired ABSL_GUARDED_BY(mu);
+  std::vector<const std::atomic<uint64_t>*> live ABSL_GUARDED_BY(mu);
+};
 
 Database::Database(std::unique_ptr<internal::PageSource> source, const DatabaseOptions& options)
     : source_(std::move(source)), options_(options), totals_(new Totals) {
@@ -137,24 +141,20 @@ absl::StatusOr<uint64_t> Database::MapResidentBytes() const { return source_->Ma
 void Database::DropCache() { cache_->Prune(); }
 
 void Database::AddTotals(const CacheStats& s) {
-  uint64_t add[10];
-  CountersToArray(s, add);
   std::lock_guard<std::mutex> l(totals_->mu);
-  for (int i = 0; i < 10; ++i) totals_->retired[i] += add[i];
+  totals_->retired.Add(s);
 }
 
 CacheStats Database::TotalStats() const {
-  uint64_t v[10];
+  CacheStats s;
   {
     std::lock_guard<std::mutex> l(totals_->mu);
-    for (int i = 0; i < 10; ++i) v[i] = totals_->retired[i];
+    s = totals_->retired;
     for (const std::atomic<uint64_t>* c : totals_->live) {
-      for (int i = 0; i < 10; ++i) v[i] += c[i].load(std::memory_order_relaxed);
+      int i = 0;
+      ForEachCounter(s, [&](uint64_t& v) { v += c[i++].load(std::memory_order_relaxed); });
     }
   }
-  CacheStats s;
-  s.reader = {v[0], v[1], v[2], v[3], v[4]};
-  s.shared = {v[5], v[6], v[7], v[8], v[9]};
   s.shared.evictions = cache_->counters().evictions;
   return s;
 }
@@ -240,13 +240,12 @@ struct Reader::Impl {
   std::unique_ptr<internal::PageReader> source;
   internal::FrontCache front;
   const uint64_t points_per_page;
-  // This Reader's CacheStats as Database::TotalStats() reads them (CountersToArray order), on
+  // This Reader's CacheStats as Database::TotalStats() reads them (ForEachCounter order), on
   // cache lines of their own: the other thread never shares a line that a gather writes.
-  alignas(64) std::atomic<uint64_t> published[10] = {};
+  alignas(64) std::atomic<uint64_t> published[kCacheCounters] = {};
   void Publish(const CacheStats& s) {
-    uint64_t v[10];
-    CountersToArray(s, v);
-    for (int i = 0; i < 10; ++i) published[i].store(v[i], std::memory_order_relaxed);
+    int i = 0;
+    ForEachCounter(s, [&](uint64_t v) { published[i++].store(v, std::memory_order_relaxed); });
   }
   alignas(64) QueryStats q;  // counters of the current query
   Memo memo[1 << kMemoBits];

@@ -8,6 +8,7 @@
 
 #include "ImfRgbaFile.h"
 #include "gtest/gtest.h"
+#include "tests/common/scratch_dir.h"
 #include "tools/chart.h"
 
 #define STB_IMAGE_IMPLEMENTATION
@@ -16,16 +17,9 @@
 namespace pbgi::tools {
 namespace {
 
-std::string TempDir(const std::string& name) {
-  const char* base = std::getenv("PBGI_TEST_TMPDIR");
-  std::string dir = std::string(base ? base : "/tmp") + "/tools_" + name;
-  std::filesystem::remove_all(dir);
-  std::filesystem::create_directories(dir);
-  return dir;
-}
-
 TEST(ImageIoTest, ExrRoundTripAndPngDecodes) {
-  const std::string dir = TempDir("image");
+  const testing_common::ScratchDir scratch;
+  const std::string dir = scratch.path().string();
   Image img(7, 5);
   for (int y = 0; y < 5; ++y)
     for (int x = 0; x < 7; ++x) img.at(x, y) = glm::vec3(0.25f * x, 0.5f * y, 4.0f);
@@ -61,7 +55,8 @@ TEST(ImageIoTest, ExrRoundTripAndPngDecodes) {
 }
 
 TEST(ChartTest, WritesAPictureWithTheSeriesColours) {
-  const std::string dir = TempDir("chart");
+  const testing_common::ScratchDir scratch;
+  const std::string dir = scratch.path().string();
   ChartSeries s{"a", glm::vec3(1.0f, 0.0f, 0.0f), true, {0.01, 0.1}, {1e-5, 1e-3}};
   ASSERT_TRUE(WriteLogLogChart(dir + "/c.png", {s}, 200, 120).ok());
   int w = 0, h = 0, c = 0;
