@@ -8,6 +8,7 @@
 #include "absl/strings/str_format.h"
 #include "base/stopwatch.h"
 #include "build/external_sort.h"
+#include "build/neighbour_estimate.h"
 #include "build/node_packer.h"
 #include "build/octree_builder.h"
 #include "build/sort_record.h"
@@ -96,7 +97,8 @@ MemoryPlan PlanFor(const BuildOptions& o, int64_t known_count, int threads) {
   // thread's malloc arena, which keeps about one more batch of freed pages resident
   // (docs/format.md, "Memory plan").
   const uint64_t fixed =
-      24 * kMiB + 4 * uint64_t{o.page_size} + (threads > 1 ? 4 * kMiB + p.batch_bytes : 0);
+      24 * kMiB + 4 * uint64_t{o.page_size} + (threads > 1 ? 4 * kMiB + p.batch_bytes : 0) +
+      (o.estimate.radius || o.estimate.normals ? NeighbourEstimator::kMemoryBytes : 0);
   uint64_t sort_bytes = m > p.batch_bytes + fixed ? m - p.batch_bytes - fixed : 0;
   // The coherent layout's upper node groups grow during the octree pass, while the merge buffers
   // (or, without spill, the sorted run) are in use: they get their own share.
@@ -152,7 +154,8 @@ absl::StatusOr<BuildStats> BuildToSink(SurfelSource& source, PageSink& sink,
       PBGI_RETURN_IF_ERROR(CheckCancel(options));
       for (size_t i = 0; i < n; ++i, ++index) {
         const Surfel& s = batch[i];
-        if (const char* why = InvalidSurfelReason(s, radiance)) {
+        if (const char* why = InvalidSurfelReason(s, radiance, options.estimate.radius,
+                                                  options.estimate.normals)) {
           if (!options.skip_invalid) {
             return absl::InvalidArgumentError(absl::StrFormat(
                 "input surfel %d (counting from 0): %s (use skip_invalid / --skip-invalid to "
@@ -202,7 +205,12 @@ absl::StatusOr<BuildStats> BuildToSink(SurfelSource& source, PageSink& sink,
       PBGI_ASSIGN_OR_RETURN(slots, sorter.Reserve(kBatch));
     }
     Surfel s = in;
-    s.normal = glm::vec3(glm::normalize(glm::dvec3(s.normal)));
+    if (options.estimate.normals) {
+      s.normal = glm::vec3(0.0f);
+    } else {
+      s.normal = glm::vec3(glm::normalize(glm::dvec3(s.normal)));
+    }
+    if (options.estimate.radius) s.radius = 0.0f;
     if (!radiance) s.radiance = glm::vec3(0.0f);
     slots[used++] = MakeSortRecord(quant.Key(s.position), s);
     return absl::OkStatus();
@@ -227,18 +235,24 @@ absl::StatusOr<BuildStats> BuildToSink(SurfelSource& source, PageSink& sink,
   packer.set_upper_limit_bytes(plan.upper_bytes);
   PointPageWriter points(options.channels, &sink);
   OctreeBuilder octree(options.leaf_size, options.channels, &points, &packer);
+  const bool estimate = options.estimate.radius || options.estimate.normals;
+  NeighbourEstimator estimator(options.estimate, bounds);
+  auto to_octree = [&](const SortRecord& r) { return octree.Add(r); };
   uint64_t done = 0, next_report = kProgressEvery;
   for (;;) {
     PBGI_ASSIGN_OR_RETURN(absl::Span<const SortRecord> recs, sorter.NextBlock());
     if (recs.empty()) break;
     PBGI_RETURN_IF_ERROR(CheckCancel(options));
-    for (const SortRecord& r : recs) PBGI_RETURN_IF_ERROR(octree.Add(r));
+    for (const SortRecord& r : recs) {
+      PBGI_RETURN_IF_ERROR(estimate ? estimator.Add(r, to_octree) : octree.Add(r));
+    }
     done += recs.size();
     if (done >= next_report) {
       Report(options, "merge+octree", done, static_cast<int64_t>(sorter.records()));
       next_report = done + kProgressEvery;
     }
   }
+  if (estimate) PBGI_RETURN_IF_ERROR(estimator.Finish(to_octree));
   PBGI_ASSIGN_OR_RETURN(NodeRef root, octree.Finish());
   stats.seconds_merge = t.Seconds();
 
@@ -285,6 +299,20 @@ absl::StatusOr<BuildStats> BuildToSink(SurfelSource& source, PageSink& sink,
   m["threads"] = absl::StrFormat("%d", stats.threads);
   m["upper_records"] = absl::StrFormat("%d", stats.upper_records);
   m["early_upper_writes"] = absl::StrFormat("%d", stats.early_upper_writes);
+  const std::string knn = absl::StrFormat("estimated from %d nearest neighbours",
+                                          std::clamp(options.estimate.neighbours, 3, 64));
+  if (options.estimate.radius) m["radius"] = knn;
+  if (options.estimate.normals) {
+    m["normals"] = knn + (options.estimate.towards_viewpoint
+                              ? absl::StrFormat(" (PCA, towards %g,%g,%g)",
+                                                options.estimate.viewpoint.x,
+                                                options.estimate.viewpoint.y,
+                                                options.estimate.viewpoint.z)
+                              : std::string(" (PCA, away from the centre)"));
+  }
+  for (const auto& [k, v] : options.provenance) {
+    if (m.count(k) == 0) m[k] = v;
+  }
   return stats;
 }
 

@@ -1,5 +1,7 @@
-// PLY reader (binary little-endian and ASCII) and writer. See pbgi/ply.h.
+// PLY reader (binary little- and big-endian, and ASCII) and writer. See pbgi/ply.h.
 #include "pbgi/ply.h"
+
+#include <unistd.h>
 
 #include <algorithm>
 #include <cerrno>
@@ -10,7 +12,9 @@
 
 #include "absl/strings/numbers.h"
 #include "absl/strings/str_format.h"
+#include "absl/strings/str_cat.h"
 #include "absl/strings/str_split.h"
+#include "absl/strings/strip.h"
 #include "absl/strings/string_view.h"
 #include "pbgi/status.h"
 
@@ -41,6 +45,21 @@ bool ParseType(absl::string_view s, PType* t, int* size) {
   return false;
 }
 
+int TypeSize(PType t) {
+  switch (t) {
+    case PType::kI8:
+    case PType::kU8:
+      return 1;
+    case PType::kI16:
+    case PType::kU16:
+      return 2;
+    case PType::kF64:
+      return 8;
+    default:
+      return 4;
+  }
+}
+
 // Integer colour types are scaled to 0..1 by their maximum.
 double TypeScale(PType t) {
   switch (t) {
@@ -53,7 +72,15 @@ double TypeScale(PType t) {
   }
 }
 
-double Decode(const uint8_t* p, PType t) {
+// A value of type `t` at p, its bytes reversed first when `swap` (a big-endian file).
+double Decode(const uint8_t* in, PType t, bool swap) {
+  uint8_t tmp[8];
+  const uint8_t* p = in;
+  if (swap) {
+    const int n = TypeSize(t);
+    for (int i = 0; i < n; ++i) tmp[i] = in[n - 1 - i];
+    p = tmp;
+  }
   switch (t) {
     case PType::kI8: {
       int8_t v;
@@ -97,7 +124,7 @@ double Decode(const uint8_t* p, PType t) {
 }
 
 // Surfel fields a property can feed.
-enum Field { kX, kY, kZ, kNx, kNy, kNz, kRadius, kR, kG, kB, kNumFields, kSkip = -1 };
+enum Field { kX, kY, kZ, kNx, kNy, kNz, kRadius, kR, kG, kB, kRx, kRy, kRz, kNumFields, kSkip = -1 };
 
 int FieldOf(absl::string_view name) {
   static const std::pair<const char*, int> kNames[] = {
@@ -106,7 +133,8 @@ int FieldOf(absl::string_view name) {
       {"radius", kRadius}, {"r", kR},           {"g", kG},
       {"b", kB},           {"red", kR},         {"green", kG},
       {"blue", kB},        {"diffuse_red", kR}, {"diffuse_green", kG},
-      {"diffuse_blue", kB}};
+      {"diffuse_blue", kB}, {"rx", kRx},        {"ry", kRy},
+      {"rz", kRz}};
   for (const auto& [n, f] : kNames) {
     if (name == n) return f;
   }
@@ -121,32 +149,51 @@ struct Property {
   double scale;
 };
 
-class PlySource final : public SurfelSource {
+// Whether a line's first word is one that a PLY header may hold.
+bool IsHeaderKeyword(absl::string_view w) {
+  return w == "format" || w == "element" || w == "property" || w == "comment" ||
+         w == "obj_info" || w == "end_header";
+}
+
+class PlyFileReader final : public PlySource {
  public:
-  ~PlySource() override {
+  ~PlyFileReader() override {
     if (file_ != nullptr) std::fclose(file_);
   }
 
-  static absl::StatusOr<std::unique_ptr<SurfelSource>> Open(const std::string& path) {
-    auto src = std::unique_ptr<PlySource>(new PlySource());
+  static absl::StatusOr<std::unique_ptr<PlyFileReader>> Open(const std::string& path,
+                                                             const PlyReadOptions& options,
+                                                             bool header_only) {
+    auto src = std::unique_ptr<PlyFileReader>(new PlyFileReader());
     src->path_ = path;
+    src->options_ = options;
+    src->header_.path = path;
     src->file_ = std::fopen(path.c_str(), "rb");
     if (src->file_ == nullptr) {
       return absl::NotFoundError(
           absl::StrFormat("%s: cannot open: %s", path, std::strerror(errno)));
     }
-    PBGI_RETURN_IF_ERROR(src->ReadHeader());
-    return std::unique_ptr<SurfelSource>(std::move(src));
+    PBGI_RETURN_IF_ERROR(src->ReadHeader(header_only));
+    return src;
   }
 
+  const PlyHeader& header() const override { return header_; }
+
   absl::StatusOr<size_t> Next(absl::Span<Surfel> out) override {
-    if (!ascii_ && all_float_in_order_) return NextBinaryFloats(out);
+    return NextWithReflections(out, {});
+  }
+
+  absl::StatusOr<size_t> NextWithReflections(absl::Span<Surfel> out,
+                                             absl::Span<glm::vec3> reflections) override {
+    if (!ascii_ && all_float_in_order_ && reflections.empty()) return NextBinaryFloats(out);
     size_t n = 0;
+    glm::vec3 unused;
     while (n < out.size() && record_ < count_) {
+      glm::vec3* r = reflections.empty() ? &unused : &reflections[n];
       if (ascii_) {
-        PBGI_RETURN_IF_ERROR(ReadAsciiRecord(&out[n]));
+        PBGI_RETURN_IF_ERROR(ReadAsciiRecord(&out[n], r));
       } else {
-        PBGI_RETURN_IF_ERROR(ReadBinaryRecord(&out[n]));
+        PBGI_RETURN_IF_ERROR(ReadBinaryRecord(&out[n], r));
       }
       ++record_;
       ++n;
@@ -170,17 +217,18 @@ class PlySource final : public SurfelSource {
   bool HasRadiance() const override { return has_color_; }
 
  private:
-  PlySource() = default;
+  PlyFileReader() = default;
 
   absl::Status HeaderError(const std::string& what) const {
     return absl::InvalidArgumentError(
         absl::StrFormat("%s: PLY header line %d: %s", path_, line_, what));
   }
 
-  absl::Status ReadHeader() {
+  absl::Status ReadHeader(bool header_only) {
     char linebuf[4096];
     bool in_vertex = false, seen_vertex = false, seen_format = false;
     int elements = 0;
+    std::vector<std::string> names;  // of the vertex properties, parallel to props_
     for (;;) {
       if (std::fgets(linebuf, sizeof(linebuf), file_) == nullptr) {
         line_ = line_ == 0 ? 1 : line_;
@@ -196,7 +244,12 @@ class PlySource final : public SurfelSource {
         if (line != "ply") return HeaderError("not a PLY file (no 'ply' magic)");
         continue;
       }
-      if (tok.empty() || tok[0] == "comment" || tok[0] == "obj_info") continue;
+      if (tok.empty()) continue;
+      if (tok[0] == "comment" || tok[0] == "obj_info") {
+        const size_t at = line.find(std::string(tok[0])) + tok[0].size();
+        header_.comments.push_back(std::string(absl::StripAsciiWhitespace(line.substr(at))));
+        continue;
+      }
       if (tok[0] == "end_header") break;
       if (tok[0] == "format") {
         if (tok.size() < 2) return HeaderError("malformed format line");
@@ -204,9 +257,15 @@ class PlySource final : public SurfelSource {
           ascii_ = true;
         } else if (tok[1] == "binary_little_endian") {
           ascii_ = false;
+        } else if (tok[1] == "binary_big_endian") {
+          ascii_ = false;
+          swap_ = true;
         } else {
-          return HeaderError(absl::StrFormat("unsupported format '%s'", tok[1]));
+          return HeaderError(absl::StrFormat(
+              "unsupported format '%s' (ascii, binary_little_endian or binary_big_endian)",
+              tok[1]));
         }
+        header_.format = std::string(tok[1]);
         seen_format = true;
       } else if (tok[0] == "element") {
         if (tok.size() != 3) return HeaderError("malformed element line");
@@ -217,7 +276,14 @@ class PlySource final : public SurfelSource {
           if (!absl::SimpleAtoi(tok[2], &count_)) {
             return HeaderError(absl::StrFormat("bad vertex count '%s'", tok[2]));
           }
+          header_.vertex_count = count_;
           seen_vertex = true;
+        } else {
+          uint64_t n = 0;
+          if (!absl::SimpleAtoi(tok[2], &n)) {
+            return HeaderError(absl::StrFormat("bad count '%s' of element '%s'", tok[2], tok[1]));
+          }
+          header_.other_elements.push_back({std::string(tok[1]), n});
         }
       } else if (tok[0] == "property") {
         if (!in_vertex) continue;  // properties of later elements: ignored
@@ -232,40 +298,93 @@ class PlySource final : public SurfelSource {
         p.offset = stride_;
         stride_ += p.size;
         p.field = FieldOf(tok[2]);
-        p.scale = p.field >= kR ? TypeScale(p.type) : 1.0;
-        if (p.field != kSkip) {
-          if (have_[p.field]) {
+        p.scale = (p.field >= kR && p.field <= kB) ? TypeScale(p.type) : 1.0;
+        for (const std::string& n : names) {
+          if (n == tok[2]) {
             return HeaderError(absl::StrFormat("property '%s' given twice", tok[2]));
           }
-          have_[p.field] = true;
         }
+        names.push_back(std::string(tok[2]));
         props_.push_back(p);
+        header_.vertex_properties.push_back({std::string(tok[2]), std::string(tok[1])});
+      } else if (!seen_vertex && !IsHeaderKeyword(tok[0])) {
+        // Free text before the elements (e.g. "Created by Blender3D 247 - www.blender.org,
+        // source file: ..." without `comment`): nothing a PLY header can mean, so a comment.
+        header_.comments.push_back(line);
+        header_.notes.push_back(absl::StrFormat(
+            "header line %d is free text without the 'comment' keyword; read as a comment",
+            line_));
       } else {
-        return HeaderError(absl::StrFormat("unexpected keyword '%s'", tok[0]));
+        return HeaderError(absl::StrFormat(
+            "unexpected keyword '%s' (a header line is format, element, property, comment, "
+            "obj_info or end_header)",
+            tok[0]));
       }
     }
     if (!seen_format) return HeaderError("no format line");
     if (!seen_vertex) return HeaderError("no vertex element");
-    static const char* kRequired[] = {"x", "y", "z", "nx", "ny", "nz", "radius"};
-    for (int f = kX; f <= kRadius; ++f) {
-      if (!have_[f]) {
-        return HeaderError(
-            absl::StrFormat("the vertex element has no '%s' property", kRequired[f]));
+    // Colour: float r g b win over integer red green blue (pbgi's outputs carry both).
+    int colour_props[3][2] = {{-1, -1}, {-1, -1}, {-1, -1}};  // [channel][float name?]
+    for (size_t i = 0; i < props_.size(); ++i) {
+      const int f = props_[i].field;
+      if (f >= kR && f <= kB) {
+        const bool short_name = names[i].size() == 1;
+        int& slot = colour_props[f - kR][short_name ? 1 : 0];
+        if (slot >= 0) {
+          return HeaderError(absl::StrFormat("colour property '%s' given twice (also '%s')",
+                                             names[i], names[size_t(slot)]));
+        }
+        slot = static_cast<int>(i);
+      } else if (f != kSkip) {
+        if (have_[f]) {
+          return HeaderError(absl::StrFormat("property '%s' given twice", names[i]));
+        }
+        have_[f] = true;
       }
+    }
+    const bool short_rgb = colour_props[0][1] >= 0 || colour_props[1][1] >= 0 ||
+                           colour_props[2][1] >= 0;
+    for (int c = 0; c < 3; ++c) {
+      const int use = colour_props[c][short_rgb ? 1 : 0];
+      const int other = colour_props[c][short_rgb ? 0 : 1];
+      if (other >= 0) props_[size_t(other)].field = kSkip;
+      if (use >= 0) have_[kR + c] = true;
     }
     has_color_ = have_[kR] && have_[kG] && have_[kB];
     if ((have_[kR] || have_[kG] || have_[kB]) && !has_color_) {
       return HeaderError("colour needs all three of r g b (or red green blue)");
     }
-    all_float_in_order_ = props_.size() == 7 || props_.size() == 10;
-    for (size_t i = 0; i < props_.size(); ++i) {
-      all_float_in_order_ = all_float_in_order_ && props_[i].type == PType::kF32 &&
-                            props_[i].field == static_cast<int>(i);
+    header_.has_color = has_color_;
+    header_.has_normals = have_[kNx] && have_[kNy] && have_[kNz];
+    header_.has_radius = have_[kRadius];
+    header_.has_reflection = have_[kRx] && have_[kRy] && have_[kRz];
+    if (!header_only) {
+      static const char* kRequired[] = {"x", "y", "z", "nx", "ny", "nz", "radius"};
+      for (int f = kX; f <= kRadius; ++f) {
+        if (have_[f]) continue;
+        if (f == kRadius && options_.allow_missing_radius) continue;
+        if (f >= kNx && f <= kNz && options_.allow_missing_normals && !have_[kNx] &&
+            !have_[kNy] && !have_[kNz]) {
+          continue;
+        }
+        return HeaderError(
+            absl::StrFormat("the vertex element has no '%s' property", kRequired[f]));
+      }
     }
+    // The common layout (PlyWriter's): float x y z nx ny nz radius [r g b] first, in order,
+    // anything after them skipped.
+    const size_t prefix = has_color_ ? 10 : 7;
+    all_float_in_order_ = !swap_ && props_.size() >= prefix && have_[kRadius];
+    for (size_t i = 0; i < props_.size() && all_float_in_order_; ++i) {
+      all_float_in_order_ = i < prefix ? props_[i].type == PType::kF32 &&
+                                             props_[i].field == static_cast<int>(i)
+                                       : props_[i].field == kSkip;
+    }
+    float_prefix_bytes_ = prefix * sizeof(float);
     header_lines_ = line_;
     body_offset_ = std::ftell(file_);
     file_pos_ = body_offset_;
-    buf_.resize(1 << 20);
+    if (!header_only) buf_.resize(1 << 20);
     return absl::OkStatus();
   }
 
@@ -283,14 +402,15 @@ class PlySource final : public SurfelSource {
     return buf_len_;
   }
 
-  void Assign(Surfel* s, const double v[kNumFields]) {
+  void Assign(Surfel* s, glm::vec3* reflection, const double v[kNumFields]) {
     s->position = glm::vec3(v[kX], v[kY], v[kZ]);
     s->normal = glm::vec3(v[kNx], v[kNy], v[kNz]);
-    s->radius = static_cast<float>(v[kRadius]);
+    s->radius = have_[kRadius] ? static_cast<float>(v[kRadius]) : options_.uniform_radius;
     s->radiance = has_color_ ? glm::vec3(v[kR], v[kG], v[kB]) : glm::vec3(0.0f);
+    *reflection = glm::vec3(v[kRx], v[kRy], v[kRz]);
   }
 
-  absl::Status ReadBinaryRecord(Surfel* s) {
+  absl::Status ReadBinaryRecord(Surfel* s, glm::vec3* reflection) {
     if (Fill(stride_) < static_cast<size_t>(stride_)) {
       const long offset = file_pos_ + static_cast<long>(buf_len_);
       return absl::DataLossError(absl::StrFormat(
@@ -298,46 +418,38 @@ class PlySource final : public SurfelSource {
           offset, record_, count_, stride_));
     }
     const uint8_t* p = reinterpret_cast<const uint8_t*>(buf_.data() + buf_pos_);
-    if (all_float_in_order_) {
-      // The common layout (PlyWriter's): float x y z nx ny nz radius [r g b].
-      float f[10] = {};
-      std::memcpy(f, p, props_.size() * sizeof(float));
-      s->position = glm::vec3(f[0], f[1], f[2]);
-      s->normal = glm::vec3(f[3], f[4], f[5]);
-      s->radius = f[6];
-      s->radiance = glm::vec3(f[7], f[8], f[9]);
-    } else {
-      double v[kNumFields] = {};
-      for (const Property& q : props_) {
-        if (q.field != kSkip) v[q.field] = Decode(p + q.offset, q.type) * q.scale;
-      }
-      Assign(s, v);
+    double v[kNumFields] = {};
+    for (const Property& q : props_) {
+      if (q.field != kSkip) v[q.field] = Decode(p + q.offset, q.type, swap_) * q.scale;
     }
+    Assign(s, reflection, v);
     buf_pos_ += stride_;
     file_pos_ += stride_;
     return absl::OkStatus();
   }
 
-  // The common layout (PlyWriter's, float x y z nx ny nz radius [r g b]): whole buffered runs
-  // of records at a time, one copy into the surfels. Surfel is 10 packed floats in file order.
+  // The common layout (PlyWriter's, float x y z nx ny nz radius [r g b], then anything): whole
+  // buffered runs of records at a time, one copy into the surfels. Surfel is 10 packed floats
+  // in file order.
   absl::StatusOr<size_t> NextBinaryFloats(absl::Span<Surfel> out) {
     static_assert(sizeof(Surfel) == 10 * sizeof(float));
     const size_t stride = static_cast<size_t>(stride_);
     size_t n = 0;
     while (n < out.size() && record_ < count_) {
       if (Fill(stride) < stride) {
-        PBGI_RETURN_IF_ERROR(ReadBinaryRecord(&out[n]));  // names the truncation offset
+        glm::vec3 unused;
+        PBGI_RETURN_IF_ERROR(ReadBinaryRecord(&out[n], &unused));  // names the truncation
       }
       const size_t k = static_cast<size_t>(
           std::min<uint64_t>({out.size() - n, count_ - record_, (buf_len_ - buf_pos_) / stride}));
       const char* p = buf_.data() + buf_pos_;
-      if (stride == sizeof(Surfel)) {
+      if (stride == sizeof(Surfel) && float_prefix_bytes_ == sizeof(Surfel)) {
         std::memcpy(static_cast<void*>(&out[n]), p, k * stride);
       } else {
         for (size_t j = 0; j < k; ++j) {
           Surfel& s = out[n + j];
-          std::memcpy(static_cast<void*>(&s), p + j * stride, stride);
-          s.radiance = glm::vec3(0.0f);
+          std::memcpy(static_cast<void*>(&s), p + j * stride, float_prefix_bytes_);
+          if (!has_color_) s.radiance = glm::vec3(0.0f);
         }
       }
       buf_pos_ += k * stride;
@@ -348,7 +460,7 @@ class PlySource final : public SurfelSource {
     return n;
   }
 
-  absl::Status ReadAsciiRecord(Surfel* s) {
+  absl::Status ReadAsciiRecord(Surfel* s, glm::vec3* reflection) {
     // One record per line; blank lines are skipped.
     std::string line;
     for (;;) {
@@ -390,15 +502,19 @@ class PlySource final : public SurfelSource {
       }
       if (q.field != kSkip) v[q.field] = d * q.scale;
     }
-    Assign(s, v);
+    Assign(s, reflection, v);
     return absl::OkStatus();
   }
 
   std::string path_;
+  PlyReadOptions options_;
+  PlyHeader header_;
   std::FILE* file_ = nullptr;
   bool ascii_ = false;
+  bool swap_ = false;  // binary_big_endian
   bool has_color_ = false;
   bool all_float_in_order_ = false;
+  size_t float_prefix_bytes_ = 0;
   bool have_[kNumFields] = {};
   std::vector<Property> props_;
   int stride_ = 0;
@@ -411,62 +527,142 @@ class PlySource final : public SurfelSource {
   std::vector<char> buf_;
   size_t buf_pos_ = 0, buf_len_ = 0;
 };
-
 constexpr int kCountDigits = 20;
+
+float Srgb(float v) {
+  return v <= 0.0031308f ? 12.92f * v : 1.055f * std::pow(v, 1.0f / 2.4f) - 0.055f;
+}
 
 }  // namespace
 
+uint8_t ToneMap8(float linear) {
+  float v = std::isfinite(linear) ? std::max(0.0f, linear) : 0.0f;
+  v = v / (1.0f + v);
+  return static_cast<uint8_t>(std::lround(std::clamp(Srgb(v), 0.0f, 1.0f) * 255.0f));
+}
+
+std::map<std::string, std::string> PlyHeader::Provenance() const {
+  std::map<std::string, std::string> out;
+  for (const std::string& c : comments) {
+    std::vector<absl::string_view> tok =
+        absl::StrSplit(c, absl::MaxSplits(' ', 2), absl::SkipEmpty());
+    if (tok.size() == 3 && tok[0] == "pbgi") out[std::string(tok[1])] = std::string(tok[2]);
+  }
+  return out;
+}
+
+uint64_t PlyHeader::FaceCount() const {
+  uint64_t n = 0;
+  for (const auto& [name, count] : other_elements) {
+    if (name == "face") n += count;
+  }
+  return n;
+}
+
+absl::StatusOr<std::unique_ptr<PlySource>> OpenPlyFile(const std::string& path,
+                                                       const PlyReadOptions& options) {
+  PBGI_ASSIGN_OR_RETURN(std::unique_ptr<PlyFileReader> r,
+                        PlyFileReader::Open(path, options, /*header_only=*/false));
+  return std::unique_ptr<PlySource>(std::move(r));
+}
+
 absl::StatusOr<std::unique_ptr<SurfelSource>> OpenPly(const std::string& path) {
-  return PlySource::Open(path);
+  PBGI_ASSIGN_OR_RETURN(std::unique_ptr<PlyFileReader> r,
+                        PlyFileReader::Open(path, PlyReadOptions{}, /*header_only=*/false));
+  return std::unique_ptr<SurfelSource>(std::move(r));
+}
+
+absl::StatusOr<PlyHeader> ReadPlyHeader(const std::string& path) {
+  PBGI_ASSIGN_OR_RETURN(std::unique_ptr<PlyFileReader> r,
+                        PlyFileReader::Open(path, PlyReadOptions{}, /*header_only=*/true));
+  return r->header();
 }
 
 absl::StatusOr<std::unique_ptr<PlyWriter>> PlyWriter::Create(const std::string& path,
                                                              const PlyWriterOptions& options) {
   auto w = std::unique_ptr<PlyWriter>(new PlyWriter());
   w->path_ = path;
+  // Written beside the output and renamed over it by Close(): a failed or interrupted write
+  // leaves the previous file as it was.
+  w->tmp_path_ = absl::StrFormat("%s.tmp-%d", path, getpid());
   w->options_ = options;
-  w->file_ = std::fopen(path.c_str(), "wb");
+  w->file_ = std::fopen(w->tmp_path_.c_str(), "wb");
   if (w->file_ == nullptr) {
     return absl::InvalidArgumentError(
-        absl::StrFormat("%s: cannot create: %s", path, std::strerror(errno)));
+        absl::StrFormat("%s: cannot create: %s", w->tmp_path_, std::strerror(errno)));
   }
-  std::string h = absl::StrFormat("ply\nformat %s 1.0\ncomment pbgi surfels\nelement vertex ",
+  std::string h = absl::StrFormat("ply\nformat %s 1.0\ncomment pbgi surfels\n",
                                   options.ascii ? "ascii" : "binary_little_endian");
+  for (const std::string& c : options.comments) {
+    // One line each: a newline would end the comment and start a header line of its own.
+    std::string line = c;
+    std::replace(line.begin(), line.end(), '\n', ' ');
+    std::replace(line.begin(), line.end(), '\r', ' ');
+    absl::StrAppend(&h, "comment ", line, "\n");
+  }
+  h += "element vertex ";
   w->count_offset_ = static_cast<long>(h.size());
   h += std::string(kCountDigits, '0') + "\n";
   for (const char* p : {"x", "y", "z", "nx", "ny", "nz", "radius"}) {
-    h += absl::StrFormat("property float %s\n", p);
+    absl::StrAppend(&h, "property float ", p, "\n");
   }
   if (options.radiance) h += "property float r\nproperty float g\nproperty float b\n";
+  for (const std::string& e : options.extra) absl::StrAppend(&h, "property float ", e, "\n");
+  w->colors_ = options.colors == PlyColors::kGiven ||
+               (options.colors == PlyColors::kRadiance && options.radiance);
+  if (w->colors_) h += "property uchar red\nproperty uchar green\nproperty uchar blue\n";
   h += "end_header\n";
   if (std::fwrite(h.data(), 1, h.size(), w->file_) != h.size()) {
-    return absl::InternalError(absl::StrFormat("%s: write failed: %s", path, std::strerror(errno)));
+    return absl::InternalError(
+        absl::StrFormat("%s: write failed: %s", w->tmp_path_, std::strerror(errno)));
   }
   return w;
 }
 
 PlyWriter::~PlyWriter() {
-  if (file_ != nullptr) (void)Close();
+  if (file_ != nullptr) {
+    std::fclose(file_);
+    std::remove(tmp_path_.c_str());
+  }
 }
 
-absl::Status PlyWriter::Write(absl::Span<const Surfel> surfels) {
+absl::Status PlyWriter::Write(absl::Span<const Surfel> surfels, absl::Span<const float> extra,
+                              absl::Span<const uint8_t> rgb8) {
   if (file_ == nullptr) return absl::FailedPreconditionError(path_ + ": writer is closed");
+  const size_t ne = options_.extra.size();
+  const bool given = options_.colors == PlyColors::kGiven;
+  if (extra.size() != ne * surfels.size() || rgb8.size() != (given ? 3 * surfels.size() : 0)) {
+    return absl::InvalidArgumentError(absl::StrFormat(
+        "%s: %d surfels need %d extra values and %d colour bytes, got %d and %d", path_,
+        surfels.size(), ne * surfels.size(), given ? 3 * surfels.size() : 0, extra.size(),
+        rgb8.size()));
+  }
   buf_.clear();
-  for (const Surfel& s : surfels) {
-    const float v[10] = {s.position.x, s.position.y, s.position.z, s.normal.x,   s.normal.y,
-                         s.normal.z,   s.radius,     s.radiance.x, s.radiance.y, s.radiance.z};
-    const int n = options_.radiance ? 10 : 7;
+  std::vector<float> v;
+  for (size_t i = 0; i < surfels.size(); ++i) {
+    const Surfel& s = surfels[i];
+    v.assign({s.position.x, s.position.y, s.position.z, s.normal.x, s.normal.y, s.normal.z,
+              s.radius});
+    if (options_.radiance) v.insert(v.end(), {s.radiance.x, s.radiance.y, s.radiance.z});
+    v.insert(v.end(), extra.begin() + i * ne, extra.begin() + (i + 1) * ne);
+    uint8_t c[3] = {0, 0, 0};
+    if (colors_) {
+      for (int k = 0; k < 3; ++k) c[k] = given ? rgb8[3 * i + k] : ToneMap8(s.radiance[k]);
+    }
     if (options_.ascii) {
-      for (int i = 0; i < n; ++i) {
+      for (size_t k = 0; k < v.size(); ++k) {
         // %.9g round-trips every float exactly.
-        buf_ += absl::StrFormat(i + 1 < n ? "%.9g " : "%.9g\n", v[i]);
+        absl::StrAppendFormat(&buf_, "%.9g", v[k]);
+        buf_ += k + 1 < v.size() || colors_ ? ' ' : '\n';
       }
+      if (colors_) absl::StrAppendFormat(&buf_, "%d %d %d\n", c[0], c[1], c[2]);
     } else {
-      buf_.append(reinterpret_cast<const char*>(v), n * sizeof(float));
+      buf_.append(reinterpret_cast<const char*>(v.data()), v.size() * sizeof(float));
+      if (colors_) buf_.append(reinterpret_cast<const char*>(c), 3);
     }
   }
   if (std::fwrite(buf_.data(), 1, buf_.size(), file_) != buf_.size()) {
-    return absl::InternalError(absl::StrFormat("%s: write failed after %d surfels: %s", path_,
+    return absl::InternalError(absl::StrFormat("%s: write failed after %d surfels: %s", tmp_path_,
                                                count_, std::strerror(errno)));
   }
   count_ += surfels.size();
@@ -479,11 +675,19 @@ absl::Status PlyWriter::Close() {
   file_ = nullptr;
   const std::string digits = absl::StrFormat("%0*d", kCountDigits, count_);
   bool ok = std::fflush(f) == 0 && std::fseek(f, count_offset_, SEEK_SET) == 0 &&
-            std::fwrite(digits.data(), 1, digits.size(), f) == digits.size();
+            std::fwrite(digits.data(), 1, digits.size(), f) == digits.size() &&
+            std::fflush(f) == 0 && fsync(fileno(f)) == 0;
   ok = (std::fclose(f) == 0) && ok;
   if (!ok) {
+    const std::string why = std::strerror(errno);
+    std::remove(tmp_path_.c_str());
+    return absl::InternalError(absl::StrFormat("%s: finishing the file failed: %s", tmp_path_, why));
+  }
+  if (std::rename(tmp_path_.c_str(), path_.c_str()) != 0) {
+    const std::string why = std::strerror(errno);
+    std::remove(tmp_path_.c_str());
     return absl::InternalError(
-        absl::StrFormat("%s: finishing the file failed: %s", path_, std::strerror(errno)));
+        absl::StrFormat("cannot rename %s to %s: %s", tmp_path_, path_, why));
   }
   return absl::OkStatus();
 }

@@ -27,18 +27,20 @@ inline SortRecord MakeSortRecord(uint64_t key, const Surfel& s) {
 }
 
 // Why a surfel cannot be stored, or nullptr when it can. `use_radiance`: radiance is checked
-// only when it will be stored.
-inline const char* InvalidSurfelReason(const Surfel& s, bool use_radiance) {
+// only when it will be stored; a radius (a normal) that the build estimates is not checked.
+inline const char* InvalidSurfelReason(const Surfel& s, bool use_radiance,
+                                       bool estimate_radius = false,
+                                       bool estimate_normal = false) {
   auto finite3 = [](const glm::vec3& v) {
     return std::isfinite(v.x) && std::isfinite(v.y) && std::isfinite(v.z);
   };
   if (!finite3(s.position)) return "position is NaN or infinite";
-  if (!finite3(s.normal)) return "normal is NaN or infinite";
-  if (!std::isfinite(s.radius)) return "radius is NaN or infinite";
-  if (!(s.radius > 0)) return "radius is zero or negative";
+  if (!estimate_normal && !finite3(s.normal)) return "normal is NaN or infinite";
+  if (!estimate_radius && !std::isfinite(s.radius)) return "radius is NaN or infinite";
+  if (!estimate_radius && !(s.radius > 0)) return "radius is zero or negative";
   double n2 = double(s.normal.x) * s.normal.x + double(s.normal.y) * s.normal.y +
               double(s.normal.z) * s.normal.z;
-  if (!(n2 > 1e-12)) return "normal is zero";
+  if (!estimate_normal && !(n2 > 1e-12)) return "normal is zero";
   if (use_radiance && !finite3(s.radiance)) return "radiance is NaN or infinite";
   return nullptr;
 }

@@ -2,7 +2,7 @@
 // receivers (RenderMan's ptfilter workflow) or for the pixels of a camera view of a scene.
 #include <algorithm>
 #include <cerrno>
-#include <chrono>
+#include <cmath>
 #include <cstdio>
 #include <cstring>
 #include <limits>
@@ -12,13 +12,17 @@
 
 #include "absl/strings/match.h"
 #include "absl/strings/str_format.h"
+#include "absl/strings/str_join.h"
 #include "base/proc.h"
 #include "pbgi/ply.h"
 #include "pbgi/query.h"
 #include "pbgi/raster.h"
 #include "pbgi/scene.h"
 #include "pbgi/status.h"
+#include "tools/args.h"
 #include "tools/command.h"
+#include "tools/outputs.h"
+#include "tools/progress.h"
 #include "tools/scene_views.h"
 
 namespace pbgi::tools {
@@ -40,85 +44,18 @@ struct ShadeArgs {
   std::string hitsides = "front";
   float phong_exponent = 32.0f;
   uint64_t seed = 1;
+  int size = 0;
+  std::string up = "z";
+  bool any_scene = false;
   std::string eye, look_at;
   float fov = 0.0f;
   int width = 640;
   int height = 360;
-  int64_t chunk = 1 << 20;
+  std::string chunk = "1M";
+  std::string invalid = "fail";
 };
 
 enum class Mode { kOcclusion, kIrradiance, kGlossy };
-
-// Output point file: the receivers' own properties, then what was computed.
-class ResultPlyWriter {
- public:
-  static absl::StatusOr<std::unique_ptr<ResultPlyWriter>> Create(const std::string& path,
-                                                                 Mode mode) {
-    auto w = std::unique_ptr<ResultPlyWriter>(new ResultPlyWriter());
-    w->path_ = path;
-    w->mode_ = mode;
-    w->file_ = std::fopen(path.c_str(), "wb");
-    if (w->file_ == nullptr) {
-      return absl::UnavailableError(absl::StrFormat("cannot create %s", path));
-    }
-    std::string header =
-        "ply\nformat binary_little_endian 1.0\ncomment written by pbgi shade\n"
-        "element vertex 0000000000000000000\n";
-    for (const char* p : {"x", "y", "z", "nx", "ny", "nz", "radius", "occlusion"}) {
-      header += absl::StrFormat("property float %s\n", p);
-    }
-    if (mode != Mode::kOcclusion) {
-      const char* prefix = mode == Mode::kGlossy ? "glossy" : "irradiance";
-      for (const char* c : {"r", "g", "b"}) {
-        header += absl::StrFormat("property float %s_%s\n", prefix, c);
-      }
-    }
-    header += "end_header\n";
-    w->count_offset_ = static_cast<long>(header.find("0000000000000000000"));
-    if (std::fwrite(header.data(), 1, header.size(), w->file_) != header.size()) {
-      return w->WriteError();
-    }
-    return w;
-  }
-  ~ResultPlyWriter() {
-    if (file_ != nullptr) std::fclose(file_);
-  }
-  absl::Status Write(const Surfel& s, const ShadeResult& r) {
-    float v[11] = {s.position.x, s.position.y, s.position.z, s.normal.x,
-                   s.normal.y,   s.normal.z,   s.radius,     r.occlusion};
-    int n = 8;
-    if (mode_ != Mode::kOcclusion) {
-      const glm::vec3 c = mode_ == Mode::kGlossy ? r.glossy : r.irradiance;
-      v[8] = c.x, v[9] = c.y, v[10] = c.z;
-      n = 11;
-    }
-    if (std::fwrite(v, sizeof(float), n, file_) != size_t(n)) return WriteError();
-    ++count_;
-    return absl::OkStatus();
-  }
-  absl::Status Close() {
-    const std::string count = absl::StrFormat("%019d", count_);
-    if (std::fseek(file_, count_offset_, SEEK_SET) != 0 ||
-        std::fwrite(count.data(), 1, count.size(), file_) != count.size()) {
-      return WriteError();
-    }
-    const int rc = std::fclose(file_);
-    file_ = nullptr;
-    if (rc != 0) return WriteError();
-    return absl::OkStatus();
-  }
-
- private:
-  absl::Status WriteError() {
-    return absl::UnavailableError(
-        absl::StrFormat("cannot write %s: %s (disk full?)", path_, std::strerror(errno)));
-  }
-  std::string path_;
-  Mode mode_ = Mode::kIrradiance;
-  std::FILE* file_ = nullptr;
-  long count_offset_ = 0;
-  uint64_t count_ = 0;
-};
 
 void PrintSummary(const char* what, uint64_t receivers, const ShadeStats& s, int threads,
                   uint64_t cache) {
@@ -145,41 +82,162 @@ void PrintSummary(const char* what, uint64_t receivers, const ShadeStats& s, int
       FormatBytes(cs.shared.bytes_read).c_str(), FormatBytes(internal::PeakRssBytes()).c_str());
 }
 
-absl::Status ShadePoints(const ShadeArgs& a, Database& db, const ShadeOptions& so, Mode mode,
-                         uint64_t cache) {
-  PBGI_ASSIGN_OR_RETURN(std::unique_ptr<SurfelSource> in, OpenPly(a.receivers));
-  PBGI_ASSIGN_OR_RETURN(std::unique_ptr<ResultPlyWriter> out, ResultPlyWriter::Create(a.out, mode));
+// Why a receiver cannot be shaded, or nullptr (ShadeBatch refuses the same ones).
+const char* InvalidReceiver(const ShadeReceiver& r) {
+  const bool finite = std::isfinite(r.position.x) && std::isfinite(r.position.y) &&
+                      std::isfinite(r.position.z) && std::isfinite(r.normal.x) &&
+                      std::isfinite(r.normal.y) && std::isfinite(r.normal.z);
+  if (!finite) return "a NaN or infinite coordinate";
+  if (glm::dot(r.normal, r.normal) == 0.0f) return "a zero normal";
+  return nullptr;
+}
+
+// The float results that follow each receiver's own properties, and the colour point viewers
+// show (tone-mapped light: irradiance / pi, the radiance of a white diffuse surface; glossy
+// radiance; or grey 1 - occlusion).
+std::vector<std::string> ResultNames(Mode mode) {
+  std::vector<std::string> n = {"occlusion"};
+  if (mode != Mode::kOcclusion) {
+    const char* prefix = mode == Mode::kGlossy ? "glossy" : "irradiance";
+    for (const char* c : {"r", "g", "b"}) n.push_back(absl::StrFormat("%s_%s", prefix, c));
+  }
+  return n;
+}
+
+void AppendResult(Mode mode, const ShadeResult& r, std::vector<float>* extra,
+                  std::vector<uint8_t>* rgb) {
+  extra->push_back(r.occlusion);
+  glm::vec3 shown(1.0f - std::clamp(r.occlusion, 0.0f, 1.0f));
+  if (mode != Mode::kOcclusion) {
+    const glm::vec3 c = mode == Mode::kGlossy ? r.glossy : r.irradiance;
+    extra->insert(extra->end(), {c.x, c.y, c.z});
+    shown = mode == Mode::kGlossy ? c : c * float(1.0 / 3.14159265358979);
+  }
+  for (int k = 0; k < 3; ++k) rgb->push_back(ToneMap8(shown[k]));
+}
+
+absl::Status ShadePoints(const ShadeArgs& a, Database& db, const ShadeOptions& base, Mode mode,
+                         uint64_t cache, int64_t chunk_size) {
+  // Receivers need a position and a normal; a radius is never used.
+  PlyReadOptions ro;
+  ro.allow_missing_radius = true;
+  PBGI_ASSIGN_OR_RETURN(std::unique_ptr<PlySource> in, OpenPlyFile(a.receivers, ro));
+  const bool reflections = in->header().has_reflection;
+  if (mode == Mode::kGlossy && !reflections) {
+    std::fprintf(stderr,
+                 "pbgi shade: note: %s has no rx ry rz properties: each glossy lobe is centred on "
+                 "the receiver's normal\n",
+                 a.receivers.c_str());
+  }
+  PlyWriterOptions wo;
+  wo.radiance = false;
+  wo.colors = PlyColors::kGiven;
+  wo.extra = ResultNames(mode);
+  wo.comments = {"pbgi shade.db " + a.db, "pbgi shade.mode " + a.mode,
+                 "pbgi shade.receivers " + a.receivers, "pbgi tool " + std::string(kToolVersion)};
+  PBGI_ASSIGN_OR_RETURN(std::unique_ptr<PlyWriter> out, PlyWriter::Create(a.out, wo));
   // Receivers stream through in chunks (Z-ordered within each chunk), so a receiver file of any
   // size shades inside the cache budget plus one chunk.
-  std::vector<Surfel> chunk(static_cast<size_t>(a.chunk));
+  std::vector<Surfel> chunk(static_cast<size_t>(chunk_size));
+  std::vector<glm::vec3> refl(chunk.size());
   std::vector<ShadeReceiver> receivers;
+  std::vector<uint32_t> index_of;  // chunk slot of each valid receiver
   std::vector<ShadeResult> results;
+  std::vector<Surfel> kept;
+  std::vector<float> extra;
+  std::vector<uint8_t> rgb;
   ShadeStats total, s;
-  uint64_t done = 0;
+  uint64_t done = 0, invalid = 0;
+  Progress progress("shade", "receivers", in->KnownCount());
+  ShadeOptions so = base;
+  so.progress = [&](const ShadeProgress& p) { progress.Update(done + p.done); };
   for (;;) {
-    PBGI_ASSIGN_OR_RETURN(size_t n, in->Next(absl::MakeSpan(chunk)));
+    PBGI_ASSIGN_OR_RETURN(size_t n, in->NextWithReflections(absl::MakeSpan(chunk),
+                                                            absl::MakeSpan(refl)));
     if (n == 0) break;
-    receivers.resize(n);
+    receivers.clear();
+    index_of.clear();
     for (size_t i = 0; i < n; ++i) {
-      receivers[i] = {chunk[i].position, chunk[i].normal, chunk[i].normal};
+      const glm::vec3 r = reflections && glm::dot(refl[i], refl[i]) > 0 ? refl[i] : chunk[i].normal;
+      const ShadeReceiver sr{chunk[i].position, chunk[i].normal, r};
+      if (const char* why = InvalidReceiver(sr)) {
+        if (a.invalid == "fail") {
+          progress.Abandon();
+          return absl::InvalidArgumentError(absl::StrFormat(
+              "%s: receiver %d (counting from 0) has %s; nothing was written (--invalid skip "
+              "leaves such receivers out, --invalid zero writes them with zero results)",
+              a.receivers, done + i, why));
+        }
+        if (invalid < 5) {
+          std::fprintf(stderr, "pbgi shade: receiver %llu has %s: %s\n",
+                       static_cast<unsigned long long>(done + i), why,
+                       a.invalid == "skip" ? "skipped" : "written with zero results");
+        }
+        ++invalid;
+        if (a.invalid == "skip") continue;
+      }
+      index_of.push_back(static_cast<uint32_t>(i));
+      receivers.push_back(sr);
     }
-    results.resize(n);
-    PBGI_RETURN_IF_ERROR(ShadeBatch(db, receivers, so, absl::MakeSpan(results), &s));
-    for (size_t i = 0; i < n; ++i) PBGI_RETURN_IF_ERROR(out->Write(chunk[i], results[i]));
+    // Shade the valid ones; invalid ones kept under --invalid zero get zero results.
+    std::vector<ShadeReceiver> valid;
+    std::vector<uint32_t> valid_slot;
+    for (size_t j = 0; j < receivers.size(); ++j) {
+      if (InvalidReceiver(receivers[j]) == nullptr) {
+        valid.push_back(receivers[j]);
+        valid_slot.push_back(static_cast<uint32_t>(j));
+      }
+    }
+    std::vector<ShadeResult> shaded(valid.size());
+    PBGI_RETURN_IF_ERROR(ShadeBatch(db, valid, so, absl::MakeSpan(shaded), &s));
+    results.assign(receivers.size(), ShadeResult{});
+    for (size_t j = 0; j < valid.size(); ++j) results[valid_slot[j]] = shaded[j];
+    kept.clear();
+    extra.clear();
+    rgb.clear();
+    for (size_t j = 0; j < receivers.size(); ++j) {
+      kept.push_back(chunk[index_of[j]]);
+      AppendResult(mode, results[j], &extra, &rgb);
+    }
+    PBGI_RETURN_IF_ERROR(out->Write(kept, extra, rgb));
     done += n;
     total.Add(s);
-    std::fprintf(stderr, "shade: %llu receivers\n", static_cast<unsigned long long>(done));
   }
   PBGI_RETURN_IF_ERROR(out->Close());
-  PrintSummary("receivers", done, total, so.threads > 0 ? so.threads : DefaultShadeThreads(),
-               cache);
-  std::printf("  wrote %s\n", a.out.c_str());
+  progress.Finish(done, invalid > 0 ? absl::StrFormat("%d invalid (%s)", invalid,
+                                                      a.invalid == "skip" ? "skipped" : "zero")
+                                    : std::string());
+  PrintSummary("receivers", done, total, ResolveThreads(so.threads), cache);
+  if (invalid > 0) {
+    std::printf("  %llu invalid receivers %s\n", static_cast<unsigned long long>(invalid),
+                a.invalid == "skip" ? "skipped" : "written with zero results");
+  }
+  std::printf("  wrote %s (%llu points)\n", a.out.c_str(),
+              static_cast<unsigned long long>(out->count()));
   return absl::OkStatus();
 }
 
-absl::Status ShadeCamera(const ShadeArgs& a, Database& db, const ShadeOptions& so, Mode mode,
+// The EXR and PNG paths of a view's output.
+absl::StatusOr<std::pair<std::string, std::string>> ViewOutputs(const std::string& out) {
+  if (absl::EndsWith(out, ".exr")) return std::make_pair(out, out.substr(0, out.size() - 4) + ".png");
+  if (absl::EndsWith(out, ".png")) return std::make_pair(out.substr(0, out.size() - 4) + ".exr", out);
+  return absl::InvalidArgumentError(
+      absl::StrFormat("-o %s: the output of a camera view is an .exr or a .png", out));
+}
+
+absl::Status ShadeCamera(const ShadeArgs& a, Database& db, const ShadeOptions& base, Mode mode,
                          uint64_t cache) {
-  PBGI_ASSIGN_OR_RETURN(std::shared_ptr<const Scene> scene, LoadScene(a.scene, a.seed, 0));
+  PBGI_ASSIGN_OR_RETURN(UpAxis up, ParseUpAxis(a.up));
+  PBGI_ASSIGN_OR_RETURN(std::shared_ptr<const Scene> scene, LoadScene(a.scene, a.seed, a.size, up));
+  std::string warning;
+  const absl::Status match = CheckSceneMatchesDatabase(
+      *scene, SceneFingerprint(*scene, a.seed, a.size, up), db.meta(), a.db, &warning);
+  if (!match.ok()) {
+    if (!a.any_scene) return match;
+    std::fprintf(stderr, "pbgi shade: warning (--any-scene): %s\n",
+                 std::string(match.message()).c_str());
+  }
+  if (!warning.empty()) std::fprintf(stderr, "pbgi shade: warning: %s\n", warning.c_str());
   PBGI_ASSIGN_OR_RETURN(std::unique_ptr<Tracer> tracer, Tracer::Create(*scene));
   Camera camera = DefaultCamera(*scene, a.width, a.height);
   if (!a.eye.empty()) {
@@ -189,31 +247,51 @@ absl::Status ShadeCamera(const ShadeArgs& a, Database& db, const ShadeOptions& s
     PBGI_ASSIGN_OR_RETURN(camera.look_at, ParseVec3(a.look_at));
   }
   if (a.fov > 0.0f) camera.fov_y_degrees = a.fov;
+  Progress progress("shade", "pixels", int64_t(a.width) * a.height);
+  ShadeOptions so = base;
+  so.progress = [&](const ShadeProgress& p) { progress.Update(p.done, int64_t(p.total)); };
   PBGI_ASSIGN_OR_RETURN(ViewImages view, RenderView(*tracer, db, camera, so));
-  const Image* image = &view.composite;
-  if (mode == Mode::kOcclusion) image = &view.occlusion;
-  std::string exr = a.out, png = a.out;
-  if (absl::EndsWith(a.out, ".exr")) {
-    png = a.out.substr(0, a.out.size() - 4) + ".png";
-  } else if (absl::EndsWith(a.out, ".png")) {
-    exr = a.out.substr(0, a.out.size() - 4) + ".exr";
-  } else {
-    return absl::InvalidArgumentError(
-        absl::StrFormat("%s: the output of a camera view is an .exr or a .png", a.out));
-  }
+  progress.Finish(view.receivers, absl::StrFormat("%dx%d view", a.width, a.height));
+  // Glossy: the lobe around each pixel's reflection direction; occlusion: 1 - occlusion; else
+  // direct plus diffuse indirect light.
+  const Image* image = mode == Mode::kOcclusion ? &view.occlusion
+                       : mode == Mode::kGlossy  ? &view.glossy
+                                                : &view.composite;
+  PBGI_ASSIGN_OR_RETURN(auto paths, ViewOutputs(a.out));
+  const auto& [exr, png] = paths;
   PBGI_RETURN_IF_ERROR(WriteExr(exr, *image));
   PBGI_RETURN_IF_ERROR(WritePng(png, *image, 1.0f, mode != Mode::kOcclusion));
   std::printf("traced %dx%d primary rays in %.2f s\n", a.width, a.height, view.trace_seconds);
-  PrintSummary("pixels", view.receivers, view.shade,
-               so.threads > 0 ? so.threads : DefaultShadeThreads(), cache);
-  std::printf("  wrote %s and %s\n", exr.c_str(), png.c_str());
+  PrintSummary("pixels", view.receivers, view.shade, ResolveThreads(so.threads), cache);
+  std::printf("  wrote %s and %s (%s)\n", exr.c_str(), png.c_str(),
+              mode == Mode::kOcclusion ? "1 - occlusion"
+              : mode == Mode::kGlossy  ? "glossy light around each pixel's reflection direction"
+                                       : "direct + diffuse indirect light");
   return absl::OkStatus();
+}
+
+// Outputs that do not fit the job, and outputs that are inputs: refused before anything is
+// opened.
+absl::Status CheckOutputs(const ShadeArgs& a) {
+  std::vector<std::string> outputs;
+  if (!a.receivers.empty()) {
+    if (!absl::EndsWith(a.out, ".ply")) {
+      return absl::InvalidArgumentError(absl::StrFormat(
+          "-o %s: with --receivers the output is a PLY point file (-o NAME.ply)", a.out));
+    }
+    outputs = {a.out};
+  } else {
+    PBGI_ASSIGN_OR_RETURN(auto paths, ViewOutputs(a.out));
+    outputs = {paths.first, paths.second};
+  }
+  return CheckOutputsAreNotInputs({a.db, a.receivers, a.scene}, outputs);
 }
 
 absl::Status RunShade(const ShadeArgs& a) {
   if (a.receivers.empty() == a.scene.empty()) {
     return absl::InvalidArgumentError("give either --receivers IN.ply or --scene SCENE");
   }
+  PBGI_RETURN_IF_ERROR(CheckOutputs(a));
   Mode mode = Mode::kIrradiance;
   if (a.mode == "occlusion")
     mode = Mode::kOcclusion;
@@ -223,7 +301,8 @@ absl::Status RunShade(const ShadeArgs& a) {
     return absl::InvalidArgumentError(
         absl::StrFormat("--mode %s: use occlusion, irradiance or glossy", a.mode));
   }
-  PBGI_ASSIGN_OR_RETURN(uint64_t cache, ParseBytes(a.cache));
+  PBGI_ASSIGN_OR_RETURN(uint64_t cache, ParseBudget(a.cache, "--cache"));
+  PBGI_ASSIGN_OR_RETURN(int64_t chunk, ParseCount(a.chunk, "--chunk"));
   DatabaseOptions dbo;
   dbo.cache_bytes = cache;
   PBGI_ASSIGN_OR_RETURN(std::unique_ptr<Database> db, Database::Open(a.db, dbo));
@@ -233,7 +312,7 @@ absl::Status RunShade(const ShadeArgs& a) {
         a.db, a.mode));
   }
   ShadeOptions so;
-  so.threads = a.threads;
+  so.threads = ResolveThreads(a.threads);
   so.cut.max_solid_angle = a.max_solid_angle;
   so.cut.max_distance = a.max_distance;
   // The cosine weight suits integrals against the cosine (occlusion, irradiance), not a lobe.
@@ -249,7 +328,7 @@ absl::Status RunShade(const ShadeArgs& a) {
     so.raster.lobe = GlossyLobe::kPhong;
     so.raster.phong_exponent = a.phong_exponent;
   }
-  return a.scene.empty() ? ShadePoints(a, *db, so, mode, cache)
+  return a.scene.empty() ? ShadePoints(a, *db, so, mode, cache, chunk)
                          : ShadeCamera(a, *db, so, mode, cache);
 }
 
@@ -257,40 +336,70 @@ CommandSetup Setup() {
   return [](CLI::App* app) -> std::function<absl::Status()> {
     auto a = std::make_shared<ShadeArgs>();
     app->add_option("db", a->db, "Database directory")->required();
-    app->add_option("--receivers", a->receivers, "Point file (PLY) of receivers");
-    app->add_option("--scene", a->scene, "Scene of a camera view: procedural name or mesh file");
-    app->add_option("-o,--out", a->out, "Output: .ply for receivers, .exr/.png for a view")
+    app->add_option("--receivers", a->receivers,
+                    "Point file (PLY) of receivers: x y z nx ny nz, optionally rx ry rz (the "
+                    "reflection direction of a glossy lobe); a radius is not needed");
+    app->add_option("--scene", a->scene,
+                    "Scene of a camera view: procedural name or mesh file (the one the database "
+                    "was built from)");
+    app->add_option("-o,--output", a->out, "Output: .ply for receivers, .exr/.png for a view")
         ->required();
     app->add_option("--mode", a->mode, "occlusion, irradiance or glossy")
         ->check(CLI::IsMember({"occlusion", "irradiance", "glossy"}))
         ->capture_default_str();
-    app->add_option("--cache", a->cache, "Page cache budget")
-        ->check(BytesValidator())
+    app->add_option("--cache", a->cache, "Page cache budget (e.g. 256M, 2G)")
+        ->check(BudgetValidator())
         ->capture_default_str();
-    app->add_option("--threads", a->threads, "0: all cores")->capture_default_str();
+    app->add_option("--threads", a->threads, "Shading threads (0: all cores)")
+        ->check(CLI::Range(0, 1024))
+        ->capture_default_str();
     app->add_option("--cut", a->cut,
                     "cosine: the solid angle weighted by the cosine to the normal (fewer clusters "
                     "near the horizon; occlusion and irradiance only), or plain")
         ->check(CLI::IsMember({"cosine", "plain"}))
         ->capture_default_str();
-    app->add_option("--max-solid-angle", a->max_solid_angle)
+    app->add_option("--max-solid-angle", a->max_solid_angle,
+                    "Accept a node as a cluster below this solid angle (sr): smaller is finer")
         ->check(CLI::Range(0.0f, 10.0f))
         ->capture_default_str();
-    app->add_option("--max-distance", a->max_distance)->check(CLI::PositiveNumber);
-    app->add_option("--raster-res", a->raster_res)->check(CLI::Range(4, 64))->capture_default_str();
-    app->add_option("--bias", a->bias)->capture_default_str();
-    app->add_option("--hitsides", a->hitsides)
+    app->add_option("--max-distance", a->max_distance, "Ignore what is farther than this")
+        ->check(CLI::PositiveNumber);
+    app->add_option("--raster-res", a->raster_res, "Micro-buffer pixels per cube face edge")
+        ->check(CLI::Range(4, 64))
+        ->capture_default_str();
+    app->add_option("--bias", a->bias,
+                    "Offset of each receiver along its normal (world units)")
+        ->capture_default_str();
+    app->add_option("--hitsides", a->hitsides,
+                    "Which sides of a surfel occlude and emit: front, back or both")
         ->check(CLI::IsMember({"front", "back", "both"}))
         ->capture_default_str();
-    app->add_option("--phong-exponent", a->phong_exponent, "Glossy lobe")->capture_default_str();
+    app->add_option("--phong-exponent", a->phong_exponent, "Glossy lobe: cos^n around the reflection")
+        ->capture_default_str();
     app->add_option("--seed", a->seed, "Seed of a procedural scene")->capture_default_str();
+    app->add_option("--size", a->size, "Scale of a procedural scene (0: its default)")
+        ->capture_default_str();
+    app->add_option("--up", a->up, "Up axis of a mesh file: z, or y (glTF)")
+        ->check(CLI::IsMember({"y", "z", "Y", "Z"}))
+        ->capture_default_str();
+    app->add_flag("--any-scene", a->any_scene,
+                  "Shade a view even when the database was built from another scene");
     app->add_option("--eye", a->eye, "Camera position X,Y,Z");
     app->add_option("--look-at", a->look_at, "Camera target X,Y,Z");
     app->add_option("--fov", a->fov, "Vertical field of view, degrees");
-    app->add_option("--width", a->width)->check(CLI::Range(1, 16384))->capture_default_str();
-    app->add_option("--height", a->height)->check(CLI::Range(1, 16384))->capture_default_str();
-    app->add_option("--chunk", a->chunk, "Receivers shaded per batch")
-        ->check(CLI::Range(int64_t{1}, int64_t{1} << 28))
+    app->add_option("--width", a->width, "Image width, pixels")
+        ->check(CLI::Range(1, 16384))
+        ->capture_default_str();
+    app->add_option("--height", a->height, "Image height, pixels")
+        ->check(CLI::Range(1, 16384))
+        ->capture_default_str();
+    app->add_option("--chunk", a->chunk, "Receivers shaded per batch (e.g. 1M, 50k)")
+        ->check(CountValidator(1, int64_t{1} << 28))
+        ->capture_default_str();
+    app->add_option("--invalid", a->invalid,
+                    "A receiver with a zero normal or a NaN: fail (the default), skip it, or "
+                    "write it with zero results")
+        ->check(CLI::IsMember({"fail", "skip", "zero"}))
         ->capture_default_str();
     return [a]() { return RunShade(*a); };
   };

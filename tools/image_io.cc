@@ -8,6 +8,7 @@
 #include "ImfRgbaFile.h"
 #include "absl/strings/match.h"
 #include "absl/strings/str_format.h"
+#include "tools/outputs.h"
 
 #define STB_IMAGE_WRITE_IMPLEMENTATION
 #define STBI_WRITE_NO_STDIO_OVERRIDE
@@ -21,10 +22,13 @@ uint8_t ToSrgb8(float v) {
   const float s = v <= 0.0031308f ? 12.92f * v : 1.055f * std::pow(v, 1.0f / 2.4f) - 0.055f;
   return static_cast<uint8_t>(std::lround(s * 255.0f));
 }
+// (ToneMap8 in pbgi/ply.h is the same curve for the PLY writers' colours.)
 
 }  // namespace
 
 absl::Status WriteExr(const std::string& path, const Image& image) {
+  // Written under a temporary name and renamed when complete (tools/outputs.h).
+  OutputFile out(path);
   // OpenEXR reports errors with exceptions: they stop here, at the library boundary.
   try {
     std::vector<Imf::Rgba> px(image.pixels.size());
@@ -32,13 +36,16 @@ absl::Status WriteExr(const std::string& path, const Image& image) {
       const glm::vec3& c = image.pixels[i];
       px[i] = Imf::Rgba(c.x, c.y, c.z, 1.0f);
     }
-    Imf::RgbaOutputFile file(path.c_str(), image.width, image.height, Imf::WRITE_RGBA);
-    file.setFrameBuffer(px.data(), 1, size_t(image.width));
-    file.writePixels(image.height);
+    {
+      Imf::RgbaOutputFile file(out.tmp_path().c_str(), image.width, image.height,
+                               Imf::WRITE_RGBA);
+      file.setFrameBuffer(px.data(), 1, size_t(image.width));
+      file.writePixels(image.height);
+    }  // the file is complete when it closes
   } catch (const std::exception& e) {
     return absl::UnavailableError(absl::StrFormat("cannot write %s: %s", path, e.what()));
   }
-  return absl::OkStatus();
+  return out.Commit();
 }
 
 absl::Status WritePng(const std::string& path, const Image& image, float exposure, bool tonemap) {
@@ -51,11 +58,12 @@ absl::Status WritePng(const std::string& path, const Image& image, float exposur
       rgb[i * 3 + c] = ToSrgb8(v);
     }
   }
-  if (stbi_write_png(path.c_str(), image.width, image.height, 3, rgb.data(), image.width * 3) ==
-      0) {
+  OutputFile out(path);
+  if (stbi_write_png(out.tmp_path().c_str(), image.width, image.height, 3, rgb.data(),
+                     image.width * 3) == 0) {
     return absl::UnavailableError(absl::StrFormat("cannot write %s", path));
   }
-  return absl::OkStatus();
+  return out.Commit();
 }
 
 absl::Status WriteImage(const std::string& path, const Image& image, float exposure) {

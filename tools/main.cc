@@ -1,6 +1,8 @@
 // pbgi: build, inspect, query and shade Coherent PBGI databases from a terminal.
 #include <unistd.h>
 
+#include <cctype>
+
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
@@ -11,6 +13,7 @@
 
 #include "absl/strings/numbers.h"
 #include "absl/strings/str_format.h"
+#include "tools/args.h"
 #include "tools/command.h"
 
 namespace pbgi::tools {
@@ -73,6 +76,24 @@ CLI::Validator BytesValidator() {
   return CLI::Validator(
       [](std::string& s) -> std::string {
         auto r = ParseBytes(s);
+        return r.ok() ? std::string() : std::string(r.status().message());
+      },
+      "SIZE");
+}
+
+absl::StatusOr<uint64_t> ParseBudget(const std::string& text, const std::string& what) {
+  if (!text.empty() && std::isdigit(static_cast<unsigned char>(text.back()))) {
+    return absl::InvalidArgumentError(absl::StrFormat(
+        "%s %s has no unit: give one (%sM, %sG; %sB if you mean bytes)", what, text, text, text,
+        text));
+  }
+  return ParseBytes(text);
+}
+
+CLI::Validator BudgetValidator() {
+  return CLI::Validator(
+      [](std::string& s) -> std::string {
+        auto r = ParseBudget(s, "the budget");
         return r.ok() ? std::string() : std::string(r.status().message());
       },
       "SIZE");

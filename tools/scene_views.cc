@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <chrono>
+#include <cstring>
 #include <cmath>
 #include <filesystem>
 #include <vector>
@@ -13,8 +14,23 @@
 
 namespace pbgi::tools {
 
+absl::StatusOr<UpAxis> ParseUpAxis(const std::string& text) {
+  if (text == "z" || text == "Z") return UpAxis::kZ;
+  if (text == "y" || text == "Y") return UpAxis::kY;
+  return absl::InvalidArgumentError(absl::StrFormat("--up %s: use y or z", text));
+}
+
+const char* UpAxisName(UpAxis up) { return up == UpAxis::kY ? "y" : "z"; }
+
+void RotateYUpToZUp(Scene* scene) {
+  // (x, y, z) -> (x, -z, y): +90 degrees about x.
+  const glm::mat4 r(glm::vec4(1, 0, 0, 0), glm::vec4(0, 0, 1, 0), glm::vec4(0, -1, 0, 0),
+                    glm::vec4(0, 0, 0, 1));
+  for (Instance& i : scene->instances) i.transform = r * i.transform;
+}
+
 absl::StatusOr<std::shared_ptr<const Scene>> LoadScene(const std::string& spec, uint64_t seed,
-                                                       int size) {
+                                                       int size, UpAxis up) {
   for (const std::string& name : ProceduralSceneNames()) {
     if (name == spec) {
       SceneOptions options;
@@ -32,7 +48,122 @@ absl::StatusOr<std::shared_ptr<const Scene>> LoadScene(const std::string& spec, 
   }
   ImportReport report;
   PBGI_ASSIGN_OR_RETURN(Scene scene, ImportMesh(spec, &report));
+  if (up == UpAxis::kY) RotateYUpToZUp(&scene);
   return std::make_shared<const Scene>(std::move(scene));
+}
+
+std::map<std::string, std::string> SceneFingerprint(const Scene& scene, uint64_t seed, int size,
+                                                    UpAxis up) {
+  // FNV-1a over the bits of every instanced triangle's world-space vertices: equal for the same
+  // geometry, whatever options made it.
+  uint64_t h = 1469598103934665603ull;
+  auto mix = [&](float f) {
+    uint32_t b;
+    std::memcpy(&b, &f, 4);
+    for (int k = 0; k < 4; ++k) {
+      h ^= (b >> (8 * k)) & 0xff;
+      h *= 1099511628211ull;
+    }
+  };
+  for (const Instance& inst : scene.instances) {
+    const Mesh& m = scene.meshes[inst.mesh];
+    for (const glm::uvec3& t : m.triangles) {
+      for (int k = 0; k < 3; ++k) {
+        const glm::vec3 p = glm::vec3(inst.transform * glm::vec4(m.positions[t[k]], 1.0f));
+        mix(p.x), mix(p.y), mix(p.z);
+      }
+    }
+  }
+  const Bounds b = scene.ComputeBounds();
+  const bool procedural =
+      std::find(ProceduralSceneNames().begin(), ProceduralSceneNames().end(), scene.name) !=
+      ProceduralSceneNames().end();
+  std::map<std::string, std::string> f;
+  f["scene.name"] = scene.name;
+  if (procedural) {
+    f["scene.seed"] = absl::StrFormat("%d", seed);
+    f["scene.size"] = absl::StrFormat("%d", size);
+  } else {
+    f["scene.up"] = UpAxisName(up);
+  }
+  f["scene.triangles"] = absl::StrFormat("%d", scene.TriangleCount());
+  f["scene.bounds"] = absl::StrFormat("%.9g,%.9g,%.9g,%.9g,%.9g,%.9g", b.lo.x, b.lo.y, b.lo.z,
+                                      b.hi.x, b.hi.y, b.hi.z);
+  f["scene.geometry"] = absl::StrFormat("%016x", h);
+  return f;
+}
+
+namespace {
+
+std::string Describe(const std::map<std::string, std::string>& f) {
+  auto get = [&](const char* k) {
+    auto it = f.find(k);
+    return it == f.end() ? std::string() : it->second;
+  };
+  std::string s = "'" + get("scene.name") + "'";
+  if (!get("scene.seed").empty()) s += " seed " + get("scene.seed");
+  if (!get("scene.size").empty() && get("scene.size") != "0") s += " size " + get("scene.size");
+  if (!get("scene.up").empty()) s += " up " + get("scene.up");
+  s += ", " + get("scene.triangles") + " triangles";
+  return s;
+}
+
+}  // namespace
+
+absl::Status CheckSceneMatchesDatabase(const Scene& scene,
+                                       const std::map<std::string, std::string>& fingerprint,
+                                       const StoreMeta& meta, const std::string& db_path,
+                                       std::string* warning) {
+  warning->clear();
+  auto built = meta.stats.find("scene.geometry");
+  if (built != meta.stats.end()) {
+    const auto name = meta.stats.find("scene.name");
+    const auto tris = meta.stats.find("scene.triangles");
+    const bool same = built->second == fingerprint.at("scene.geometry") &&
+                      name != meta.stats.end() && name->second == fingerprint.at("scene.name") &&
+                      tris != meta.stats.end() &&
+                      tris->second == fingerprint.at("scene.triangles");
+    if (same) return absl::OkStatus();
+    std::map<std::string, std::string> db;
+    for (const auto& [k, v] : meta.stats) {
+      if (k.rfind("scene.", 0) == 0) db[k] = v;
+    }
+    std::string fix;
+    if (db.count("scene.seed") != 0) {
+      fix = absl::StrFormat("--scene %s --seed %s", db["scene.name"], db["scene.seed"]);
+      if (db.count("scene.size") != 0 && db["scene.size"] != "0") {
+        fix += " --size " + db["scene.size"];
+      }
+    } else {
+      fix = absl::StrFormat("--scene %s%s", db["scene.name"],
+                            db["scene.up"] == "y" ? " --up y" : "");
+    }
+    return absl::FailedPreconditionError(absl::StrFormat(
+        "%s was built from scene %s, but the view is of scene %s: its surfels do not lie on "
+        "this geometry and the image would be wrong. Shade the scene it was built from (%s), "
+        "or pass --any-scene to shade anyway",
+        db_path, Describe(db), Describe(fingerprint), fix));
+  }
+  // No fingerprint (points from elsewhere): compare the boxes, axis by axis, with a tolerance
+  // of 2% of the scene's diagonal.
+  const Bounds s = scene.ComputeBounds();
+  const Bounds& d = meta.bounds;
+  const float tol = 0.02f * glm::length(s.Extent());
+  float worst = 1.0f;
+  for (int a = 0; a < 3; ++a) {
+    const float lo = std::max(s.lo[a], d.lo[a]), hi = std::min(s.hi[a], d.hi[a]);
+    const float uni = std::max(s.hi[a], d.hi[a]) - std::min(s.lo[a], d.lo[a]);
+    worst = std::min(worst, (std::max(0.0f, hi - lo) + tol) / (uni + tol));
+  }
+  if (worst < 0.8f) {
+    *warning = absl::StrFormat(
+        "%s holds no record of its scene, and its bounds (%g, %g, %g)..(%g, %g, %g) do not fit "
+        "the scene's (%g, %g, %g)..(%g, %g, %g): the view may not be of the scene it was built "
+        "from (wrong scene, --up or scale?)",
+        db_path, d.lo.x, d.lo.y, d.lo.z, d.hi.x, d.hi.y, d.hi.z, s.lo.x, s.lo.y, s.lo.z, s.hi.x,
+        s.hi.y, s.hi.z);
+  }
+  return absl::OkStatus();
 }
 
 Camera DefaultCamera(const Scene& scene, int width, int height) {
@@ -95,6 +226,7 @@ absl::StatusOr<ViewImages> RenderView(const Tracer& tracer, Database& db, const 
   ViewImages out;
   out.occlusion = Image(camera.width, camera.height);
   out.indirect = Image(camera.width, camera.height);
+  out.glossy = Image(camera.width, camera.height);
   out.direct = Image(camera.width, camera.height);
   out.composite = Image(camera.width, camera.height);
 
@@ -146,6 +278,7 @@ absl::StatusOr<ViewImages> RenderView(const Tracer& tracer, Database& db, const 
     out.occlusion.pixels[p] = glm::vec3(open);
     out.direct.pixels[p] = direct;
     if (radiance) {
+      out.glossy.pixels[p] = r.glossy;
       out.indirect.pixels[p] = m.albedo * r.irradiance * float(1.0 / sh::kPi);
       out.composite.pixels[p] = direct + out.indirect.pixels[p];
     } else {

@@ -3,6 +3,7 @@
 #ifndef PBGI_TOOLS_SCENE_VIEWS_H_
 #define PBGI_TOOLS_SCENE_VIEWS_H_
 
+#include <map>
 #include <memory>
 #include <string>
 #include <vector>
@@ -16,9 +17,33 @@
 
 namespace pbgi::tools {
 
-// A procedural scene's name (see ProceduralSceneNames()) or a mesh file that Assimp reads.
+// Which world axis points up in a mesh file. pbgi's frame is Z-up (the sun, the sky, the
+// cameras); glTF, and many OBJ and FBX files, are Y-up.
+enum class UpAxis { kZ, kY };
+absl::StatusOr<UpAxis> ParseUpAxis(const std::string& text);
+const char* UpAxisName(UpAxis up);
+
+// A procedural scene's name (see ProceduralSceneNames()) or a mesh file that Assimp reads; a
+// Y-up mesh is turned to Z-up (+90 degrees about x: y becomes z).
 absl::StatusOr<std::shared_ptr<const Scene>> LoadScene(const std::string& spec, uint64_t seed,
-                                                       int size);
+                                                       int size, UpAxis up = UpAxis::kZ);
+// Turns every instance of a Y-up scene to Z-up.
+void RotateYUpToZUp(Scene* scene);
+
+// What identifies a scene's geometry: "scene.name", "scene.seed", "scene.size", "scene.up",
+// "scene.triangles", "scene.bounds" and "scene.geometry" (a hash of every instanced triangle's
+// vertices). `pbgi generate` and `pbgi import` write it into their PLY's comments, and the
+// builds store it in the meta record's stats, so that a view can be checked against the
+// database it is shaded from.
+std::map<std::string, std::string> SceneFingerprint(const Scene& scene, uint64_t seed, int size,
+                                                    UpAxis up);
+// OK when the database was built from this scene (same name, triangle count and geometry hash),
+// or has no fingerprint. FailedPrecondition naming both scenes and the fix when they differ.
+// Without a fingerprint, *warning is set when the database's bounds do not fit the scene's.
+absl::Status CheckSceneMatchesDatabase(const Scene& scene,
+                                       const std::map<std::string, std::string>& fingerprint,
+                                       const StoreMeta& meta, const std::string& db_path,
+                                       std::string* warning);
 
 // A camera that frames the scene: hand-placed for the procedural scenes, from the bounds
 // for anything else.
@@ -33,6 +58,9 @@ absl::StatusOr<glm::vec3> ParseVec3(const std::string& text);
 struct ViewImages {
   Image occlusion;  // 1 - occlusion (white = open), grey
   Image indirect;   // diffuse indirect light: albedo / pi * irradiance
+  // Glossy indirect light: the lobe-weighted mean radiance around each pixel's reflection
+  // direction (ShadeResult::glossy); black unless the options ask for a glossy lobe.
+  Image glossy;
   Image direct;     // direct light * albedo + emission, from the tracer
   Image composite;  // direct + indirect, sky where nothing was hit
   uint64_t receivers = 0;

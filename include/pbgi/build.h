@@ -26,6 +26,7 @@
 #include <atomic>
 #include <cstdint>
 #include <functional>
+#include <map>
 #include <string>
 
 #include "absl/status/status.h"
@@ -71,6 +72,21 @@ struct BuildOptions {
   // When set and it becomes true (e.g. from a SIGINT handler), the build stops at the next
   // batch with a Cancelled error, removing its temporary files and the incomplete store.
   const std::atomic<bool>* cancel = nullptr;
+  // Key/value pairs stored as they are in the meta record's stats (where the surfels came from:
+  // the scene's fingerprint, the input file, the tool, the date; `pbgi info` shows them).
+  // REQUIRES: no key is one of the builder's own statistics.
+  std::map<std::string, std::string> provenance;
+  // What the source lacks and the octree pass estimates from each surfel's nearest neighbours
+  // in Morton order (build/neighbour_estimate.h): radii (a PLY without `radius`: its surfels
+  // have radius 0) and normals (zero normals), oriented away from the centre of the bounds or
+  // towards `viewpoint`. The meta record's stats say what was estimated.
+  struct Estimate {
+    bool radius = false;
+    bool normals = false;
+    int neighbours = 16;  // k, 3..64
+    bool towards_viewpoint = false;
+    glm::vec3 viewpoint{0.0f};
+  } estimate;
   // 1: everything on the calling thread. >= 2: a background sort/spill thread (double-buffered
   // runs inside the same budget), a merge thread running ahead of the octree pass, and (in
   // BuildDatabase) a thread for the LMDB writes. 0: 1 (measured faster on 2 cores under load;

@@ -3,6 +3,7 @@
 #include "pbgi/ply.h"
 
 #include <filesystem>
+#include <cstring>
 #include <fstream>
 #include <string>
 #include <vector>
@@ -39,7 +40,10 @@ TEST(PlyTest, RoundTripsBinaryAndAsciiWithAndWithoutColour) {
     for (bool colour : {true, false}) {
       SCOPED_TRACE(std::string(ascii ? "ascii" : "binary") + (colour ? " rgb" : " no rgb"));
       const std::string path = dir.Sub("c.ply");
-      auto w = PlyWriter::Create(path, {ascii, colour});
+      PlyWriterOptions wo;
+      wo.ascii = ascii;
+      wo.radiance = colour;
+      auto w = PlyWriter::Create(path, wo);
       ASSERT_TRUE(w.ok()) << w.status();
       // Several writes of uneven sizes.
       ASSERT_TRUE((*w)->Write(absl::MakeConstSpan(cloud).subspan(0, 1)).ok());
@@ -115,7 +119,9 @@ TEST(PlyTest, MalformedFilesAreErrorsThatSayWhere) {
   } cases[] = {
       {"", "not a PLY"},
       {"hello\n", "not a PLY"},
-      {"ply\nformat binary_big_endian 1.0\n" + head7, "unsupported format"},
+      {"ply\nformat binary_middle_endian 1.0\n" + head7, "unsupported format"},
+      {"ply\nformat ascii 1.0\n" + head7.substr(0, 17) + "bogus line\n" + head7.substr(17),
+       "unexpected keyword 'bogus'"},
       {"ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nend_header\n",
        "no 'y' property"},
       {"ply\nformat ascii 1.0\n" + head7 + "0 0 0 0 0 1 1\n0 0 0 0 0 1\n", "line 13 (record 1)"},
@@ -183,6 +189,159 @@ TEST(PlyTest, BuildRefusesAnInvalidRecordByNumberOrSkipsIt) {
   auto store = PageStore::Open(dir.Sub("db"));
   ASSERT_TRUE(store.ok()) << store.status();
   EXPECT_TRUE(VerifyTree(**store).ok());
+}
+
+}  // namespace
+}  // namespace pbgi
+
+namespace pbgi {
+namespace {
+
+using testing_build::ScratchDir;
+
+std::string BigEndianFloats(const std::vector<float>& v) {
+  std::string out;
+  for (float f : v) {
+    uint32_t b;
+    std::memcpy(&b, &f, 4);
+    for (int k = 3; k >= 0; --k) out.push_back(static_cast<char>((b >> (8 * k)) & 0xff));
+  }
+  return out;
+}
+
+TEST(PlyRegressionTest, BigEndianBinaryIsReadLikeLittleEndian) {
+  ScratchDir dir("ply_be");
+  const std::string path = dir.Sub("be.ply");
+  std::string body = BigEndianFloats({1.5f, -2.0f, 3.25f, 0, 0, 1, 0.125f});
+  body += std::string("\x00\x80", 2);  // ushort 128, big-endian
+  body += BigEndianFloats({-4.0f, 5.0f, 6.0f, 1, 0, 0, 2.0f});
+  body += std::string("\xff\xff", 2);
+  WriteFile(path,
+            "ply\nformat binary_big_endian 1.0\nelement vertex 2\nproperty float x\n"
+            "property float y\nproperty float z\nproperty float nx\nproperty float ny\n"
+            "property float nz\nproperty float radius\nproperty ushort quality\nend_header\n" +
+                body);
+  auto src = OpenPlyFile(path);
+  ASSERT_TRUE(src.ok()) << src.status();
+  EXPECT_EQ((*src)->header().format, "binary_big_endian");
+  auto got = ReadAll(**src);
+  ASSERT_EQ(got.size(), 2u);
+  EXPECT_EQ(got[0].position, glm::vec3(1.5f, -2.0f, 3.25f));
+  EXPECT_EQ(got[0].radius, 0.125f);
+  EXPECT_EQ(got[1].position, glm::vec3(-4.0f, 5.0f, 6.0f));
+  EXPECT_EQ(got[1].normal, glm::vec3(1, 0, 0));
+  EXPECT_EQ(got[1].radius, 2.0f);
+}
+
+TEST(PlyRegressionTest, FreeTextHeaderLineWithoutCommentIsAComment) {
+  // As Blender 2.47 wrote it (assimp-testmodels' Wuson.ply).
+  ScratchDir dir("ply_text");
+  const std::string path = dir.Sub("t.ply");
+  WriteFile(path,
+            "ply\nformat ascii 1.0\nCreated by Blender3D 247 - www.blender.org, source file: \n"
+            "element vertex 1\nproperty float x\nproperty float y\nproperty float z\n"
+            "property float nx\nproperty float ny\nproperty float nz\nproperty float radius\n"
+            "end_header\n1 2 3 0 0 1 0.5\n");
+  auto src = OpenPlyFile(path);
+  ASSERT_TRUE(src.ok()) << src.status();
+  ASSERT_EQ((*src)->header().notes.size(), 1u);
+  EXPECT_NE((*src)->header().notes[0].find("line 3 is free text"), std::string::npos);
+  EXPECT_EQ(ReadAll(**src).size(), 1u);
+}
+
+TEST(PlyRegressionTest, OwnOutputsWithColoursAndExtrasReadBack) {
+  ScratchDir dir("ply_own");
+  const std::string path = dir.Sub("o.ply");
+  const auto cloud = testing_build::UniformCloud(300, 4);
+  for (bool ascii : {false, true}) {
+    PlyWriterOptions wo;
+    wo.ascii = ascii;
+    wo.extra = {"occlusion", "weight"};
+    wo.comments = {"pbgi scene.name cornell", "pbgi scene.seed 3"};
+    auto w = PlyWriter::Create(path, wo);
+    ASSERT_TRUE(w.ok()) << w.status();
+    std::vector<float> extra;
+    for (size_t i = 0; i < cloud.size(); ++i) extra.insert(extra.end(), {0.5f, float(i)});
+    ASSERT_TRUE((*w)->Write(cloud, extra).ok());
+    ASSERT_TRUE((*w)->Close().ok());
+    auto src = OpenPlyFile(path);
+    ASSERT_TRUE(src.ok()) << src.status();
+    const PlyHeader& h = (*src)->header();
+    EXPECT_EQ(h.Provenance().at("scene.name"), "cornell");
+    EXPECT_EQ(h.Provenance().at("scene.seed"), "3");
+    std::vector<std::string> names;
+    for (const auto& p : h.vertex_properties) names.push_back(p.name + ":" + p.type);
+    EXPECT_EQ(names, (std::vector<std::string>{"x:float", "y:float", "z:float", "nx:float",
+                                               "ny:float", "nz:float", "radius:float", "r:float",
+                                               "g:float", "b:float", "occlusion:float",
+                                               "weight:float", "red:uchar", "green:uchar",
+                                               "blue:uchar"}));
+    // The float radiance wins over the tone-mapped uchar colours.
+    auto got = ReadAll(**src);
+    ASSERT_EQ(got.size(), cloud.size());
+    for (size_t i = 0; i < cloud.size(); ++i) {
+      ASSERT_EQ(got[i].position, cloud[i].position);
+      ASSERT_EQ(got[i].radius, cloud[i].radius);
+      ASSERT_EQ(got[i].radiance, cloud[i].radiance);
+    }
+  }
+  // The uchar colours are the tone-mapped radiance.
+  EXPECT_EQ(ToneMap8(0.0f), 0);
+  EXPECT_EQ(ToneMap8(1.0f), 188);  // 0.5 in sRGB
+  EXPECT_EQ(ToneMap8(1e30f), 255);
+  EXPECT_EQ(ToneMap8(std::nanf("")), 0);
+}
+
+TEST(PlyRegressionTest, MissingRadiusAndNormalsAreRefusedOrAllowed) {
+  ScratchDir dir("ply_missing");
+  const std::string path = dir.Sub("m.ply");
+  WriteFile(path,
+            "ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty float y\n"
+            "property float z\nproperty float rx\nproperty float ry\nproperty float rz\n"
+            "end_header\n0 0 0 0 0 1\n1 1 1 0 1 0\n");
+  auto refused = OpenPlyFile(path);
+  ASSERT_FALSE(refused.ok());
+  EXPECT_NE(refused.status().message().find("no 'nx' property"), std::string::npos);
+  PlyReadOptions o;
+  o.allow_missing_normals = true;
+  EXPECT_NE(OpenPlyFile(path, o).status().message().find("no 'radius' property"),
+            std::string::npos);
+  o.allow_missing_radius = true;
+  o.uniform_radius = 0.25f;
+  auto src = OpenPlyFile(path, o);
+  ASSERT_TRUE(src.ok()) << src.status();
+  EXPECT_TRUE((*src)->header().has_reflection);
+  EXPECT_FALSE((*src)->header().has_normals);
+  std::vector<Surfel> s(4);
+  std::vector<glm::vec3> r(4);
+  auto n = (*src)->NextWithReflections(absl::MakeSpan(s), absl::MakeSpan(r));
+  ASSERT_TRUE(n.ok()) << n.status();
+  ASSERT_EQ(*n, 2u);
+  EXPECT_EQ(s[1].radius, 0.25f);
+  EXPECT_EQ(s[1].normal, glm::vec3(0.0f));
+  EXPECT_EQ(r[1], glm::vec3(0, 1, 0));
+  // The header alone, with nothing required.
+  auto h = ReadPlyHeader(path);
+  ASSERT_TRUE(h.ok()) << h.status();
+  EXPECT_EQ(h->vertex_count, 2u);
+}
+
+TEST(PlyRegressionTest, AWriterWithoutCloseLeavesThePreviousFile) {
+  ScratchDir dir("ply_atomic");
+  const std::string path = dir.Sub("keep.ply");
+  WriteFile(path, "previous contents");
+  {
+    auto w = PlyWriter::Create(path);
+    ASSERT_TRUE(w.ok());
+    ASSERT_TRUE((*w)->Write(testing_build::UniformCloud(10, 1)).ok());
+    // Destroyed without Close(): an interrupted job.
+  }
+  std::ifstream f(path);
+  std::string got((std::istreambuf_iterator<char>(f)), std::istreambuf_iterator<char>());
+  EXPECT_EQ(got, "previous contents");
+  for (const auto& e : std::filesystem::directory_iterator(dir.path())) {
+    EXPECT_EQ(e.path().filename(), "keep.ply") << "left behind: " << e.path();
+  }
 }
 
 }  // namespace
