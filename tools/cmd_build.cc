@@ -4,7 +4,8 @@
 #include <chrono>
 #include <csignal>
 #include <cstdio>
-#include <fstream>
+#include <filesystem>
+#include <vector>
 #include <memory>
 #include <string>
 
@@ -13,7 +14,11 @@
 #include "pbgi/build.h"
 #include "pbgi/ply.h"
 #include "pbgi/status.h"
+#include "tools/args.h"
 #include "tools/command.h"
+#include "tools/outputs.h"
+#include "tools/progress.h"
+#include "tools/scene_views.h"
 #include "tools/report.h"
 
 namespace pbgi::tools {
@@ -34,43 +39,56 @@ struct Args {
   std::string tmp_dir;
   bool skip_invalid = false;
   std::string stats_json;
-  int threads = 0;
+  int threads = 1;
+  bool force = false;
+  float radius = 0.0f;
+  int neighbours = 16;
+  std::string viewpoint;
 };
 
-// Throttled progress: redraws one line on a terminal, prints a line per second otherwise.
-class Progress {
- public:
-  explicit Progress(bool tty) : tty_(tty), start_(std::chrono::steady_clock::now()) {}
-  void operator()(const BuildProgress& p) {
-    const auto now = std::chrono::steady_clock::now();
-    const double since = std::chrono::duration<double>(now - last_).count();
-    if (since < (tty_ ? 0.1 : 1.0) && std::string(p.pass) == last_pass_) return;
-    last_ = now;
-    last_pass_ = p.pass;
-    const double t = std::chrono::duration<double>(now - start_).count();
-    std::string line =
-        p.points_total > 0
-            ? absl::StrFormat("[%7.1fs] %-13s %12d / %d points (%.0f%%)", t, p.pass, p.points_done,
-                              p.points_total,
-                              100.0 * double(p.points_done) / double(p.points_total))
-            : absl::StrFormat("[%7.1fs] %-13s %12d points", t, p.pass, p.points_done);
-    std::fprintf(stderr, tty_ ? "\r%s\033[K" : "%s\n", line.c_str());
-    drew_ = true;
+// What a build may write to: a new path, an empty directory, or an existing database with
+// --force (swapped in by rename: readers that have the old one open keep reading it). A
+// directory that holds anything else is not ours to fill.
+absl::Status CheckBuildOutput(const std::string& out, bool force) {
+  namespace fs = std::filesystem;
+  std::error_code ec;
+  const fs::file_status st = fs::status(out, ec);
+  if (!fs::exists(st)) return absl::OkStatus();
+  if (!fs::is_directory(st)) {
+    return absl::FailedPreconditionError(absl::StrFormat(
+        "-o %s is a file, not a database directory: give a new path", out));
   }
-  void Done() {
-    if (tty_ && drew_) std::fprintf(stderr, "\n");
+  bool database = false;
+  std::vector<std::string> others;
+  for (const fs::directory_entry& e : fs::directory_iterator(out, ec)) {
+    const std::string name = e.path().filename().string();
+    if (name == "data.mdb") {
+      database = true;
+    } else if (name.rfind("data.mdb", 0) != 0 && name != "writer.lock" && name != "lock.mdb") {
+      others.push_back(name);  // not a store's own file (its leftovers start with data.mdb)
+    }
   }
-
- private:
-  bool tty_;
-  bool drew_ = false;
-  std::chrono::steady_clock::time_point start_, last_{};
-  std::string last_pass_;
-};
+  if (!others.empty()) {
+    return absl::FailedPreconditionError(absl::StrFormat(
+        "-o %s is a directory that holds other files (%s%s), not a database: give a new or "
+        "empty directory",
+        out, others.front(), others.size() > 1 ? absl::StrFormat(" and %d more", others.size() - 1)
+                                              : std::string()));
+  }
+  if (database && !force) {
+    return absl::FailedPreconditionError(absl::StrFormat(
+        "-o %s is a database already: pass --force to replace it (readers that have it open "
+        "keep the old one until they close it)",
+        out));
+  }
+  return absl::OkStatus();
+}
 
 absl::Status Run(const Args& a) {
+  PBGI_RETURN_IF_ERROR(CheckOutputsAreNotInputs({a.input}, {a.output, a.stats_json}));
+  PBGI_RETURN_IF_ERROR(CheckBuildOutput(a.output, a.force));
   BuildOptions o;
-  PBGI_ASSIGN_OR_RETURN(o.memory_bytes, ParseBytes(a.memory));
+  PBGI_ASSIGN_OR_RETURN(o.memory_bytes, ParseBudget(a.memory, "--memory"));
   o.leaf_size = a.leaf_size;
   if (!a.page_size.empty()) {
     PBGI_ASSIGN_OR_RETURN(uint64_t ps, ParseBytes(a.page_size));
@@ -88,12 +106,69 @@ absl::Status Run(const Args& a) {
   PBGI_ASSIGN_OR_RETURN(o.layout, ParseLayout(a.layout));
   o.tmp_dir = a.tmp_dir;
   o.skip_invalid = a.skip_invalid;
-  o.threads = a.threads;
-  auto progress = std::make_shared<Progress>(StderrIsTerminal());
-  o.progress = [progress](const BuildProgress& p) { (*progress)(p); };
+  o.threads = ResolveThreads(a.threads);
+  auto progress = std::make_shared<Progress>("build", "points", -1);
+  auto pass = std::make_shared<std::string>();
+  o.progress = [progress, pass](const BuildProgress& p) {
+    if (*pass != p.pass) {
+      *pass = p.pass;
+      progress->Phase(absl::StrFormat("build: %s", p.pass), p.points_total);
+    }
+    progress->Update(p.points_done, p.points_total);
+  };
   o.cancel = &g_interrupted;
 
-  PBGI_ASSIGN_OR_RETURN(std::unique_ptr<SurfelSource> src, OpenPly(a.input));
+  PlyReadOptions ro;
+  ro.allow_missing_radius = true;
+  ro.allow_missing_normals = true;
+  ro.uniform_radius = a.radius;
+  PBGI_ASSIGN_OR_RETURN(std::unique_ptr<PlySource> src, OpenPlyFile(a.input, ro));
+  const PlyHeader& header = src->header();
+  for (const std::string& n : header.notes) {
+    std::fprintf(stderr, "pbgi build: note: %s: %s\n", a.input.c_str(), n.c_str());
+  }
+  if (header.has_radius && a.radius > 0) {
+    return absl::InvalidArgumentError(absl::StrFormat(
+        "%s has its own 'radius' property: --radius is for files without one", a.input));
+  }
+  o.estimate.neighbours = a.neighbours;
+  if (!a.viewpoint.empty()) {
+    PBGI_ASSIGN_OR_RETURN(o.estimate.viewpoint, ParseVec3(a.viewpoint));
+    o.estimate.towards_viewpoint = true;
+  }
+  if (!header.has_radius) {
+    if (a.radius > 0) {
+      o.provenance["radius"] = absl::StrFormat("uniform %g (--radius)", a.radius);
+      std::fprintf(stderr, "pbgi build: %s has no 'radius' property: every surfel gets --radius %g\n",
+                   a.input.c_str(), a.radius);
+    } else {
+      o.estimate.radius = true;
+      std::fprintf(stderr,
+                   "pbgi build: %s has no 'radius' property: estimating each surfel's radius from "
+                   "its %d nearest neighbours (or give --radius R for a uniform one)\n",
+                   a.input.c_str(), a.neighbours);
+    }
+  }
+  if (!header.has_normals) {
+    o.estimate.normals = true;
+    std::fprintf(stderr,
+                 "pbgi build: %s has no normals (nx ny nz): estimating them from the %d nearest "
+                 "neighbours (PCA), oriented %s\n",
+                 a.input.c_str(), a.neighbours,
+                 a.viewpoint.empty() ? "away from the centre of the bounds (--viewpoint X,Y,Z "
+                                       "turns them towards a scanner's position instead)"
+                                     : ("towards " + a.viewpoint).c_str());
+  }
+  o.provenance = [&] {
+    auto p = header.Provenance();
+    p.erase("tool");
+    p.erase("date");
+    for (const auto& [k, v] : o.provenance) p[k] = v;
+    return p;
+  }();
+  o.provenance["input"] = a.input;
+  o.provenance["tool"] = kToolVersion;
+  o.provenance["built_at"] = NowIso8601();
   if (o.channels == Channels::kRadiance && !src->HasRadiance()) {
     std::fprintf(stderr,
                  "pbgi build: note: %s has no colour properties; radiance will be zero (use "
@@ -105,8 +180,8 @@ absl::Status Run(const Args& a) {
   absl::StatusOr<BuildStats> st = BuildDatabase(*src, a.output, o);
   std::signal(SIGINT, prev_int);
   std::signal(SIGTERM, prev_term);
-  progress->Done();
   if (!st.ok()) {
+    progress->Abandon();
     // Name the input file unless the message already does (PLY reader errors do).
     if (st.status().message().find(a.input) == absl::string_view::npos) {
       return absl::Status(st.status().code(),
@@ -115,16 +190,14 @@ absl::Status Run(const Args& a) {
     return st.status();
   }
   const BuildStats& s = *st;
+  progress->Finish(s.points, absl::StrFormat("%s on disk", FormatBytes(s.bytes_on_disk)));
   // The library's own VmHWM reading is taken after Finish; ours includes the PLY reader too.
   BuildStats shown = s;
   shown.peak_rss_bytes = std::max(s.peak_rss_bytes, internal::PeakRssBytes());
   PrintBuildStats(shown, o, a.input, a.output, a.channels);
   if (!a.stats_json.empty()) {
-    std::ofstream f(a.stats_json);
-    f << DumpJson(BuildStatsJson(shown, o, a.input, a.output, a.channels));
-    if (!f) {
-      return absl::InternalError(absl::StrFormat("cannot write %s", a.stats_json));
-    }
+    PBGI_RETURN_IF_ERROR(WriteFileAtomically(
+        a.stats_json, DumpJson(BuildStatsJson(shown, o, a.input, a.output, a.channels))));
   }
   return absl::OkStatus();
 }
@@ -132,10 +205,13 @@ absl::Status Run(const Args& a) {
 CommandSetup Setup() {
   return [](CLI::App* app) -> std::function<absl::Status()> {
     auto a = std::make_shared<Args>();
-    app->add_option("IN", a->input, "Input PLY point file (binary or ASCII)")->required();
+    app->add_option("IN", a->input,
+                    "Input PLY point file (binary or ASCII): x y z [nx ny nz] [radius] [r g b]")
+        ->required();
     app->add_option("-o,--output", a->output, "Database directory to create")->required();
-    app->add_option("--memory", a->memory, "Memory budget (sort, merge, write batch)")
-        ->check(BytesValidator())
+    app->add_option("--memory", a->memory,
+                    "Memory budget of the build, with a unit (512M, 1G): sort, merge, write batch")
+        ->check(BudgetValidator())
         ->capture_default_str();
     app->add_option("--leaf-size", a->leaf_size, "Maximum points per leaf")
         ->check(CLI::Range(1, 65535))
@@ -156,9 +232,23 @@ CommandSetup Setup() {
     app->add_option("--stats-json", a->stats_json, "Write the build statistics as JSON");
     app->add_option("--threads", a->threads,
                     "Threads: 1 runs every pass on one thread; 2 or more pipeline the sort, the "
-                    "merge and the LMDB writes (measured no faster on 2 cores); 0 means 1")
+                    "merge and the LMDB writes (measured no faster on 2 cores); 0: all cores")
         ->check(CLI::Range(0, 64))
         ->capture_default_str();
+    app->add_flag("--force", a->force,
+                  "Replace an existing database at -o (readers that have it open keep the old "
+                  "one)");
+    app->add_option("--radius", a->radius,
+                    "For a PLY without 'radius': give every surfel this radius instead of "
+                    "estimating each one from its neighbours")
+        ->check(CLI::PositiveNumber);
+    app->add_option("--neighbours", a->neighbours,
+                    "Neighbours (k) of the radius and normal estimates of a PLY that lacks them")
+        ->check(CLI::Range(3, 64))
+        ->capture_default_str();
+    app->add_option("--viewpoint", a->viewpoint,
+                    "For a PLY without normals: turn the estimated normals towards this point "
+                    "X,Y,Z (a scanner's position) instead of away from the centre");
     return [a]() { return Run(*a); };
   };
 }

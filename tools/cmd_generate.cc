@@ -1,55 +1,27 @@
 // `pbgi generate SCENE -n POINTS -o OUT.ply [--seed S]`: streams a procedural scene's surfels,
 // with direct light baked, to a PLY file in constant memory.
-#include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <memory>
 #include <string>
 #include <vector>
 
-#include "absl/strings/numbers.h"
+#include "absl/strings/match.h"
 #include "absl/strings/str_format.h"
 #include "absl/strings/str_join.h"
 #include "base/proc.h"
+#include "base/stopwatch.h"
 #include "pbgi/ply.h"
 #include "pbgi/scene.h"
 #include "pbgi/status.h"
+#include "tools/args.h"
 #include "tools/command.h"
+#include "tools/outputs.h"
+#include "tools/progress.h"
+#include "tools/scene_views.h"
 
 namespace pbgi::tools {
 namespace {
-
-// "1000", "2.5M", "1e8", "100k" -> a count (decimal suffixes k, M, G).
-absl::StatusOr<int64_t> ParseCount(const std::string& text) {
-  std::string s = text;
-  double mult = 1.0;
-  if (!s.empty()) {
-    switch (s.back()) {
-      case 'k':
-      case 'K':
-        mult = 1e3;
-        break;
-      case 'm':
-      case 'M':
-        mult = 1e6;
-        break;
-      case 'g':
-      case 'G':
-        mult = 1e9;
-        break;
-      default:
-        break;
-    }
-    if (mult != 1.0) s.pop_back();
-  }
-  double v = 0.0;
-  if (s.empty() || !absl::SimpleAtod(s, &v) || !(v >= 0.0) || !std::isfinite(v * mult) ||
-      v * mult > 9e18) {
-    return absl::InvalidArgumentError(
-        absl::StrFormat("'%s' is not a point count (examples: 1000000, 10M, 1e8)", text));
-  }
-  return static_cast<int64_t>(std::llround(v * mult));
-}
 
 struct Options {
   std::string scene;
@@ -62,8 +34,19 @@ struct Options {
   bool keep_hidden = false;
 };
 
+// `pbgi KEY VALUE` header comments: where the points came from (pbgi/ply.h, Provenance()).
+std::vector<std::string> ProvenanceComments(const std::map<std::string, std::string>& fields) {
+  std::vector<std::string> c;
+  for (const auto& [k, v] : fields) c.push_back(absl::StrFormat("pbgi %s %s", k, v));
+  return c;
+}
+
 absl::Status Run(const Options& o) {
-  PBGI_ASSIGN_OR_RETURN(int64_t count, ParseCount(o.points));
+  if (!absl::EndsWith(o.out, ".ply")) {
+    return absl::InvalidArgumentError(
+        absl::StrFormat("-o %s: the output is a PLY point file (-o NAME.ply)", o.out));
+  }
+  PBGI_ASSIGN_OR_RETURN(int64_t count, ParseCount(o.points, "-n"));
   if (count <= 0) return absl::InvalidArgumentError("-n must be at least 1");
   SceneOptions so;
   so.seed = o.seed;
@@ -75,40 +58,35 @@ absl::Status Run(const Options& o) {
   sampler.seed = o.seed;
   sampler.bake = !o.no_bake;
   sampler.drop_hidden = !o.keep_hidden;
-  const auto start = std::chrono::steady_clock::now();
+  const internal::Stopwatch start;
   PBGI_ASSIGN_OR_RETURN(std::unique_ptr<SurfelSource> source,
                         MakeSceneSurfelSource(shared, sampler));
   PlyWriterOptions wo;
   wo.ascii = o.ascii;
   wo.radiance = source->HasRadiance();
+  auto fields = SceneFingerprint(*shared, o.seed, o.size, UpAxis::kZ);
+  fields["source"] = "pbgi generate";
+  fields["tool"] = kToolVersion;
+  fields["date"] = NowIso8601();
+  wo.comments = ProvenanceComments(fields);
+  const InterruptGuard interrupt;
   PBGI_ASSIGN_OR_RETURN(std::unique_ptr<PlyWriter> writer, PlyWriter::Create(o.out, wo));
 
   absl::FPrintF(stderr, "pbgi generate: %s, %d triangles (%d instances), area %.6g, %s\n",
                 shared->name.c_str(), shared->TriangleCount(), shared->instances.size(),
                 shared->SurfaceArea(),
                 source->HasRadiance() ? "direct light baked" : "occlusion only");
-  const bool tty = StderrIsTerminal();
+  Progress progress("generate", "points", count);
   std::vector<Surfel> buf(1 << 16);
   int64_t done = 0;
-  auto last = start;
   for (;;) {
+    PBGI_RETURN_IF_ERROR(interrupt.Check("pbgi generate"));
     PBGI_ASSIGN_OR_RETURN(size_t n, source->Next(absl::MakeSpan(buf)));
     if (n == 0) break;
     PBGI_RETURN_IF_ERROR(writer->Write(absl::MakeConstSpan(buf.data(), n)));
     done += static_cast<int64_t>(n);
-    const auto now = std::chrono::steady_clock::now();
-    if (now - last > std::chrono::milliseconds(tty ? 200 : 1000)) {
-      last = now;
-      const double secs = std::chrono::duration<double>(now - start).count();
-      absl::FPrintF(stderr, "%s%d / %d points (%.1f%%), %.2f M points/s%s", tty ? "\r" : "", done,
-                    count, 100.0 * static_cast<double>(done) / static_cast<double>(count),
-                    static_cast<double>(done) / secs * 1e-6, tty ? "" : "\n");
-    }
+    progress.Update(static_cast<uint64_t>(done));
   }
-  PBGI_RETURN_IF_ERROR(writer->Close());
-  const double secs =
-      std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-  if (tty) absl::FPrintF(stderr, "\n");
   // Exact without hidden-sample dropping; within about 1% with it (the pilot's estimate).
   const bool exact = source->KnownCount() >= 0;
   if (exact ? done != count
@@ -116,6 +94,9 @@ absl::Status Run(const Options& o) {
     return absl::InternalError(
         absl::StrFormat("the sampler made %d points, %d were asked for", done, count));
   }
+  PBGI_RETURN_IF_ERROR(writer->Close());
+  progress.Finish(static_cast<uint64_t>(done));
+  const double secs = start.Seconds();
   absl::PrintF(
       "%s: %d points%s, %.2f s, %.0f points/s, peak memory %s\n", o.out.c_str(), done,
       exact ? "" : absl::StrFormat(" (%d asked; samples inside solid geometry dropped)", count),
@@ -129,7 +110,8 @@ CommandSetup Setup() {
     app->add_option("scene", o->scene,
                     "Procedural scene: " + absl::StrJoin(ProceduralSceneNames(), ", "))
         ->required();
-    app->add_option("-n,--points", o->points, "Number of surfels (10M, 1e8, ...)")
+    app->add_option("-n,--points", o->points, "Number of surfels (50k, 10M, 1e8, ...)")
+        ->check(CountValidator(1))
         ->capture_default_str();
     app->add_option("-o,--output", o->out, "Output PLY file")->required();
     app->add_option("--seed", o->seed, "Seed of the scene layout and the sampling")

@@ -7,6 +7,7 @@
 #include <string>
 #include <vector>
 
+#include "absl/strings/match.h"
 #include "absl/strings/numbers.h"
 #include "absl/strings/str_format.h"
 #include "absl/strings/str_split.h"
@@ -14,7 +15,11 @@
 #include "pbgi/ply.h"
 #include "pbgi/scene.h"
 #include "pbgi/status.h"
+#include "tools/args.h"
 #include "tools/command.h"
+#include "tools/outputs.h"
+#include "tools/progress.h"
+#include "tools/scene_views.h"
 
 namespace pbgi::tools {
 namespace {
@@ -38,27 +43,6 @@ absl::StatusOr<std::vector<float>> ParseFloats(const std::string& text, const ch
   return v;
 }
 
-// "1000", "2.5M", "1e8", "100k" -> a count (decimal suffixes k, M, G).
-absl::StatusOr<int64_t> ParseCount(const std::string& text) {
-  std::string s = text;
-  double mult = 1.0;
-  if (!s.empty()) {
-    const char c = s.back();
-    mult = (c == 'k' || c == 'K')   ? 1e3
-           : (c == 'm' || c == 'M') ? 1e6
-           : (c == 'g' || c == 'G') ? 1e9
-                                    : 1.0;
-    if (mult != 1.0) s.pop_back();
-  }
-  double v = 0.0;
-  if (s.empty() || !absl::SimpleAtod(s, &v) || !(v >= 0.0) || !std::isfinite(v * mult) ||
-      v * mult > 9e18) {
-    return absl::InvalidArgumentError(
-        absl::StrFormat("'%s' is not a point count (examples: 1000000, 10M, 1e8)", text));
-  }
-  return static_cast<int64_t>(std::llround(v * mult));
-}
-
 struct Options {
   std::string mesh;
   std::string out;
@@ -69,18 +53,36 @@ struct Options {
   uint64_t seed = 1;
   int sky_rays = 8;
   bool ascii = false;
+  std::string up = "z";
 };
 
 absl::Status Run(const Options& o) {
+  if (!absl::EndsWith(o.out, ".ply")) {
+    return absl::InvalidArgumentError(
+        absl::StrFormat("-o %s: the output is a PLY point file (-o NAME.ply)", o.out));
+  }
+  PBGI_RETURN_IF_ERROR(CheckOutputsAreNotInputs({o.mesh}, {o.out}));
   int64_t points = 0;
   if (!o.points.empty()) {
-    PBGI_ASSIGN_OR_RETURN(points, ParseCount(o.points));
+    PBGI_ASSIGN_OR_RETURN(points, ParseCount(o.points, "-n"));
   }
   if ((points > 0) == (o.density > 0)) {
     return absl::InvalidArgumentError("give exactly one of -n POINTS and --density D");
   }
+  PBGI_ASSIGN_OR_RETURN(UpAxis up, ParseUpAxis(o.up));
+  // A PLY of points only is a surfel (or point) cloud already: it is built, not sampled.
+  if (absl::EndsWithIgnoreCase(o.mesh, ".ply")) {
+    absl::StatusOr<PlyHeader> h = ReadPlyHeader(o.mesh);
+    if (h.ok() && h->FaceCount() == 0) {
+      return absl::InvalidArgumentError(absl::StrFormat(
+          "%s is a point cloud (%d vertices, no faces), not a mesh: build a database from it "
+          "with `pbgi build %s -o DB` (radii and normals it lacks are estimated)",
+          o.mesh, h->vertex_count, o.mesh));
+    }
+  }
   ImportReport report;
   PBGI_ASSIGN_OR_RETURN(Scene scene, ImportMesh(o.mesh, &report));
+  if (up == UpAxis::kY) RotateYUpToZUp(&scene);
   for (const std::string& w : report.warnings) {
     absl::FPrintF(stderr, "pbgi import: warning: %s\n", w.c_str());
   }
@@ -116,28 +118,29 @@ absl::Status Run(const Options& o) {
                         MakeSceneSurfelSource(shared, sampler));
   PlyWriterOptions wo;
   wo.ascii = o.ascii;
+  auto fields = SceneFingerprint(*shared, o.seed, 0, up);
+  fields["scene.file"] = o.mesh;
+  for (const auto& [k, v] : LightsProvenance(shared->lights)) fields[k] = v;
+  fields["source"] = "pbgi import";
+  fields["tool"] = kToolVersion;
+  fields["date"] = NowIso8601();
+  for (const auto& [k, v] : fields) wo.comments.push_back(absl::StrFormat("pbgi %s %s", k, v));
+  const InterruptGuard interrupt;
   PBGI_ASSIGN_OR_RETURN(std::unique_ptr<PlyWriter> writer, PlyWriter::Create(o.out, wo));
   const int64_t count = source->KnownCount();
-  const bool tty = StderrIsTerminal();
+  Progress progress("import", "points", count);
   std::vector<Surfel> buf(1 << 16);
   int64_t done = 0;
-  auto last = start;
   for (;;) {
+    PBGI_RETURN_IF_ERROR(interrupt.Check("pbgi import"));
     PBGI_ASSIGN_OR_RETURN(size_t n, source->Next(absl::MakeSpan(buf)));
     if (n == 0) break;
     PBGI_RETURN_IF_ERROR(writer->Write(absl::MakeConstSpan(buf.data(), n)));
     done += static_cast<int64_t>(n);
-    const auto now = std::chrono::steady_clock::now();
-    if (now - last > std::chrono::milliseconds(tty ? 200 : 1000)) {
-      last = now;
-      const double secs = std::chrono::duration<double>(now - start).count();
-      absl::FPrintF(stderr, "%s%d / %d points (%.1f%%), %.2f M points/s%s", tty ? "\r" : "", done,
-                    count, 100.0 * static_cast<double>(done) / static_cast<double>(count),
-                    static_cast<double>(done) / secs * 1e-6, tty ? "" : "\n");
-    }
+    progress.Update(static_cast<uint64_t>(done));
   }
   PBGI_RETURN_IF_ERROR(writer->Close());
-  if (tty) absl::FPrintF(stderr, "\n");
+  progress.Finish(static_cast<uint64_t>(done));
   const double secs =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   absl::PrintF("%s: %d points, %.2f s, %.0f points/s, peak memory %s\n", o.out.c_str(), done, secs,
@@ -151,8 +154,12 @@ CommandSetup Setup() {
     app->add_option("mesh", o->mesh, "Mesh file (OBJ, PLY, glTF/GLB, FBX, DAE, STL, 3MF, ...)")
         ->required();
     app->add_option("-o,--output", o->out, "Output PLY file")->required();
-    app->add_option("-n,--points", o->points, "Number of surfels (10M, 1e8, ...)");
-    app->add_option("--density", o->density, "Surfels per unit area");
+    app->add_option("-n,--points", o->points, "Number of surfels (50k, 10M, 1e8, ...)")
+        ->check(CountValidator(1));
+    app->add_option("--density", o->density, "Surfels per unit area (instead of -n)");
+    app->add_option("--up", o->up, "Up axis of the mesh: z, or y (glTF, many OBJ files)")
+        ->check(CLI::IsMember({"y", "z", "Y", "Z"}))
+        ->capture_default_str();
     app->add_option("--sun", o->sun,
                     "Sun direction (towards the sun) and radiance: DX,DY,DZ[,R,G,B]");
     app->add_option("--sky", o->sky, "Uniform sky radiance: R,G,B");

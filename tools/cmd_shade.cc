@@ -238,6 +238,8 @@ absl::Status ShadeCamera(const ShadeArgs& a, Database& db, const ShadeOptions& b
                  std::string(match.message()).c_str());
   }
   if (!warning.empty()) std::fprintf(stderr, "pbgi shade: warning: %s\n", warning.c_str());
+  // A mesh file has no lights of its own: those that baked its surfels (pbgi import).
+  scene = WithRecordedLights(scene, db.meta().stats);
   PBGI_ASSIGN_OR_RETURN(std::unique_ptr<Tracer> tracer, Tracer::Create(*scene));
   Camera camera = DefaultCamera(*scene, a.width, a.height);
   if (!a.eye.empty()) {

@@ -4,6 +4,7 @@
 #include <unistd.h>
 
 #include <cerrno>
+#include <csignal>
 #include <cstdio>
 #include <cstring>
 #include <filesystem>
@@ -74,6 +75,30 @@ absl::Status OutputFile::Commit() {
   }
   committed_ = true;
   return absl::OkStatus();
+}
+
+namespace {
+std::atomic<bool> g_interrupted{false};
+extern "C" void OnInterruptSignal(int) { g_interrupted.store(true); }
+}  // namespace
+
+InterruptGuard::InterruptGuard() {
+  g_interrupted.store(false);
+  previous_int_ = std::signal(SIGINT, OnInterruptSignal);
+  previous_term_ = std::signal(SIGTERM, OnInterruptSignal);
+}
+
+InterruptGuard::~InterruptGuard() {
+  std::signal(SIGINT, previous_int_);
+  std::signal(SIGTERM, previous_term_);
+}
+
+const std::atomic<bool>* InterruptGuard::flag() const { return &g_interrupted; }
+
+absl::Status InterruptGuard::Check(const std::string& what) const {
+  if (!interrupted()) return absl::OkStatus();
+  return absl::CancelledError(
+      absl::StrFormat("%s was interrupted; the previous outputs are as they were", what));
 }
 
 absl::Status WriteFileAtomically(const std::string& path, const std::string& bytes) {

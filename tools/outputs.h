@@ -5,6 +5,7 @@
 #ifndef PBGI_TOOLS_OUTPUTS_H_
 #define PBGI_TOOLS_OUTPUTS_H_
 
+#include <atomic>
 #include <string>
 #include <vector>
 
@@ -34,6 +35,25 @@ class OutputFile {
  private:
   std::string path_, tmp_path_;
   bool committed_ = false;
+};
+
+// SIGINT and SIGTERM caught while it lives: a command checks interrupted() between batches and
+// returns Cancelled, so that its outputs' destructors remove their temporary files and the
+// previous outputs stay (the default action would kill it mid-write).
+class InterruptGuard {
+ public:
+  InterruptGuard();
+  ~InterruptGuard();
+  InterruptGuard(const InterruptGuard&) = delete;
+  InterruptGuard& operator=(const InterruptGuard&) = delete;
+  const std::atomic<bool>* flag() const;
+  bool interrupted() const { return flag()->load(std::memory_order_relaxed); }
+  // Cancelled "`what` was interrupted" when a signal came, else OK.
+  absl::Status Check(const std::string& what) const;
+
+ private:
+  void (*previous_int_)(int);
+  void (*previous_term_)(int);
 };
 
 // The whole of `bytes` into `path`, through an OutputFile.

@@ -65,7 +65,8 @@ Progress::Progress(std::string label, std::string unit, int64_t total)
 
 Progress::Progress(std::string label, std::string unit, int64_t total, Style style,
                    double interval, Clock clock, std::FILE* out)
-    : label_(std::move(label)),
+    : job_(label),
+      label_(std::move(label)),
       unit_(std::move(unit)),
       total_(total),
       style_(style),
@@ -149,9 +150,9 @@ void Progress::Finish(uint64_t done, const std::string& detail) {
   finished_ = true;
   if (style_ == Style::kNone) return;
   const double now = clock_();
-  const double secs = now - phase_start_;
+  const double secs = now - start_;
   if (drew_) std::fputc('\r', out_);
-  std::fprintf(out_, "%s: %llu %s in %.2f s (%s %s/s)%s%s%s\n", label_.c_str(),
+  std::fprintf(out_, "%s: %llu %s in %.2f s (%s %s/s)%s%s%s\n", job_.c_str(),
                static_cast<unsigned long long>(last_done_),
                unit_.c_str(), secs, ShortCount(double(last_done_) / std::max(1e-9, secs)).c_str(),
                unit_.c_str(), detail.empty() ? "" : ", ", detail.c_str(), drew_ ? "\033[K" : "");

@@ -39,7 +39,8 @@ class Progress {
   void Update(uint64_t done);
   // The same, with the phase's total learnt late (e.g. the receivers a camera's rays found).
   void Update(uint64_t done, int64_t total);
-  // Prints the final summary: "label: N unit in T s (R unit/s)" plus `detail`, and ends the bar.
+  // Prints the final summary: "label: N unit in T s (R unit/s)" plus `detail` (the label given
+  // to the constructor, the time since then), and ends the bar.
   void Finish(uint64_t done, const std::string& detail = "");
   // Ends the bar's line without a summary (before an error message).
   void Abandon();
@@ -52,6 +53,7 @@ class Progress {
   static constexpr int64_t kKeepTotal = -2;
   void Print(uint64_t done, double now);
 
+  std::string job_;  // the label given at construction: the summary's
   std::string label_, unit_;
   int64_t total_;
   Style style_;

@@ -93,6 +93,50 @@ std::map<std::string, std::string> SceneFingerprint(const Scene& scene, uint64_t
   return f;
 }
 
+std::map<std::string, std::string> LightsProvenance(const Lights& lights) {
+  std::map<std::string, std::string> f;
+  if (lights.has_sun) {
+    const Sun& s = lights.sun;
+    f["light.sun"] = absl::StrFormat("%.9g,%.9g,%.9g,%.9g,%.9g,%.9g", s.direction.x, s.direction.y,
+                                     s.direction.z, s.radiance.x, s.radiance.y, s.radiance.z);
+  }
+  f["light.sky"] = absl::StrFormat("%.9g,%.9g,%.9g", lights.sky.x, lights.sky.y, lights.sky.z);
+  f["light.sky_rays"] = absl::StrFormat("%d", lights.sky_rays);
+  return f;
+}
+
+std::shared_ptr<const Scene> WithRecordedLights(std::shared_ptr<const Scene> scene,
+                                                const std::map<std::string, std::string>& stats) {
+  const Lights& l = scene->lights;
+  const bool unlit = !l.has_sun && l.sky == glm::vec3(0.0f);
+  auto sky = stats.find("light.sky");
+  if (!unlit || sky == stats.end()) return scene;
+  auto floats = [](const std::string& text) {
+    std::vector<float> v;
+    for (absl::string_view part : absl::StrSplit(text, ',')) {
+      float f = 0;
+      if (absl::SimpleAtof(part, &f)) v.push_back(f);
+    }
+    return v;
+  };
+  auto lit = std::make_shared<Scene>(*scene);
+  const std::vector<float> k = floats(sky->second);
+  if (k.size() == 3) lit->lights.sky = glm::vec3(k[0], k[1], k[2]);
+  if (auto sun = stats.find("light.sun"); sun != stats.end()) {
+    const std::vector<float> v = floats(sun->second);
+    if (v.size() == 6) {
+      lit->lights.has_sun = true;
+      lit->lights.sun.direction = glm::vec3(v[0], v[1], v[2]);
+      lit->lights.sun.radiance = glm::vec3(v[3], v[4], v[5]);
+    }
+  }
+  if (auto rays = stats.find("light.sky_rays"); rays != stats.end()) {
+    int n = 0;
+    if (absl::SimpleAtoi(rays->second, &n) && n > 0) lit->lights.sky_rays = n;
+  }
+  return lit;
+}
+
 namespace {
 
 std::string Describe(const std::map<std::string, std::string>& f) {

@@ -37,6 +37,13 @@ void RotateYUpToZUp(Scene* scene);
 // database it is shaded from.
 std::map<std::string, std::string> SceneFingerprint(const Scene& scene, uint64_t seed, int size,
                                                     UpAxis up);
+// The lights that baked an imported mesh's surfels ("light.sun": DX,DY,DZ,R,G,B; "light.sky":
+// R,G,B), kept with its fingerprint so that a view of the mesh is lit the same way; and back.
+std::map<std::string, std::string> LightsProvenance(const Lights& lights);
+// The scene with the lights recorded in `stats`, when it has none of its own (a mesh file).
+std::shared_ptr<const Scene> WithRecordedLights(std::shared_ptr<const Scene> scene,
+                                                const std::map<std::string, std::string>& stats);
+
 // OK when the database was built from this scene (same name, triangle count and geometry hash),
 // or has no fingerprint. FailedPrecondition naming both scenes and the fix when they differ.
 // Without a fingerprint, *warning is set when the database's bounds do not fit the scene's.

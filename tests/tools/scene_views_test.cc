@@ -1,0 +1,218 @@
+// Camera views shaded from a database (tools/scene_views.h): the glossy image is shaded with each
+// pixel's own reflection direction (it was the irradiance image), and a view whose scene is not
+// the database's is refused; and the tools' output helpers (tools/outputs.h, tools/args.h).
+#include "tools/scene_views.h"
+
+#include <cmath>
+#include <fstream>
+#include <string>
+#include <vector>
+
+#include "gtest/gtest.h"
+#include "pbgi/build.h"
+#include "pbgi/shade.h"
+#include "tests/common/scratch_dir.h"
+#include "tools/args.h"
+#include "tools/outputs.h"
+#include "tools/progress.h"
+
+namespace pbgi::tools {
+namespace {
+
+struct Built {
+  std::shared_ptr<const Scene> scene;
+  std::string db_path;
+};
+
+Built BuildScene(const testing_common::ScratchDir& dir, const std::string& name, uint64_t seed) {
+  Built b;
+  auto scene = LoadScene(name, seed, 0);
+  EXPECT_TRUE(scene.ok()) << scene.status();
+  b.scene = *scene;
+  SamplerOptions sampler;
+  sampler.count = 20000;
+  sampler.seed = seed;
+  auto src = MakeSceneSurfelSource(b.scene, sampler);
+  EXPECT_TRUE(src.ok());
+  BuildOptions bo;
+  bo.memory_bytes = 64 << 20;
+  bo.provenance = SceneFingerprint(*b.scene, seed, 0, UpAxis::kZ);
+  b.db_path = dir.Sub(name + ".pbgi");
+  auto st = BuildDatabase(**src, b.db_path, bo);
+  EXPECT_TRUE(st.ok()) << st.status();
+  return b;
+}
+
+TEST(SceneViewsTest, GlossyViewUsesEachPixelsReflectionDirection) {
+  const testing_common::ScratchDir dir;
+  const Built b = BuildScene(dir, "cornell", 1);
+  auto db = Database::Open(b.db_path);
+  ASSERT_TRUE(db.ok()) << db.status();
+  auto tracer = Tracer::Create(*b.scene);
+  ASSERT_TRUE(tracer.ok());
+  const Camera camera = DefaultCamera(*b.scene, 24, 16);
+  ShadeOptions so;
+  so.threads = 2;
+  so.cut.cosine_weighted = false;
+  so.raster.lobe = GlossyLobe::kPhong;
+  so.raster.phong_exponent = 32.0f;
+  auto view = RenderView(**tracer, **db, camera, so);
+  ASSERT_TRUE(view.ok()) << view.status();
+
+  // The same receivers shaded directly: with the mirror direction of the camera ray, and with
+  // the normal (what a lobe without a reflection would use).
+  const std::vector<CameraHit> hits = (*tracer)->TraceCamera(camera);
+  std::vector<ShadeReceiver> mirror, normal;
+  std::vector<size_t> pixel;
+  for (size_t p = 0; p < hits.size(); ++p) {
+    if (!hits[p].hit) continue;
+    const glm::vec3 d = camera.Direction(float(p % 24) + 0.5f, float(p / 24) + 0.5f);
+    glm::vec3 n = hits[p].normal;
+    if (glm::dot(n, d) > 0) n = -n;
+    const glm::vec3 at = hits[p].position + (*tracer)->epsilon() * n;
+    mirror.push_back({at, n, glm::reflect(d, n)});
+    normal.push_back({at, n, n});
+    pixel.push_back(p);
+  }
+  ASSERT_GT(pixel.size(), 200u);
+  std::vector<ShadeResult> rm(mirror.size()), rn(normal.size());
+  ASSERT_TRUE(ShadeBatch(**db, mirror, so, absl::MakeSpan(rm)).ok());
+  ASSERT_TRUE(ShadeBatch(**db, normal, so, absl::MakeSpan(rn)).ok());
+  size_t differ = 0;
+  for (size_t i = 0; i < pixel.size(); ++i) {
+    const glm::vec3 got = view->glossy.pixels[pixel[i]];
+    ASSERT_EQ(got, rm[i].glossy) << "pixel " << pixel[i];
+    if (glm::length(rm[i].glossy - rn[i].glossy) > 1e-3f * (1.0f + glm::length(rn[i].glossy))) {
+      ++differ;
+    }
+    // Not the irradiance, which is what the glossy mode used to write.
+    ASSERT_NE(got, rm[i].irradiance);
+  }
+  EXPECT_GT(differ, pixel.size() / 2) << "the reflection direction barely matters?";
+}
+
+TEST(SceneViewsTest, AViewOfAnotherSceneIsRefused) {
+  const testing_common::ScratchDir dir;
+  const Built b = BuildScene(dir, "cornell", 3);
+  auto store = PageStore::Open(b.db_path);
+  ASSERT_TRUE(store.ok());
+  const StoreMeta& meta = (*store)->meta();
+  std::string warning;
+  EXPECT_TRUE(CheckSceneMatchesDatabase(*b.scene, SceneFingerprint(*b.scene, 3, 0, UpAxis::kZ),
+                                        meta, b.db_path, &warning)
+                  .ok());
+  auto city = LoadScene("city", 1, 0);
+  ASSERT_TRUE(city.ok());
+  absl::Status s = CheckSceneMatchesDatabase(**city, SceneFingerprint(**city, 1, 0, UpAxis::kZ),
+                                             meta, b.db_path, &warning);
+  EXPECT_EQ(s.code(), absl::StatusCode::kFailedPrecondition);
+  EXPECT_NE(s.message().find("built from scene 'cornell' seed 3"), std::string::npos) << s;
+  EXPECT_NE(s.message().find("--scene cornell --seed 3"), std::string::npos) << s;
+  // The same scene with another seed (the blocks turn): another geometry.
+  auto other = LoadScene("cornell", 4, 0);
+  ASSERT_TRUE(other.ok());
+  EXPECT_FALSE(CheckSceneMatchesDatabase(**other, SceneFingerprint(**other, 4, 0, UpAxis::kZ),
+                                         meta, b.db_path, &warning)
+                   .ok());
+  // Without a fingerprint, bounds that do not fit warn.
+  StoreMeta bare = meta;
+  for (auto it = bare.stats.begin(); it != bare.stats.end();) {
+    it = it->first.rfind("scene.", 0) == 0 ? bare.stats.erase(it) : std::next(it);
+  }
+  EXPECT_TRUE(CheckSceneMatchesDatabase(**city, SceneFingerprint(**city, 1, 0, UpAxis::kZ), bare,
+                                        b.db_path, &warning)
+                  .ok());
+  EXPECT_NE(warning.find("do not fit"), std::string::npos) << warning;
+  EXPECT_TRUE(CheckSceneMatchesDatabase(*b.scene, SceneFingerprint(*b.scene, 3, 0, UpAxis::kZ),
+                                        bare, b.db_path, &warning)
+                  .ok());
+  EXPECT_EQ(warning, "");
+}
+
+TEST(SceneViewsTest, YUpMeshesTurnToZUp) {
+  Scene s;
+  s.meshes.push_back(Mesh{{{0, 0, 0}, {1, 0, 0}, {0, 2, 0}}, {{0, 1, 2}}, {0}});
+  s.instances.push_back(Instance{});
+  s.materials.push_back(Material{});
+  RotateYUpToZUp(&s);
+  const Bounds b = s.ComputeBounds();
+  EXPECT_NEAR(b.hi.z, 2.0f, 1e-6f);  // what was up (y) is up (z)
+  EXPECT_NEAR(b.hi.y, 0.0f, 1e-6f);
+  EXPECT_NEAR(b.lo.y, 0.0f, 1e-6f);
+}
+
+TEST(OutputsTest, OutputsThatAreInputsAreRefused) {
+  const testing_common::ScratchDir dir;
+  const std::string a = dir.Sub("a.ply");
+  std::ofstream(a) << "x";
+  EXPECT_FALSE(CheckOutputsAreNotInputs({a}, {a}).ok());
+  EXPECT_FALSE(CheckOutputsAreNotInputs({a}, {dir.Sub("./sub/../a.ply")}).ok());
+  std::filesystem::create_symlink(a, dir.Sub("link.ply"));
+  EXPECT_FALSE(CheckOutputsAreNotInputs({dir.Sub("link.ply")}, {a}).ok());
+  std::filesystem::create_hard_link(a, dir.Sub("hard.ply"));
+  EXPECT_FALSE(CheckOutputsAreNotInputs({dir.Sub("hard.ply")}, {a}).ok());
+  EXPECT_FALSE(CheckOutputsAreNotInputs({}, {dir.Sub("b"), dir.Sub("b")}).ok());
+  EXPECT_TRUE(CheckOutputsAreNotInputs({a}, {dir.Sub("b.ply"), ""}).ok());
+}
+
+TEST(OutputsTest, OutputFileReplacesOnlyOnCommit) {
+  const testing_common::ScratchDir dir;
+  const std::string p = dir.Sub("out.json");
+  std::ofstream(p) << "old";
+  {
+    OutputFile f(p);
+    std::ofstream(f.tmp_path()) << "half";
+  }  // abandoned
+  EXPECT_FALSE(std::filesystem::exists(dir.Sub("out.json.tmp-" + std::to_string(getpid()))));
+  std::ifstream in(p);
+  std::string got;
+  in >> got;
+  EXPECT_EQ(got, "old");
+  ASSERT_TRUE(WriteFileAtomically(p, "new").ok());
+  std::ifstream in2(p);
+  in2 >> got;
+  EXPECT_EQ(got, "new");
+}
+
+TEST(ArgsTest, CountsTakeSuffixesAndExponents) {
+  EXPECT_EQ(*ParseCount("50k"), 50000);
+  EXPECT_EQ(*ParseCount("2M"), 2000000);
+  EXPECT_EQ(*ParseCount("1e8"), 100000000);
+  EXPECT_EQ(*ParseCount("2.5M"), 2500000);
+  EXPECT_EQ(*ParseCount("1G"), 1000000000);
+  EXPECT_EQ(*ParseCount("12"), 12);
+  for (const char* bad : {"", "k", "lots", "-5", "1.5", "1e30", "nan", "inf"}) {
+    EXPECT_FALSE(ParseCount(bad).ok()) << bad;
+  }
+  EXPECT_GE(ResolveThreads(0), 1);
+  EXPECT_EQ(ResolveThreads(3), 3);
+}
+
+TEST(ProgressTest, LinesSayDoneTotalRateAndEta) {
+  double now = 100.0;
+  char* buf = nullptr;
+  size_t len = 0;
+  std::FILE* out = open_memstream(&buf, &len);
+  {
+    Progress p("shade", "receivers", 1000, Progress::Style::kLines, 2.0, [&] { return now; }, out);
+    now = 101.0;
+    p.Update(100);  // within the first interval: nothing yet
+    now = 104.0;
+    p.Update(400);  // 100/s: 600 left, ETA 6 s
+    now = 105.0;
+    p.Update(500);  // within the interval of the last line
+    now = 110.0;
+    p.Finish(1000, "done");
+  }
+  std::fclose(out);
+  const std::string text(buf, len);
+  std::free(buf);
+  EXPECT_EQ(text,
+            "shade: 400 / 1000 receivers (40.0%), 100 receivers/s, ETA 0:06, 0:04 elapsed\n"
+            "shade: 1000 receivers in 10.00 s (100 receivers/s), done\n");
+  EXPECT_EQ(ShortCount(1234567), "1.23M");
+  EXPECT_EQ(Clocklike(3725), "1:02:05");
+}
+
+}  // namespace
+}  // namespace pbgi::tools
