@@ -124,6 +124,12 @@ absl::Status Run(const Args& a) {
   ro.uniform_radius = a.radius;
   PBGI_ASSIGN_OR_RETURN(std::unique_ptr<PlySource> src, OpenPlyFile(a.input, ro));
   const PlyHeader& header = src->header();
+  if (header.FaceCount() > 0) {
+    return absl::InvalidArgumentError(absl::StrFormat(
+        "%s is a mesh (%d faces), not a point cloud: sample its surfaces into surfels with "
+        "`pbgi import %s -o SURFELS.ply -n COUNT` and build from that",
+        a.input, header.FaceCount(), a.input));
+  }
   for (const std::string& n : header.notes) {
     std::fprintf(stderr, "pbgi build: note: %s: %s\n", a.input.c_str(), n.c_str());
   }
@@ -166,7 +172,7 @@ absl::Status Run(const Args& a) {
     for (const auto& [k, v] : o.provenance) p[k] = v;
     return p;
   }();
-  o.provenance["input"] = a.input;
+  o.provenance["input"] = std::filesystem::absolute(a.input).lexically_normal().string();
   o.provenance["tool"] = kToolVersion;
   o.provenance["built_at"] = NowIso8601();
   if (o.channels == Channels::kRadiance && !src->HasRadiance()) {

@@ -12,7 +12,9 @@
 #include "absl/strings/str_split.h"
 #include "base/stopwatch.h"
 #include "pbgi/query.h"
+#include "pbgi/raster.h"
 #include "pbgi/status.h"
+#include "tools/args.h"
 #include "tools/command.h"
 #include "tools/report.h"
 
@@ -42,6 +44,8 @@ struct Args {
   float max_solid_angle = 0.03f;
   float max_distance = std::numeric_limits<float>::infinity();
   std::string cache = "256M";
+  std::string cut = "cosine";
+  int raster_res = 12;
   bool json = false;
   bool list = false;
 };
@@ -54,6 +58,8 @@ struct QueryRun {
   QueryStats stats;  // of the cold gather
   double ms = 0, warm_ms = 0;
   std::vector<int> rows;  // levels to report: the tree's, then kPointLevel
+  ShadeResult shaded;     // the gathered cut rasterized, as `pbgi shade` does
+  bool radiance = false;
 };
 
 std::string LevelName(int l) {
@@ -61,7 +67,7 @@ std::string LevelName(int l) {
 }
 
 absl::StatusOr<QueryRun> GatherColdAndWarm(Reader& reader, const Receiver& r, const Cut& cut) {
-  QueryRun q{r, cut, {}, {}, 0, 0, {}};
+  QueryRun q{r, cut, {}, {}, 0, 0, {}, {}, false};
   internal::Stopwatch t;
   PBGI_RETURN_IF_ERROR(reader.Gather(r, cut, &q.gathered, &q.stats));
   q.ms = t.Milliseconds();
@@ -92,7 +98,11 @@ Json QueryJson(const Args& a, const QueryRun& q) {
   j["receiver"] = {{"at", JsonVec3(p)}, {"normal", JsonVec3(r.normal)}};
   j["cut"] = {{"max_solid_angle", JsonFloat(cut.max_solid_angle)},
               {"max_distance", JsonFloat(cut.max_distance)}};
+  j["cut"]["criterion"] = cut.cosine_weighted ? "cosine" : "plain";
   j["gathered"] = {{"clusters", g.clusters.size()}, {"surfels", g.surfels.size()}};
+  j["shaded"] = {{"raster_res", a.raster_res}, {"occlusion", JsonFloat(q.shaded.occlusion)}};
+  if (q.radiance) j["shaded"]["irradiance"] = JsonVec3(q.shaded.irradiance);
+  j["shaded"]["coverage"] = JsonFloat(q.shaded.coverage);
   Json cost;
   cost["ms"] = ms;
   cost["warm_ms"] = warm_ms;
@@ -153,8 +163,15 @@ void PrintQuery(const Args& a, const Database& db, const QueryRun& q) {
   std::printf("receiver (%g, %g, %g) normal (%g, %g, %g), max_solid_angle %g, max_distance %g\n",
               p.x, p.y, p.z, r.normal.x, r.normal.y, r.normal.z, cut.max_solid_angle,
               cut.max_distance);
-  std::printf("gathered %zu clusters + %zu surfels in %.3f ms cold, %.3f ms warm\n",
-              g.clusters.size(), g.surfels.size(), ms, warm_ms);
+  std::printf("gathered %zu clusters + %zu surfels in %.3f ms cold, %.3f ms warm (%s cut)\n",
+              g.clusters.size(), g.surfels.size(), ms, warm_ms,
+              cut.cosine_weighted ? "cosine" : "plain");
+  std::printf("shaded (raster %d): occlusion %.6g", a.raster_res, q.shaded.occlusion);
+  if (q.radiance) {
+    std::printf(", irradiance (%.6g, %.6g, %.6g)", q.shaded.irradiance.x, q.shaded.irradiance.y,
+                q.shaded.irradiance.z);
+  }
+  std::printf(", coverage %.4g\n", q.shaded.coverage);
   std::printf("nodes visited %llu (culled %llu), points tested %llu, pages read %llu (%s)\n",
               static_cast<unsigned long long>(stats.nodes_visited),
               static_cast<unsigned long long>(stats.nodes_culled),
@@ -193,13 +210,24 @@ absl::Status Run(const Args& a) {
   if (!(a.max_solid_angle >= 0)) {
     return absl::InvalidArgumentError("--max-solid-angle must be >= 0");
   }
-  PBGI_ASSIGN_OR_RETURN(uint64_t cache, ParseBytes(a.cache));
+  PBGI_ASSIGN_OR_RETURN(uint64_t cache, ParseBudget(a.cache, "--cache"));
   DatabaseOptions options;
   options.cache_bytes = cache;
   PBGI_ASSIGN_OR_RETURN(std::unique_ptr<Database> db, Database::Open(a.db, options));
   PBGI_ASSIGN_OR_RETURN(std::unique_ptr<Reader> reader, db->NewReader());
-  PBGI_ASSIGN_OR_RETURN(QueryRun q, GatherColdAndWarm(*reader, Receiver{p, glm::normalize(n)},
-                                                      Cut{a.max_solid_angle, a.max_distance}));
+  Cut cut{a.max_solid_angle, a.max_distance};
+  cut.cosine_weighted = a.cut == "cosine";
+  const Receiver receiver{p, glm::normalize(n)};
+  PBGI_ASSIGN_OR_RETURN(QueryRun q, GatherColdAndWarm(*reader, receiver, cut));
+  // The values `pbgi shade` writes for this receiver, from the same cut.
+  RasterOptions ro;
+  ro.resolution = a.raster_res;
+  ro.max_distance = a.max_distance;
+  q.radiance = HasRadiance(db->meta().channels);
+  ro.compute_radiance = q.radiance;
+  MicroBuffer buffer;
+  PBGI_RETURN_IF_ERROR(
+      Shade(q.gathered, ShadeReceiver{p, receiver.normal, receiver.normal}, ro, &buffer, &q.shaded));
   if (a.json) {
     std::fputs(DumpJson(QueryJson(a, q)).c_str(), stdout);
   } else {
@@ -218,8 +246,17 @@ CommandSetup Setup() {
                     "Accept a node as a cluster below this solid angle (sr)")
         ->capture_default_str();
     app->add_option("--max-distance", args->max_distance, "Ignore what is farther than this");
-    app->add_option("--cache", args->cache, "Cache budget (both levels)")
-        ->check(BytesValidator())
+    app->add_option("--cache", args->cache, "Cache budget (both levels), e.g. 256M")
+        ->check(BudgetValidator())
+        ->capture_default_str();
+    app->add_option("--cut", args->cut,
+                    "cosine: the solid angle weighted by the cosine to the normal (as `pbgi "
+                    "shade` by default), or plain")
+        ->check(CLI::IsMember({"cosine", "plain"}))
+        ->capture_default_str();
+    app->add_option("--raster-res", args->raster_res,
+                    "Micro-buffer pixels per cube face edge of the shaded values")
+        ->check(CLI::Range(4, 64))
         ->capture_default_str();
     app->add_flag("--json", args->json, "Print JSON");
     app->add_flag("--list", args->list, "Also list every cluster and surfel");
@@ -229,6 +266,6 @@ CommandSetup Setup() {
 
 }  // namespace
 PBGI_REGISTER_COMMAND(query, "query",
-                      "Gather the cut for one receiver and print what it gathered and cost",
+                      "Gather the cut for one receiver; print what it gathered, cost and shades to",
                       Setup());
 }  // namespace pbgi::tools
