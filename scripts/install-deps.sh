@@ -11,6 +11,10 @@ PACKAGES=(
   libgtest-dev libgmock-dev libbenchmark-dev
   libembree-dev libassimp-dev libopenexr-dev libstb-dev libcli11-dev libtbb-dev
   nlohmann-json3-dev
+  # build: the k-d tree of the radius and normal estimates (header-only)
+  libnanoflann-dev
+  # tools: the charts of `pbgi eval` (PLplot and its cairo PNG driver)
+  libplplot-dev plplot-driver-cairo
   # tools used by the test suite and the measurements
   time valgrind
 )

@@ -37,8 +37,8 @@ absl::StatusOr<int64_t> ParseCount(const std::string& text, const std::string& w
   }
   double v = 0.0;
   const auto bad = [&](const char* why) {
-    return absl::InvalidArgumentError(absl::StrFormat(
-        "%s '%s' %s (examples: 1000000, 50k, 2M, 1e8)", what, text, why));
+    return absl::InvalidArgumentError(
+        absl::StrFormat("%s '%s' %s (examples: 1000000, 50k, 2M, 1e8)", what, text, why));
   };
   if (s.empty() || !absl::SimpleAtod(s, &v) || !std::isfinite(v)) return bad("is not a count");
   const double n = v * mult;
@@ -55,6 +55,7 @@ CLI::Validator CountValidator(int64_t lo, int64_t hi) {
         auto r = ParseCount(s);
         if (!r.ok()) return std::string(r.status().message());
         if (*r < lo || *r > hi) return absl::StrFormat("%s is outside [%d, %d]", s, lo, hi);
+        s = absl::StrFormat("%d", *r);  // as a transform: "50k" reaches an integer option as 50000
         return std::string();
       },
       "COUNT");

@@ -17,7 +17,8 @@ inline constexpr const char* kToolVersion = "pbgi 0.1.0";
 // "1000", "50k", "2.5M", "1e8", "1G" -> a count (decimal suffixes k, M, G, T; a whole number
 // after the suffix). `what` names the option in errors.
 absl::StatusOr<int64_t> ParseCount(const std::string& text, const std::string& what = "count");
-// A CLI11 validator for counts, within [lo, hi].
+// A CLI11 validator for counts, within [lo, hi]; as a ->transform() it also rewrites the text
+// to the plain number, so that an integer option takes "50k".
 CLI::Validator CountValidator(int64_t lo = 0, int64_t hi = int64_t{1} << 62);
 
 // A memory budget: ParseBytes() with a unit required (512M, 1G, 4096B). In main.cc, beside

@@ -14,7 +14,9 @@
 #include "pbgi/query.h"
 #include "pbgi/scene.h"
 #include "pbgi/status.h"
+#include "tools/args.h"
 #include "tools/command.h"
+#include "tools/progress.h"
 #include "tools/scene_views.h"
 
 namespace pbgi::tools {
@@ -23,7 +25,7 @@ namespace {
 struct DemoArgs {
   std::string out_dir = "out/demo";
   std::string scene = "city";
-  int64_t points = 4'000'000;
+  std::string points = "4M";
   std::string memory = "512M";
   std::string cache = "256M";
   int width = 960;
@@ -59,39 +61,46 @@ std::vector<DemoImage> Images(const ViewImages& v) {
 
 // 1. The scene and its surfels, direct light baked in with Embree shadow rays; 2. the
 // out-of-core build, surfels streamed straight from the sampler.
-absl::Status BuildDemoDatabase(const DemoArgs& a, uint64_t memory, bool tty, DemoRun* run) {
+absl::Status BuildDemoDatabase(const DemoArgs& a, uint64_t memory, DemoRun* run) {
   const internal::Stopwatch t;
   PBGI_ASSIGN_OR_RETURN(run->scene, LoadScene(a.scene, a.seed, 0));
   const Scene& scene = *run->scene;
+  PBGI_ASSIGN_OR_RETURN(int64_t points, ParseCount(a.points, "--points"));
   SamplerOptions sampler;
-  sampler.count = a.points;
+  sampler.count = points;
   sampler.seed = a.seed;
   sampler.bake = scene.has_radiance;
   PBGI_ASSIGN_OR_RETURN(std::unique_ptr<SurfelSource> surfels,
                         MakeSceneSurfelSource(run->scene, sampler));
   std::fprintf(stderr, "demo: scene %s, %lld triangles, %s surfels requested\n", scene.name.c_str(),
                static_cast<long long>(scene.TriangleCount()),
-               absl::StrFormat("%d", a.points).c_str());
+               absl::StrFormat("%d", points).c_str());
   run->db_path = a.out_dir + "/" + scene.name + ".pbgi";
   BuildOptions build;
   build.memory_bytes = memory;
   build.channels = scene.has_radiance ? Channels::kRadiance : Channels::kOcclusion;
   build.tmp_dir = a.out_dir;
-  internal::Stopwatch since_line;
+  build.provenance = SceneFingerprint(scene, a.seed, 0, UpAxis::kZ);
+  build.provenance["source"] = "pbgi demo";
+  build.provenance["tool"] = kToolVersion;
+  build.provenance["built_at"] = NowIso8601();
+  Progress progress("demo: build", "points", points);
+  std::string pass;
   build.progress = [&](const BuildProgress& p) {
-    if (since_line.Seconds() < (tty ? 0.2 : 1.0)) return;
-    since_line.Restart();
-    std::fprintf(stderr, tty ? "\rdemo: build %-14s %12llu points" : "demo: build %s %llu points\n",
-                 p.pass, static_cast<unsigned long long>(p.points_done));
+    if (pass != p.pass) {
+      pass = p.pass;
+      progress.Phase(absl::StrFormat("demo: build: %s", p.pass), p.points_total);
+    }
+    progress.Update(p.points_done, p.points_total);
   };
   PBGI_ASSIGN_OR_RETURN(run->build, BuildDatabase(*surfels, run->db_path, build));
-  if (tty) std::fprintf(stderr, "\n");
+  progress.Finish(run->build.points);
   run->build_seconds = t.Seconds();
   return absl::OkStatus();
 }
 
 // 3. A camera view shaded from the database.
-absl::Status ShadeDemoView(const DemoArgs& a, uint64_t cache, bool tty, DemoRun* run) {
+absl::Status ShadeDemoView(const DemoArgs& a, uint64_t cache, DemoRun* run) {
   const internal::Stopwatch t;
   const Scene& scene = *run->scene;
   DatabaseOptions dbo;
@@ -103,14 +112,12 @@ absl::Status ShadeDemoView(const DemoArgs& a, uint64_t cache, bool tty, DemoRun*
   so.cut.cosine_weighted = a.cut == "cosine";
   so.raster.resolution = a.raster_res;
   so.raster.compute_radiance = scene.has_radiance;
-  so.threads = a.threads;
-  so.progress = [&](const ShadeProgress& p) {
-    std::fprintf(stderr, tty ? "\rdemo: shade %llu receivers" : "demo: shade %llu receivers\n",
-                 static_cast<unsigned long long>(p.done));
-  };
+  so.threads = ResolveThreads(a.threads);
+  Progress progress("demo: shade", "pixels", int64_t(a.width) * a.height);
+  so.progress = [&](const ShadeProgress& p) { progress.Update(p.done, int64_t(p.total)); };
   const Camera camera = DefaultCamera(scene, a.width, a.height);
   PBGI_ASSIGN_OR_RETURN(run->view, RenderView(*tracer, *db, camera, so));
-  if (tty) std::fprintf(stderr, "\n");
+  progress.Finish(run->view.receivers);
   run->shade_seconds = t.Seconds();
   return absl::OkStatus();
 }
@@ -146,8 +153,7 @@ void PrintDemoSummary(const DemoArgs& a, const DemoRun& run, uint64_t memory, ui
       "  shade          %.1f s: %llu receivers (%dx%d), %.1f us/receiver on %d threads, "
       "trace %.2f s\n",
       run.shade_seconds, static_cast<unsigned long long>(view.receivers), a.width, a.height,
-      view.shade.seconds * 1e6 / receivers, a.threads > 0 ? a.threads : DefaultShadeThreads(),
-      view.trace_seconds);
+      view.shade.seconds * 1e6 / receivers, ResolveThreads(a.threads), view.trace_seconds);
   std::printf(
       "  cache          %s cap, reader hits %.2f%%, shared hits %.2f%%, %llu pages read "
       "(%s)\n",
@@ -169,18 +175,17 @@ void PrintDemoSummary(const DemoArgs& a, const DemoRun& run, uint64_t memory, ui
 }
 
 absl::Status RunDemo(const DemoArgs& a) {
-  PBGI_ASSIGN_OR_RETURN(uint64_t memory, ParseBytes(a.memory));
-  PBGI_ASSIGN_OR_RETURN(uint64_t cache, ParseBytes(a.cache));
+  PBGI_ASSIGN_OR_RETURN(uint64_t memory, ParseBudget(a.memory, "--memory"));
+  PBGI_ASSIGN_OR_RETURN(uint64_t cache, ParseBudget(a.cache, "--cache"));
   std::error_code ec;
   std::filesystem::create_directories(a.out_dir, ec);
   if (ec) {
     return absl::UnavailableError(absl::StrFormat("cannot create %s: %s", a.out_dir, ec.message()));
   }
   const internal::Stopwatch total;
-  const bool tty = StderrIsTerminal();
   DemoRun run;
-  PBGI_RETURN_IF_ERROR(BuildDemoDatabase(a, memory, tty, &run));
-  PBGI_RETURN_IF_ERROR(ShadeDemoView(a, cache, tty, &run));
+  PBGI_RETURN_IF_ERROR(BuildDemoDatabase(a, memory, &run));
+  PBGI_RETURN_IF_ERROR(ShadeDemoView(a, cache, &run));
   const std::string base = a.out_dir + "/" + run.scene->name;
   PBGI_RETURN_IF_ERROR(WriteDemoImages(base, run.view));
   PrintDemoSummary(a, run, memory, cache, base, total.Seconds());
@@ -190,28 +195,38 @@ absl::Status RunDemo(const DemoArgs& a) {
 CommandSetup Setup() {
   return [](CLI::App* app) -> std::function<absl::Status()> {
     auto a = std::make_shared<DemoArgs>();
-    app->add_option("-o,--out", a->out_dir, "Output directory")->capture_default_str();
+    app->add_option("-o,--output", a->out_dir, "Output directory (database and images)")
+        ->capture_default_str();
     app->add_option("--scene", a->scene, "Procedural scene or mesh file")->capture_default_str();
-    app->add_option("--points", a->points, "Surfels to generate")
-        ->check(CLI::Range(int64_t{1}, int64_t{1} << 40))
+    app->add_option("--points", a->points, "Surfels to generate (e.g. 500k, 4M)")
+        ->check(CountValidator(1, int64_t{1} << 40))
         ->capture_default_str();
-    app->add_option("--memory", a->memory, "Memory cap of the build")
-        ->check(BytesValidator())
+    app->add_option("--memory", a->memory, "Memory cap of the build, with a unit (512M, 1G)")
+        ->check(BudgetValidator())
         ->capture_default_str();
-    app->add_option("--cache", a->cache, "Page cache of shading")
-        ->check(BytesValidator())
+    app->add_option("--cache", a->cache, "Page cache of shading, with a unit (256M)")
+        ->check(BudgetValidator())
         ->capture_default_str();
-    app->add_option("--width", a->width)->check(CLI::Range(16, 8192))->capture_default_str();
-    app->add_option("--height", a->height)->check(CLI::Range(16, 8192))->capture_default_str();
-    app->add_option("--threads", a->threads, "0: all cores")->capture_default_str();
-    app->add_option("--max-solid-angle", a->max_solid_angle)
+    app->add_option("--width", a->width, "Image width, pixels")
+        ->check(CLI::Range(16, 8192))
+        ->capture_default_str();
+    app->add_option("--height", a->height, "Image height, pixels")
+        ->check(CLI::Range(16, 8192))
+        ->capture_default_str();
+    app->add_option("--threads", a->threads, "Shading threads (0: all cores)")
+        ->check(CLI::Range(0, 1024))
+        ->capture_default_str();
+    app->add_option("--max-solid-angle", a->max_solid_angle,
+                    "Accept a node as a cluster below this solid angle (sr)")
         ->check(CLI::Range(0.0f, 10.0f))
         ->capture_default_str();
     app->add_option("--cut", a->cut, "cosine (solid angle weighted by the cosine) or plain")
         ->check(CLI::IsMember({"cosine", "plain"}))
         ->capture_default_str();
-    app->add_option("--raster-res", a->raster_res)->check(CLI::Range(4, 64))->capture_default_str();
-    app->add_option("--seed", a->seed)->capture_default_str();
+    app->add_option("--raster-res", a->raster_res, "Micro-buffer pixels per cube face edge")
+        ->check(CLI::Range(4, 64))
+        ->capture_default_str();
+    app->add_option("--seed", a->seed, "Seed of the scene and its sampling")->capture_default_str();
     return [a]() { return RunDemo(*a); };
   };
 }

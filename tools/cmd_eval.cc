@@ -22,6 +22,7 @@
 #include "pbgi/scene.h"
 #include "pbgi/shade.h"
 #include "pbgi/status.h"
+#include "tools/args.h"
 #include "tools/chart.h"
 #include "tools/command.h"
 #include "tools/report.h"
@@ -466,15 +467,16 @@ absl::Status WriteEvalJson(const std::string& path, const EvalArgs& a, const Eva
   return absl::OkStatus();
 }
 
-// Log-log chart of error against time per receiver: the reference, then PBGI by resolution and
-// cut.
-absl::Status WriteEvalChart(const std::string& path, const EvalArgs& a,
-                            const std::vector<Row>& rows) {
+// Log-log chart of error against time per receiver: the reference's ray sweep, then PBGI by
+// raster resolution and cut (one line over the max_solid_angle sweep each), the default ringed.
+absl::Status WriteEvalChart(const std::string& path, const EvalArgs& a, const EvalSetup& e,
+                            const std::vector<Row>& rows, const EvalSummary& summary) {
   std::vector<ChartSeries> series;
-  ChartSeries ref{"reference", glm::vec3(0.15f, 0.35f, 0.8f), true, {}, {}};
+  ChartSeries ref{"Embree reference (rays)", glm::vec3(0.15f, 0.35f, 0.8f), true, {}, {}, {}};
   for (const Row& r : rows) {
     if (r.method == Method::kReference) {
       ref.x.push_back(r.err.mae), ref.y.push_back(r.seconds_per_receiver);
+      ref.labels.push_back(r.setting);
     }
   }
   series.push_back(ref);
@@ -484,27 +486,46 @@ absl::Status WriteEvalChart(const std::string& path, const EvalArgs& a,
   for (const std::string& cut : a.cuts) {
     for (int res : a.resolutions) {
       const std::string tag = absl::StrFormat("res %d %s", res, CutTag(cut));
-      ChartSeries s{"pbgi " + tag, colors[color++ % 4], true, {}, {}};
+      ChartSeries s{absl::StrFormat("PBGI raster %d, %s cut", res, cut),
+                    colors[color++ % 4],
+                    true,
+                    {},
+                    {},
+                    {}};
       for (const Row& r : rows) {
         if (r.method == Method::kPbgi && absl::EndsWith(r.setting, tag)) {
           s.x.push_back(r.err.mae), s.y.push_back(r.seconds_per_receiver);
+          // "msa 0.03 res 12 cos": the point's label is its max solid angle.
+          s.labels.push_back(r.setting.substr(0, r.setting.find(" res")));
         }
       }
       series.push_back(s);
     }
   }
-  return WriteLogLogChart(path, series);
+  ChartOptions o;
+  o.title = absl::StrFormat("%s, %s: error against time (%zu receivers, %d threads)", e.scene->name,
+                            a.mode, e.receivers.size(), e.threads);
+  o.legend_title = "labels: rays, max solid angle (sr)";
+  o.x_label = absl::StrFormat("mean absolute error of %s against %d rays (log scale)",
+                              e.occlusion ? "occlusion" : "irradiance", a.truth_rays);
+  o.y_label = "wall time per receiver, seconds (log scale)";
+  const Row& def = rows[summary.default_row];
+  if (def.method == Method::kPbgi) {
+    o.highlight = ChartPoint{def.err.mae, def.seconds_per_receiver,
+                             absl::StrFormat("default: %s", def.setting)};
+  }
+  return WriteLogLogChart(path, series, o);
 }
 
 absl::Status RunEval(const EvalArgs& a) {
   EvalSetup e;
   e.occlusion = a.mode == "occlusion";
-  PBGI_ASSIGN_OR_RETURN(uint64_t memory, ParseBytes(a.memory));
-  PBGI_ASSIGN_OR_RETURN(uint64_t cache, ParseBytes(a.cache));
+  PBGI_ASSIGN_OR_RETURN(uint64_t memory, ParseBudget(a.memory, "--memory"));
+  PBGI_ASSIGN_OR_RETURN(uint64_t cache, ParseBudget(a.cache, "--cache"));
   std::error_code ec;
   std::filesystem::create_directories(a.out_dir, ec);
   if (ec) return absl::UnavailableError(absl::StrFormat("cannot create %s", a.out_dir));
-  e.threads = a.threads > 0 ? a.threads : DefaultShadeThreads();
+  e.threads = ResolveThreads(a.threads);
   tbb::global_control limit(tbb::global_control::max_allowed_parallelism, e.threads);
 
   PBGI_ASSIGN_OR_RETURN(e.scene, LoadScene(a.scene, a.seed, a.size));
@@ -532,10 +553,10 @@ absl::Status RunEval(const EvalArgs& a) {
   const std::string json_path = a.out_dir + "/eval.json";
   PBGI_RETURN_IF_ERROR(WriteEvalJson(json_path, a, e, rows, summary));
   const std::string chart_path = a.out_dir + "/eval.png";
-  PBGI_RETURN_IF_ERROR(WriteEvalChart(chart_path, a, rows));
+  PBGI_RETURN_IF_ERROR(WriteEvalChart(chart_path, a, e, rows, summary));
   std::printf(
-      "wrote %s and %s (x: log10 MAE, y: log10 seconds/receiver; blue = reference, "
-      "then PBGI by raster resolution %s and cut %s)\n",
+      "wrote %s and %s (log-log chart of MAE against seconds per receiver: the reference, "
+      "then PBGI by raster resolution %s and cut %s, the default ringed)\n",
       json_path.c_str(), chart_path.c_str(), absl::StrJoin(a.resolutions, ", ").c_str(),
       absl::StrJoin(a.cuts, ", ").c_str());
   return absl::OkStatus();
@@ -545,15 +566,16 @@ CommandSetup Setup() {
   return [](CLI::App* app) -> std::function<absl::Status()> {
     auto a = std::make_shared<EvalArgs>();
     app->add_option("scene", a->scene, "Procedural scene or mesh file")->capture_default_str();
-    app->add_option("-o,--out", a->out_dir, "Output directory")->capture_default_str();
+    app->add_option("-o,--output", a->out_dir, "Output directory (database, eval.json, eval.png)")
+        ->capture_default_str();
     app->add_option("--mode", a->mode, "occlusion or irradiance")
         ->check(CLI::IsMember({"occlusion", "irradiance"}))
         ->capture_default_str();
-    app->add_option("--points", a->points)
-        ->check(CLI::Range(int64_t{1}, int64_t{1} << 36))
+    app->add_option("--points", a->points, "Surfels in the database (e.g. 500k, 1M)")
+        ->transform(CountValidator(1, int64_t{1} << 36))
         ->capture_default_str();
-    app->add_option("--receivers", a->receivers)
-        ->check(CLI::Range(int64_t{1}, int64_t{1} << 24))
+    app->add_option("--receivers", a->receivers, "Receivers compared with the reference (e.g. 1k)")
+        ->transform(CountValidator(1, int64_t{1} << 24))
         ->capture_default_str();
     app->add_option("--rays", a->truth_rays, "Rays of the converged reference")
         ->check(CLI::Range(16, 1 << 20))
@@ -569,10 +591,17 @@ CommandSetup Setup() {
                     "normal, the default) and/or plain")
         ->check(CLI::IsMember({"cosine", "plain"}))
         ->capture_default_str();
-    app->add_option("--memory", a->memory)->check(BytesValidator())->capture_default_str();
-    app->add_option("--cache", a->cache)->check(BytesValidator())->capture_default_str();
-    app->add_option("--threads", a->threads, "0: all cores")->capture_default_str();
-    app->add_option("--seed", a->seed)->capture_default_str();
+    app->add_option("--memory", a->memory, "Memory cap of the build, with a unit (512M)")
+        ->check(BudgetValidator())
+        ->capture_default_str();
+    app->add_option("--cache", a->cache, "Page cache of shading, with a unit (256M)")
+        ->check(BudgetValidator())
+        ->capture_default_str();
+    app->add_option("--threads", a->threads, "Threads (0: all cores)")
+        ->check(CLI::Range(0, 1024))
+        ->capture_default_str();
+    app->add_option("--seed", a->seed, "Seed of the scene, its sampling and the receivers")
+        ->capture_default_str();
     app->add_option("--size", a->size,
                     "Scene scale: city blocks or forest trees per side (0: default)")
         ->capture_default_str();
@@ -583,7 +612,7 @@ CommandSetup Setup() {
         ->capture_default_str();
     app->add_option("--frame", a->frame,
                     "Receivers that one database build serves, for the ratio with the build")
-        ->check(CLI::Range(int64_t{1}, int64_t{1} << 40))
+        ->transform(CountValidator(1, int64_t{1} << 40))
         ->capture_default_str();
     app->add_option("--repeat", a->repeat,
                     "Time every setting this many times and report the median")

@@ -2,7 +2,6 @@
 #include <unistd.h>
 
 #include <cctype>
-
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
@@ -83,9 +82,9 @@ CLI::Validator BytesValidator() {
 
 absl::StatusOr<uint64_t> ParseBudget(const std::string& text, const std::string& what) {
   if (!text.empty() && std::isdigit(static_cast<unsigned char>(text.back()))) {
-    return absl::InvalidArgumentError(absl::StrFormat(
-        "%s %s has no unit: give one (%sM, %sG; %sB if you mean bytes)", what, text, text, text,
-        text));
+    return absl::InvalidArgumentError(
+        absl::StrFormat("%s %s has no unit: give one (%sM, %sG; %sB if you mean bytes)", what, text,
+                        text, text, text));
   }
   return ParseBytes(text);
 }
@@ -118,13 +117,25 @@ int main(int argc, char** argv) {
   using pbgi::tools::Registry;
   CLI::App app{"pbgi: coherent out-of-core point-based global illumination"};
   app.require_subcommand(1);
-  app.set_version_flag("--version", "pbgi 0.1.0");
+  app.set_version_flag("--version", pbgi::tools::kToolVersion);
   std::map<CLI::App*, std::function<absl::Status()>> runners;
   std::map<CLI::App*, std::string> names;
   for (auto& e : Registry()) {
     CLI::App* sub = app.add_subcommand(e.name, e.help);
     runners[sub] = e.setup(sub);
     names[sub] = e.name;
+  }
+  // PBGI_LIST_OPTIONS=1: every subcommand's options, one per line (name, then its help text),
+  // for the test that every option is explained and spelled alike.
+  if (std::getenv("PBGI_LIST_OPTIONS") != nullptr) {
+    for (auto& [sub, name] : names) {
+      for (const CLI::Option* o : sub->get_options()) {
+        if (o->get_name() == "--help") continue;
+        std::printf("%s\t%s\t%s\n", name.c_str(), o->get_name().c_str(),
+                    o->get_description().c_str());
+      }
+    }
+    return 0;
   }
   CLI11_PARSE(app, argc, argv);
   for (auto& [sub, run] : runners) {
