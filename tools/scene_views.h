@@ -5,6 +5,7 @@
 
 #include <memory>
 #include <string>
+#include <vector>
 
 #include "absl/status/statusor.h"
 #include "pbgi/query.h"
@@ -24,6 +25,17 @@ Camera DefaultCamera(const Scene& scene, int width, int height);
 
 // "X,Y,Z" -> vector.
 absl::StatusOr<glm::vec3> ParseVec3(const std::string& text);
+
+// The receivers of a camera view: one per pixel whose primary ray hits, lifted off the surface
+// by the tracer's epsilon, its normal turned to the side the camera sees; the glossy lobe's
+// centre is the mirrored view direction. pixel_of[i] is receiver i's pixel (row-major).
+struct CameraReceivers {
+  std::vector<CameraHit> hits;  // every pixel's primary hit
+  std::vector<Receiver> receivers;
+  std::vector<glm::vec3> reflections;
+  std::vector<uint32_t> pixel_of;
+};
+CameraReceivers MakeCameraReceivers(const Tracer& tracer, const Camera& camera);
 
 struct ViewImages {
   Image occlusion;  // 1 - occlusion (white = open), grey
