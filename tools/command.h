@@ -28,8 +28,6 @@ absl::StatusOr<uint64_t> ParseBytes(const std::string& text);
 CLI::Validator BytesValidator();
 // "1.5 GiB"
 std::string FormatBytes(uint64_t bytes);
-// Peak resident set size of this process (VmHWM), in bytes; 0 if unknown.
-uint64_t PeakRssBytes();
 // Whether stderr is a terminal (progress redraws a line) or not (a line per second).
 bool StderrIsTerminal();
 

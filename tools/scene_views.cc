@@ -80,6 +80,14 @@ absl::StatusOr<glm::vec3> ParseVec3(const std::string& text) {
   return v;
 }
 
+std::vector<ShadeReceiver> ShadeReceiversOf(absl::Span<const Receiver> receivers) {
+  std::vector<ShadeReceiver> out(receivers.size());
+  for (size_t i = 0; i < receivers.size(); ++i) {
+    out[i] = {receivers[i].position, receivers[i].normal, receivers[i].normal};
+  }
+  return out;
+}
+
 CameraReceivers MakeCameraReceivers(const Tracer& tracer, const Camera& camera) {
   CameraReceivers out;
   out.hits = tracer.TraceCamera(camera);
@@ -92,15 +100,16 @@ CameraReceivers MakeCameraReceivers(const Tracer& tracer, const Camera& camera) 
     glm::vec3 n = out.hits[p].normal;
     if (glm::dot(n, d) > 0.0f) n = -n;  // shade the side the camera sees
     // A hair above the surface, so that the receiver's own surfels are behind its plane.
-    out.receivers.push_back({out.hits[p].position + tracer.epsilon() * n, n});
-    out.reflections.push_back(glm::reflect(d, n));
+    const glm::vec3 p_lifted = out.hits[p].position + tracer.epsilon() * n;
+    out.receivers.push_back({p_lifted, n});
+    out.shade.push_back({p_lifted, n, glm::reflect(d, n)});
     out.pixel_of.push_back(static_cast<uint32_t>(p));
   }
   return out;
 }
 
 absl::StatusOr<ViewImages> RenderView(const Tracer& tracer, Database& db, const Camera& camera,
-                                      const ShadeJobOptions& options) {
+                                      const ShadeOptions& options) {
   using Clock = std::chrono::steady_clock;
   const Scene& scene = tracer.scene();
   ViewImages out;
@@ -110,16 +119,15 @@ absl::StatusOr<ViewImages> RenderView(const Tracer& tracer, Database& db, const 
   out.composite = Image(camera.width, camera.height);
 
   const auto t0 = Clock::now();
-  CameraReceivers cr = MakeCameraReceivers(tracer, camera);
+  const CameraReceivers cr = MakeCameraReceivers(tracer, camera);
   const std::vector<CameraHit>& hits = cr.hits;
   const std::vector<Receiver>& receivers = cr.receivers;
-  const std::vector<glm::vec3>& reflections = cr.reflections;
   const std::vector<uint32_t>& pixel_of = cr.pixel_of;
   out.trace_seconds = std::chrono::duration<double>(Clock::now() - t0).count();
   out.receivers = receivers.size();
 
-  std::vector<ShadeResult> results;
-  PBGI_RETURN_IF_ERROR(ShadeReceivers(db, receivers, reflections, options, &results, &out.shade));
+  std::vector<ShadeResult> results(receivers.size());
+  PBGI_RETURN_IF_ERROR(ShadeBatch(db, cr.shade, options, absl::MakeSpan(results), &out.shade));
 
   const bool radiance = HasRadiance(db.meta().channels);
   const glm::vec3 sky = scene.lights.sky;

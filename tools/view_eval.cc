@@ -18,7 +18,7 @@
 #include "pbgi/status.h"
 #include "tools/command.h"
 #include "tools/scene_views.h"
-#include "tools/shading.h"
+#include "pbgi/shade.h"
 
 namespace pbgi::tools {
 
@@ -134,7 +134,7 @@ absl::Status RunViewEval(const ViewEvalArgs& a) {
   std::error_code ec;
   std::filesystem::create_directories(a.out_dir, ec);
   if (ec) return absl::UnavailableError(absl::StrFormat("cannot create %s", a.out_dir));
-  const int threads = a.threads > 0 ? a.threads : DefaultThreads();
+  const int threads = a.threads > 0 ? a.threads : DefaultShadeThreads();
   tbb::global_control limit(tbb::global_control::max_allowed_parallelism, threads);
 
   PBGI_ASSIGN_OR_RETURN(std::shared_ptr<const Scene> scene, LoadScene(a.scene, a.seed, a.size));
@@ -248,17 +248,16 @@ absl::Status RunViewEval(const ViewEvalArgs& a) {
   for (const std::string& cut : a.cuts) {
     for (int res : a.resolutions) {
       for (float msa : a.solid_angles) {
-        ShadeJobOptions so;
+        ShadeOptions so;
         so.threads = threads;
         so.cut.max_solid_angle = msa;
         so.cut.cosine_weighted = cut == "cosine";
         so.raster.resolution = res;
         so.raster.compute_radiance = !occlusion;
         so.raster.hitsides = sides;
-        std::vector<ShadeResult> results;
-        ShadeJobStats st;
-        PBGI_RETURN_IF_ERROR(
-            ShadeReceivers(*db, cr.receivers, cr.reflections, so, &results, &st));
+        std::vector<ShadeResult> results(cr.shade.size());
+        ShadeStats st;
+        PBGI_RETURN_IF_ERROR(ShadeBatch(*db, cr.shade, so, absl::MakeSpan(results), &st));
         std::vector<double> got(pixels, 0.0);
         for (size_t i = 0; i < results.size(); ++i) {
           got[cr.pixel_of[i]] = occlusion ? results[i].occlusion : Scalar(results[i].irradiance);

@@ -1,4 +1,4 @@
-// pbgi::PageStore: fixed-size pages in one LMDB environment (DESIGN.md, "Store").
+// pbgi::PageStore: fixed-size pages in one LMDB environment (docs/design.md, "Store").
 //
 // A store has three named sections: `meta` (one meta record, committed last), `nodes` and
 // `points` (key: page number, value: one fixed-size page). A PageWriter appends pages in
@@ -77,7 +77,7 @@ struct StoreMeta {
   uint64_t node_count = 0;
   uint64_t node_pages = 0;
   uint64_t point_pages = 0;
-  uint64_t root = 0;  // NodeRef of the root node (see store/page_format.h)
+  uint64_t root = 0;  // NodeRef of the root node (see tree/format.h)
   uint32_t max_depth = 0;
   std::string layout = "coherent";
   // Free-form build statistics (name -> value as text): timings, peak memory, ...
