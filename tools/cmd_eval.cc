@@ -614,7 +614,7 @@ CommandSetup Setup() {
                     "--view: |error| at which the heat map saturates (relative to the mean "
                     "irradiance in irradiance mode)")
         ->capture_default_str();
-    return [a, app]() {
+    return [a, app]() -> absl::Status {
       if (!a->view) return RunEval(*a);
       ViewEvalArgs v;
       v.scene = app->count("scene") ? a->scene : std::string("city");
@@ -628,8 +628,8 @@ CommandSetup Setup() {
       v.width = a->width;
       v.height = a->height;
       v.hitsides = a->hitsides;
-      v.memory = a->memory;
-      v.cache = a->cache;
+      PBGI_ASSIGN_OR_RETURN(v.memory_bytes, ParseBytes(a->memory));
+      PBGI_ASSIGN_OR_RETURN(v.cache_bytes, ParseBytes(a->cache));
       v.threads = a->threads;
       v.seed = a->seed;
       v.size = a->size;

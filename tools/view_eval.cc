@@ -16,7 +16,6 @@
 #include "pbgi/query.h"
 #include "pbgi/scene.h"
 #include "pbgi/status.h"
-#include "tools/command.h"
 #include "tools/scene_views.h"
 #include "pbgi/shade.h"
 
@@ -129,8 +128,7 @@ std::string ErrorsJson(const ImageErrors& e) {
 
 absl::Status RunViewEval(const ViewEvalArgs& a) {
   const bool occlusion = a.mode == "occlusion";
-  PBGI_ASSIGN_OR_RETURN(uint64_t memory, ParseBytes(a.memory));
-  PBGI_ASSIGN_OR_RETURN(uint64_t cache, ParseBytes(a.cache));
+  const uint64_t memory = a.memory_bytes, cache = a.cache_bytes;
   std::error_code ec;
   std::filesystem::create_directories(a.out_dir, ec);
   if (ec) return absl::UnavailableError(absl::StrFormat("cannot create %s", a.out_dir));

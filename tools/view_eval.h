@@ -53,8 +53,8 @@ struct ViewEvalArgs {
   std::vector<int> resolutions = {12};
   std::vector<std::string> cuts = {"cosine"};
   std::string hitsides = "front";
-  std::string memory = "512M";
-  std::string cache = "256M";
+  uint64_t memory_bytes = uint64_t{512} << 20;  // the build's cap
+  uint64_t cache_bytes = uint64_t{256} << 20;   // the shading cache
   int threads = 0;
   uint64_t seed = 1;
   int size = 0;
