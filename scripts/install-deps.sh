@@ -17,6 +17,8 @@ PACKAGES=(
   libplplot-dev plplot-driver-cairo
   # tools used by the test suite and the measurements
   time valgrind
+  # the CLI test: an independent PLY reader (stdlib only) and the PLY files of assimp-testmodels
+  python3 assimp-testmodels
 )
 
 missing=()

@@ -5,6 +5,7 @@
 set -uo pipefail
 pbgi="$1"
 dir="$2"
+here="$(cd "$(dirname "$0")" && pwd)"
 rm -rf "$dir"
 mkdir -p "$dir"
 failures=0
@@ -93,6 +94,128 @@ if [ -f "$data" ]; then
 else
   fail "no data.mdb in the database directory"
 fi
+
+# --- issue 18: no silent wrong results, point clouds from other tools, safe commands ---------
+check() { python3 "$here/ply_check.py" "$@"; }
+fixtures="$here/fixtures"
+assimp_ply=/usr/share/assimp/models/PLY  # Debian's assimp-testmodels (scripts/install-deps.sh)
+json() { python3 -c "import json, sys; j = json.load(open(sys.argv[1])); print($2)" "$1"; }
+
+# An output that is an input is refused before anything is opened, and the input stays intact.
+cp "$dir/c.ply" "$dir/same.ply"
+refuse same_output "is the input" "$pbgi" shade "$dir/c.pbgi" --receivers "$dir/same.ply" -o "$dir/same.ply"
+cmp -s "$dir/c.ply" "$dir/same.ply" && ok || fail "shade -o INPUT changed its input"
+refuse exr_for_points "PLY" "$pbgi" shade "$dir/c.pbgi" --receivers "$dir/c.ply" -o "$dir/x.exr"
+[ ! -e "$dir/x.exr" ] && ok || fail "shade --receivers -o x.exr left a file"
+ls "$dir"/*.tmp-* >/dev/null 2>&1 && fail "temporary outputs left behind: $(ls "$dir"/*.tmp-*)" || ok
+# Glossy views are shaded glossy, not the irradiance image.
+run view_glossy "$pbgi" shade "$dir/c.pbgi" --scene cornell --seed 3 -o "$dir/glossy.exr" \
+  --width 32 --height 24 --raster-res 8 --mode glossy
+run view_irr "$pbgi" shade "$dir/c.pbgi" --scene cornell --seed 3 -o "$dir/irr.exr" \
+  --width 32 --height 24 --raster-res 8 --mode irradiance --cut plain
+cmp -s "$dir/glossy.exr" "$dir/irr.exr" && fail "the glossy view is the irradiance view" || ok
+# A view of another scene than the database's is refused, unless asked for.
+refuse wrong_scene "built from scene 'cornell'" "$pbgi" shade "$dir/c.pbgi" --scene city -o "$dir/w.png" --width 16 --height 16
+run any_scene "$pbgi" shade "$dir/c.pbgi" --scene city -o "$dir/w.png" --width 16 --height 16 --raster-res 8 --any-scene
+# Outputs carry uchar red green blue beside the float results.
+check props "$dir/shaded.ply" irradiance_r red green blue && ok || fail "shaded.ply lacks its colours"
+
+# Receivers: no radius needed; rx ry rz reflections are used by glossy; invalid ones named.
+printf 'ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\nproperty float nx\nproperty float ny\nproperty float nz\nproperty float rx\nproperty float ry\nproperty float rz\nend_header\n0.5 0.5 0.02 0 0 1 0 0 1\n0.5 0.5 0.02 0 0 1 0.9 0 0.43589\n0.5 0.5 0.02 0 0 1 0 0 1\n' > "$dir/refl.ply"
+run glossy_refl "$pbgi" shade "$dir/c.pbgi" --receivers "$dir/refl.ply" -o "$dir/refl_out.ply" --mode glossy
+python3 - "$dir/refl_out.ply" "$here" <<'PY' && ok || fail "glossy ignores the receivers' rx ry rz"
+import sys; sys.path.insert(0, sys.argv[2]); import ply_check as p
+n, v = p.read(sys.argv[1]); g = [r[n.index("glossy_g")] for r in v]
+sys.exit(0 if g[0] == g[2] and abs(g[0] - g[1]) > 0.1 * g[0] > 0 else 1)
+PY
+printf 'ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\nproperty float nx\nproperty float ny\nproperty float nz\nend_header\n0.5 0.5 0.02 0 0 1\n0.5 0.5 0.02 0 0 0\n0.4 0.5 0.02 0 0 1\n' > "$dir/bad_rx.ply"
+refuse bad_receiver "receiver 1 .*zero normal" "$pbgi" shade "$dir/c.pbgi" --receivers "$dir/bad_rx.ply" -o "$dir/bad_out.ply"
+[ ! -e "$dir/bad_out.ply" ] && ok || fail "a failed shade left bad_out.ply"
+run bad_skip "$pbgi" shade "$dir/c.pbgi" --receivers "$dir/bad_rx.ply" -o "$dir/bad_out.ply" --invalid skip
+check count "$dir/bad_out.ply" 2 && ok || fail "--invalid skip did not write 2 receivers"
+run bad_zero "$pbgi" shade "$dir/c.pbgi" --receivers "$dir/bad_rx.ply" -o "$dir/bad_out.ply" --invalid zero
+check count "$dir/bad_out.ply" 3 && ok || fail "--invalid zero did not write 3 receivers"
+
+# Point clouds written by Open3D (tests/tools/fixtures/make_open3d_fixtures.py): normals but no
+# radius, and neither. The radius comes from the density: 1500 points on a unit box and a sphere
+# of radius 0.2 (area 6.50) spread sqrt(6.50 / (pi 1500)) = 0.0371 apart.
+run o3d_normals "$pbgi" build "$fixtures/open3d_normals.ply" -o "$dir/o3n.pbgi" --memory 64M
+grep -q "estimating each surfel's radius" "$dir/o3d_normals.err" && ok || fail "build does not say it estimates radii"
+run o3d_export "$pbgi" export "$dir/o3n.pbgi" -o "$dir/o3n.ply"
+check count "$dir/o3n.ply" 1500 && ok || fail "export of o3n.pbgi does not hold 1500 surfels"
+check radius "$dir/o3n.ply" 0.030 0.045 >/dev/null && ok || fail "estimated radius: $(check radius "$dir/o3n.ply" 0 1)"
+check normals "$dir/o3n.ply" "$fixtures/open3d_normals.ply" 0.9999 1.0 >/dev/null && ok ||
+  fail "build changed the given normals: $(check normals "$dir/o3n.ply" "$fixtures/open3d_normals.ply" 0.9999 1.0)"
+run o3d_xyz "$pbgi" build "$fixtures/open3d_xyz.ply" -o "$dir/o3x.pbgi" --memory 64M
+grep -q "no normals" "$dir/o3d_xyz.err" && ok || fail "build does not say it estimates normals"
+run o3d_xyz_export "$pbgi" export "$dir/o3x.pbgi" -o "$dir/o3x.ply"
+# PCA normals agree with the true ones (up to sign) within 25 degrees for most points; those
+# near the box's edges and on the coarse sphere mix two planes.
+check normals "$dir/o3x.ply" "$fixtures/open3d_normals.ply" 0.9 0.8 >/dev/null && ok ||
+  fail "estimated normals: $(check normals "$dir/o3x.ply" "$fixtures/open3d_normals.ply" 0.9 0.8)"
+run o3d_radius "$pbgi" build "$fixtures/open3d_xyz.ply" -o "$dir/o3r.pbgi" --memory 64M --radius 0.02
+run o3d_radius_export "$pbgi" export "$dir/o3r.pbgi" -o "$dir/o3r.ply"
+check radius "$dir/o3r.ply" 0.0199 0.0201 >/dev/null && ok || fail "--radius 0.02 not used"
+run o3d_receivers "$pbgi" shade "$dir/o3n.pbgi" --receivers "$fixtures/open3d_normals.ply" -o "$dir/o3_shaded.ply" --raster-res 8
+check count "$dir/o3_shaded.ply" 1500 && ok || fail "receivers without radius not all shaded"
+# Big-endian: the same points read alike.
+check big_endian "$fixtures/open3d_normals.ply" "$dir/o3_be.ply" && ok || fail "could not write a big-endian copy"
+run be_build "$pbgi" build "$dir/o3_be.ply" -o "$dir/o3be.pbgi" --memory 64M
+run be_info "$pbgi" info "$dir/o3be.pbgi" --json
+run le_info "$pbgi" info "$dir/o3n.pbgi" --json
+[ "$(json "$dir/be_info.out" 'j["bounds"], j["point_count"]')" = "$(json "$dir/le_info.out" 'j["bounds"], j["point_count"]')" ] &&
+  ok || fail "big-endian and little-endian copies built different databases"
+# A free-text header line without 'comment' (Blender's, in assimp-testmodels) is read and noted.
+run freetext "$pbgi" info "$assimp_ply/Wuson.ply"
+grep -q "11184" "$dir/freetext.out" && grep -q "free text" "$dir/freetext.out" && ok ||
+  fail "info on Wuson.ply: $(head -c 300 "$dir/freetext.out")"
+# Meshes: --up y turns Y-up files upright; point clouds are sent to build.
+run up_y "$pbgi" import "$assimp_ply/Wuson.ply" -n 5k -o "$dir/wy.ply" --up y
+run up_y_info "$pbgi" info "$dir/wy.ply" --json
+awk -v z="$(json "$dir/up_y_info.out" 'j["bounds"]["hi"][2]')" 'BEGIN {exit !(z > 1.4 && z < 1.55)}' && ok ||
+  fail "--up y: the top is not the file's y maximum 1.515"
+refuse import_cloud "pbgi build" "$pbgi" import "$assimp_ply/pond.0.ply" -n 1k -o "$dir/pond.ply"
+
+# build -o: refuses other files and an existing database without --force.
+mkdir -p "$dir/notadb" && touch "$dir/notadb/keep"
+refuse build_nondb "not a database" "$pbgi" build "$dir/c.ply" -o "$dir/notadb" --memory 64M
+[ -e "$dir/notadb/keep" ] && ok || fail "build -o removed another directory's files"
+cp -r "$dir/c.pbgi" "$dir/c2.pbgi"
+refuse build_exists "database already.*force" "$pbgi" build "$dir/c.ply" -o "$dir/c2.pbgi" --memory 64M
+run build_force "$pbgi" build "$dir/o3_be.ply" -o "$dir/c2.pbgi" --memory 64M --force
+run force_info "$pbgi" info "$dir/c2.pbgi" --json
+[ "$(json "$dir/force_info.out" 'j["point_count"]')" = "1500" ] && ok || fail "--force did not replace the database"
+# Sizes and budgets.
+run count_k "$pbgi" generate cornell -n 2.5k -o "$dir/k.ply" --seed 3 --keep-hidden
+check count "$dir/k.ply" 2500 && ok || fail "-n 2.5k did not make 2500 points"
+refuse unitless "no unit" "$pbgi" build "$dir/k.ply" -o "$dir/k.pbgi" --memory 100
+# One spelling and help on every option.
+PBGI_LIST_OPTIONS=1 "$pbgi" > "$dir/options.txt"
+awk -F'\t' '$3 == "" {print $1, $2}' "$dir/options.txt" > "$dir/undocumented.txt"
+[ ! -s "$dir/undocumented.txt" ] && ok || fail "options without help: $(tr '\n' ' ' < "$dir/undocumented.txt")"
+awk -F'\t' '$2 == "--out" || $2 == "--threads" && $3 !~ /0: all cores/ {print $1, $2}' "$dir/options.txt" > "$dir/bad_o.txt"
+[ ! -s "$dir/bad_o.txt" ] && [ "$(grep -c '	--output	' "$dir/options.txt")" -ge 7 ] && ok ||
+  fail "not one spelling of --output and --threads: $(tr '\n' ' ' < "$dir/bad_o.txt")"
+# Progress: done / total, rate, ETA per line, then a summary.
+PBGI_PROGRESS=lines PBGI_PROGRESS_SECONDS=0 "$pbgi" shade "$dir/o3n.pbgi" --receivers \
+  "$fixtures/open3d_normals.ply" -o "$dir/o3_shaded.ply" --raster-res 8 --chunk 500 >/dev/null 2>"$dir/progress.err"
+grep -qE '^shade: [0-9]+ / 1500 receivers \([0-9.]+%\), .*receivers/s, ETA' "$dir/progress.err" && ok ||
+  fail "no progress lines: $(head -c 300 "$dir/progress.err")"
+# info on a PLY, and typed JSON with provenance.
+run info_ply "$pbgi" info "$dir/c.ply" --json
+[ "$(json "$dir/info_ply.out" 'j["vertex_count"], j["provenance"]["scene.name"], j["provenance"]["scene.seed"]')" = "30000 cornell 3" ] &&
+  ok || fail "info --json on c.ply: $(head -c 300 "$dir/info_ply.out")"
+[ "$(json "$dir/info.out" 'j["provenance"]["input"].endswith("c.ply"), j["provenance"]["scene.name"]')" = "True cornell" ] &&
+  ok || fail "info --json on a database lacks its input"
+# query: --cut and the shaded values; the plain cut gathers more clusters.
+run query_cos "$pbgi" query "$dir/c.pbgi" --at 0.5,0.5,0.02 --normal 0,0,1 --json
+run query_plain "$pbgi" query "$dir/c.pbgi" --at 0.5,0.5,0.02 --normal 0,0,1 --json --cut plain
+python3 - "$dir/query_cos.out" "$dir/query_plain.out" <<'PY' && ok || fail "query --cut: $(head -c 300 "$dir/query_plain.out")"
+import json, sys
+c, p = (json.load(open(f)) for f in sys.argv[1:3])
+s = c["shaded"]
+sys.exit(0 if 0 < s["occlusion"] <= 1 and c["gathered"]["clusters"] < p["gathered"]["clusters"] else 1)
+PY
 
 echo "$passes passed, $failures failed"
 [ "$failures" -eq 0 ]
