@@ -7,6 +7,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <functional>
 #include <limits>
 #include <memory>
 #include <string>
@@ -25,6 +26,7 @@
 #include "tools/args.h"
 #include "tools/chart.h"
 #include "tools/command.h"
+#include "tools/progress.h"
 #include "tools/report.h"
 #include "tools/scene_views.h"
 #include "tools/view_eval.h"
@@ -162,7 +164,21 @@ absl::Status BuildEvalDatabase(const EvalArgs& a, uint64_t memory, EvalSetup* e)
   bo.memory_bytes = memory;
   bo.channels = e->occlusion ? Channels::kOcclusion : Channels::kRadiance;
   bo.tmp_dir = a.out_dir;
+  bo.provenance = SceneFingerprint(*e->scene, a.seed, a.size, UpAxis::kZ);
+  bo.provenance["source"] = "pbgi eval";
+  bo.provenance["tool"] = kToolVersion;
+  bo.provenance["built_at"] = NowIso8601();
+  Progress progress("eval: build", "points", a.points);
+  std::string pass;
+  bo.progress = [&](const BuildProgress& p) {
+    if (pass != p.pass) {
+      pass = p.pass;
+      progress.Phase(absl::StrFormat("eval: build: %s", p.pass), p.points_total);
+    }
+    progress.Update(p.points_done, p.points_total);
+  };
   PBGI_ASSIGN_OR_RETURN(e->build, BuildDatabase(*surfels, e->db_path, bo));
+  progress.Finish(e->build.points);
   e->build_seconds = t.Seconds();
   std::fprintf(stderr, "eval: %s, %lld triangles placed; built %llu surfels in %.1f s\n",
                e->scene->name.c_str(), static_cast<long long>(e->scene->TriangleCount()),
@@ -229,7 +245,9 @@ std::vector<double> Reference(const EvalSetup& e, int rays, uint64_t seed) {
 }
 
 // The reference's sweep of ray counts, each timed a.repeat times (median).
-std::vector<Row> ReferenceRows(const EvalArgs& a, const EvalSetup& e) {
+// `step` is called after each timed run (for the progress of the sweeps).
+std::vector<Row> ReferenceRows(const EvalArgs& a, const EvalSetup& e,
+                               const std::function<void()>& step) {
   const double n = double(std::max<size_t>(1, e.receivers.size()));
   std::vector<Row> rows;
   for (int rays : a.ray_sweep) {
@@ -238,6 +256,7 @@ std::vector<Row> ReferenceRows(const EvalArgs& a, const EvalSetup& e) {
       const internal::Stopwatch t;
       v = Reference(e, rays, a.seed + 2);
       times.push_back(t.Seconds() / n);
+      step();
     }
     Row r;
     r.method = Method::kReference;
@@ -278,7 +297,7 @@ ShadeOptions EvalShadeOptions(const EvalSetup& e, float msa, int res, bool cosin
 // the default row (the first of the default settings, or the first PBGI row when the sweep
 // lacks the default).
 absl::StatusOr<size_t> PbgiRows(const EvalArgs& a, const EvalSetup& e, Database& db,
-                                std::vector<Row>* rows) {
+                                const std::function<void()>& step, std::vector<Row>* rows) {
   const double n = double(std::max<size_t>(1, e.receivers.size()));
   const std::vector<ShadeReceiver> shade_receivers = ShadeReceiversOf(e.receivers);
   // One untimed pass at the finest plain cut first (it touches every page the others do), so
@@ -305,6 +324,7 @@ absl::StatusOr<size_t> PbgiRows(const EvalArgs& a, const EvalSetup& e, Database&
           times.push_back(st.seconds / n);
           gather.push_back(st.gather_seconds / n * 1e6);
           raster.push_back(st.raster_seconds / n * 1e6);
+          step();
         }
         std::vector<double> v(results.size());
         for (size_t i = 0; i < v.size(); ++i) {
@@ -547,12 +567,19 @@ absl::Status RunEval(const EvalArgs& a) {
   std::fprintf(stderr, "eval: converged reference, %d rays x %zu receivers, %.1f s\n", a.truth_rays,
                e.receivers.size(), t.Seconds());
 
-  std::vector<Row> rows = ReferenceRows(a, e);
+  Progress sweeps(
+      "eval: sweeps", "timed runs",
+      int64_t(a.repeat) * int64_t(a.ray_sweep.size() +
+                                  a.cuts.size() * a.resolutions.size() * a.solid_angles.size()));
+  uint64_t runs = 0;
+  const std::function<void()> step = [&] { sweeps.Update(++runs); };
+  std::vector<Row> rows = ReferenceRows(a, e, step);
   const double truth_noise = TruthNoise(a, rows);
   DatabaseOptions dbo;
   dbo.cache_bytes = cache;
   PBGI_ASSIGN_OR_RETURN(std::unique_ptr<Database> db, Database::Open(e.db_path, dbo));
-  PBGI_ASSIGN_OR_RETURN(size_t default_row, PbgiRows(a, e, *db, &rows));
+  PBGI_ASSIGN_OR_RETURN(size_t default_row, PbgiRows(a, e, *db, step, &rows));
+  sweeps.Finish(runs);
   const EvalSummary summary = Summarize(a, e, default_row, truth_noise, &rows);
   PrintEval(a, e, rows, summary);
 

@@ -201,6 +201,12 @@ PBGI_PROGRESS=lines PBGI_PROGRESS_SECONDS=0 "$pbgi" shade "$dir/o3n.pbgi" --rece
   "$fixtures/open3d_normals.ply" -o "$dir/o3_shaded.ply" --raster-res 8 --chunk 500 >/dev/null 2>"$dir/progress.err"
 grep -qE '^shade: [0-9]+ / 1500 receivers \([0-9.]+%\), .*receivers/s, ETA' "$dir/progress.err" && ok ||
   fail "no progress lines: $(head -c 300 "$dir/progress.err")"
+# Every long job ends with a summary: count, time, rate.
+for job in "generate:generate" "build:build" "shade_points:shade" "demo:demo: shade" "eval:eval: sweeps" \
+           "eval_view:eval --view: build" "up_y:import" "o3d_export:export"; do
+  grep -qE "^${job#*:}: [0-9]+ [a-z ]+ in [0-9.]+ s \(" "$dir/${job%%:*}.err" && ok ||
+    fail "${job%%:*} printed no summary '${job#*:}: N ... in T s (rate)': $(tail -n 2 "$dir/${job%%:*}.err")"
+done
 # info on a PLY, and typed JSON with provenance.
 run info_ply "$pbgi" info "$dir/c.ply" --json
 [ "$(json "$dir/info_ply.out" 'j["vertex_count"], j["provenance"]["scene.name"], j["provenance"]["scene.seed"]')" = "30000 cornell 3" ] &&
