@@ -303,12 +303,11 @@ absl::StatusOr<BuildStats> BuildToSink(SurfelSource& source, PageSink& sink,
                                           std::clamp(options.estimate.neighbours, 3, 64));
   if (options.estimate.radius) m["radius"] = knn;
   if (options.estimate.normals) {
-    m["normals"] = knn + (options.estimate.towards_viewpoint
-                              ? absl::StrFormat(" (PCA, towards %g,%g,%g)",
-                                                options.estimate.viewpoint.x,
-                                                options.estimate.viewpoint.y,
-                                                options.estimate.viewpoint.z)
-                              : std::string(" (PCA, away from the centre)"));
+    m["normals"] =
+        knn + (options.estimate.towards_viewpoint
+                   ? absl::StrFormat(" (PCA, towards %g,%g,%g)", options.estimate.viewpoint.x,
+                                     options.estimate.viewpoint.y, options.estimate.viewpoint.z)
+                   : std::string(" (PCA, away from the centre)"));
   }
   for (const auto& [k, v] : options.provenance) {
     if (m.count(k) == 0) m[k] = v;

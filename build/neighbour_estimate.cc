@@ -22,8 +22,8 @@ struct Cloud {
   }
 };
 
-using Tree = nanoflann::KDTreeSingleIndexAdaptor<nanoflann::L2_Simple_Adaptor<float, Cloud>,
-                                                 Cloud, 3, uint32_t>;
+using Tree = nanoflann::KDTreeSingleIndexAdaptor<nanoflann::L2_Simple_Adaptor<float, Cloud>, Cloud,
+                                                 3, uint32_t>;
 
 // The eigenvector of the smallest eigenvalue of a symmetric 3x3 matrix (cyclic Jacobi).
 glm::vec3 SmallestEigenvector(std::array<std::array<double, 3>, 3> a) {
@@ -65,8 +65,7 @@ glm::vec3 SmallestEigenvector(std::array<std::array<double, 3>, 3> a) {
 
 }  // namespace
 
-NeighbourEstimator::NeighbourEstimator(const BuildOptions::Estimate& options,
-                                       const Bounds& bounds)
+NeighbourEstimator::NeighbourEstimator(const BuildOptions::Estimate& options, const Bounds& bounds)
     : options_(options), centre_(bounds.Center()) {
   options_.neighbours = std::clamp(options_.neighbours, 3, 64);
   // A floor for coincident points (all k neighbours at distance 0): a millionth of the scene.

@@ -11,11 +11,11 @@
 #include <vector>
 
 #include "absl/strings/numbers.h"
-#include "absl/strings/str_format.h"
 #include "absl/strings/str_cat.h"
+#include "absl/strings/str_format.h"
 #include "absl/strings/str_split.h"
-#include "absl/strings/strip.h"
 #include "absl/strings/string_view.h"
+#include "absl/strings/strip.h"
 #include "pbgi/status.h"
 
 namespace pbgi {
@@ -124,17 +124,44 @@ double Decode(const uint8_t* in, PType t, bool swap) {
 }
 
 // Surfel fields a property can feed.
-enum Field { kX, kY, kZ, kNx, kNy, kNz, kRadius, kR, kG, kB, kRx, kRy, kRz, kNumFields, kSkip = -1 };
+enum Field {
+  kX,
+  kY,
+  kZ,
+  kNx,
+  kNy,
+  kNz,
+  kRadius,
+  kR,
+  kG,
+  kB,
+  kRx,
+  kRy,
+  kRz,
+  kNumFields,
+  kSkip = -1
+};
 
 int FieldOf(absl::string_view name) {
-  static const std::pair<const char*, int> kNames[] = {
-      {"x", kX},           {"y", kY},           {"z", kZ},
-      {"nx", kNx},         {"ny", kNy},         {"nz", kNz},
-      {"radius", kRadius}, {"r", kR},           {"g", kG},
-      {"b", kB},           {"red", kR},         {"green", kG},
-      {"blue", kB},        {"diffuse_red", kR}, {"diffuse_green", kG},
-      {"diffuse_blue", kB}, {"rx", kRx},        {"ry", kRy},
-      {"rz", kRz}};
+  static const std::pair<const char*, int> kNames[] = {{"x", kX},
+                                                       {"y", kY},
+                                                       {"z", kZ},
+                                                       {"nx", kNx},
+                                                       {"ny", kNy},
+                                                       {"nz", kNz},
+                                                       {"radius", kRadius},
+                                                       {"r", kR},
+                                                       {"g", kG},
+                                                       {"b", kB},
+                                                       {"red", kR},
+                                                       {"green", kG},
+                                                       {"blue", kB},
+                                                       {"diffuse_red", kR},
+                                                       {"diffuse_green", kG},
+                                                       {"diffuse_blue", kB},
+                                                       {"rx", kRx},
+                                                       {"ry", kRy},
+                                                       {"rz", kRz}};
   for (const auto& [n, f] : kNames) {
     if (name == n) return f;
   }
@@ -151,8 +178,8 @@ struct Property {
 
 // Whether a line's first word is one that a PLY header may hold.
 bool IsHeaderKeyword(absl::string_view w) {
-  return w == "format" || w == "element" || w == "property" || w == "comment" ||
-         w == "obj_info" || w == "end_header";
+  return w == "format" || w == "element" || w == "property" || w == "comment" || w == "obj_info" ||
+         w == "end_header";
 }
 
 class PlyFileReader final : public PlySource {
@@ -312,8 +339,7 @@ class PlyFileReader final : public PlySource {
         // source file: ..." without `comment`): nothing a PLY header can mean, so a comment.
         header_.comments.push_back(line);
         header_.notes.push_back(absl::StrFormat(
-            "header line %d is free text without the 'comment' keyword; read as a comment",
-            line_));
+            "header line %d is free text without the 'comment' keyword; read as a comment", line_));
       } else {
         return HeaderError(absl::StrFormat(
             "unexpected keyword '%s' (a header line is format, element, property, comment, "
@@ -342,8 +368,8 @@ class PlyFileReader final : public PlySource {
         have_[f] = true;
       }
     }
-    const bool short_rgb = colour_props[0][1] >= 0 || colour_props[1][1] >= 0 ||
-                           colour_props[2][1] >= 0;
+    const bool short_rgb =
+        colour_props[0][1] >= 0 || colour_props[1][1] >= 0 || colour_props[2][1] >= 0;
     for (int c = 0; c < 3; ++c) {
       const int use = colour_props[c][short_rgb ? 1 : 0];
       const int other = colour_props[c][short_rgb ? 0 : 1];
@@ -363,8 +389,8 @@ class PlyFileReader final : public PlySource {
       for (int f = kX; f <= kRadius; ++f) {
         if (have_[f]) continue;
         if (f == kRadius && options_.allow_missing_radius) continue;
-        if (f >= kNx && f <= kNz && options_.allow_missing_normals && !have_[kNx] &&
-            !have_[kNy] && !have_[kNz]) {
+        if (f >= kNx && f <= kNz && options_.allow_missing_normals && !have_[kNx] && !have_[kNy] &&
+            !have_[kNz]) {
           continue;
         }
         return HeaderError(
@@ -376,9 +402,9 @@ class PlyFileReader final : public PlySource {
     const size_t prefix = has_color_ ? 10 : 7;
     all_float_in_order_ = !swap_ && props_.size() >= prefix && have_[kRadius];
     for (size_t i = 0; i < props_.size() && all_float_in_order_; ++i) {
-      all_float_in_order_ = i < prefix ? props_[i].type == PType::kF32 &&
-                                             props_[i].field == static_cast<int>(i)
-                                       : props_[i].field == kSkip;
+      all_float_in_order_ =
+          i < prefix ? props_[i].type == PType::kF32 && props_[i].field == static_cast<int>(i)
+                     : props_[i].field == kSkip;
     }
     float_prefix_bytes_ = prefix * sizeof(float);
     header_lines_ = line_;
@@ -632,17 +658,17 @@ absl::Status PlyWriter::Write(absl::Span<const Surfel> surfels, absl::Span<const
   const size_t ne = options_.extra.size();
   const bool given = options_.colors == PlyColors::kGiven;
   if (extra.size() != ne * surfels.size() || rgb8.size() != (given ? 3 * surfels.size() : 0)) {
-    return absl::InvalidArgumentError(absl::StrFormat(
-        "%s: %d surfels need %d extra values and %d colour bytes, got %d and %d", path_,
-        surfels.size(), ne * surfels.size(), given ? 3 * surfels.size() : 0, extra.size(),
-        rgb8.size()));
+    return absl::InvalidArgumentError(
+        absl::StrFormat("%s: %d surfels need %d extra values and %d colour bytes, got %d and %d",
+                        path_, surfels.size(), ne * surfels.size(), given ? 3 * surfels.size() : 0,
+                        extra.size(), rgb8.size()));
   }
   buf_.clear();
   std::vector<float> v;
   for (size_t i = 0; i < surfels.size(); ++i) {
     const Surfel& s = surfels[i];
-    v.assign({s.position.x, s.position.y, s.position.z, s.normal.x, s.normal.y, s.normal.z,
-              s.radius});
+    v.assign(
+        {s.position.x, s.position.y, s.position.z, s.normal.x, s.normal.y, s.normal.z, s.radius});
     if (options_.radiance) v.insert(v.end(), {s.radiance.x, s.radiance.y, s.radiance.z});
     v.insert(v.end(), extra.begin() + i * ne, extra.begin() + (i + 1) * ne);
     uint8_t c[3] = {0, 0, 0};
@@ -681,7 +707,8 @@ absl::Status PlyWriter::Close() {
   if (!ok) {
     const std::string why = std::strerror(errno);
     std::remove(tmp_path_.c_str());
-    return absl::InternalError(absl::StrFormat("%s: finishing the file failed: %s", tmp_path_, why));
+    return absl::InternalError(
+        absl::StrFormat("%s: finishing the file failed: %s", tmp_path_, why));
   }
   if (std::rename(tmp_path_.c_str(), path_.c_str()) != 0) {
     const std::string why = std::strerror(errno);

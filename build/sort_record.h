@@ -29,8 +29,7 @@ inline SortRecord MakeSortRecord(uint64_t key, const Surfel& s) {
 // Why a surfel cannot be stored, or nullptr when it can. `use_radiance`: radiance is checked
 // only when it will be stored; a radius (a normal) that the build estimates is not checked.
 inline const char* InvalidSurfelReason(const Surfel& s, bool use_radiance,
-                                       bool estimate_radius = false,
-                                       bool estimate_normal = false) {
+                                       bool estimate_radius = false, bool estimate_normal = false) {
   auto finite3 = [](const glm::vec3& v) {
     return std::isfinite(v.x) && std::isfinite(v.y) && std::isfinite(v.z);
   };

@@ -5,9 +5,9 @@
 #include <csignal>
 #include <cstdio>
 #include <filesystem>
-#include <vector>
 #include <memory>
 #include <string>
+#include <vector>
 
 #include "absl/strings/str_format.h"
 #include "base/proc.h"
@@ -18,8 +18,8 @@
 #include "tools/command.h"
 #include "tools/outputs.h"
 #include "tools/progress.h"
-#include "tools/scene_views.h"
 #include "tools/report.h"
+#include "tools/scene_views.h"
 
 namespace pbgi::tools {
 namespace {
@@ -55,8 +55,8 @@ absl::Status CheckBuildOutput(const std::string& out, bool force) {
   const fs::file_status st = fs::status(out, ec);
   if (!fs::exists(st)) return absl::OkStatus();
   if (!fs::is_directory(st)) {
-    return absl::FailedPreconditionError(absl::StrFormat(
-        "-o %s is a file, not a database directory: give a new path", out));
+    return absl::FailedPreconditionError(
+        absl::StrFormat("-o %s is a file, not a database directory: give a new path", out));
   }
   bool database = false;
   std::vector<std::string> others;
@@ -72,8 +72,8 @@ absl::Status CheckBuildOutput(const std::string& out, bool force) {
     return absl::FailedPreconditionError(absl::StrFormat(
         "-o %s is a directory that holds other files (%s%s), not a database: give a new or "
         "empty directory",
-        out, others.front(), others.size() > 1 ? absl::StrFormat(" and %d more", others.size() - 1)
-                                              : std::string()));
+        out, others.front(),
+        others.size() > 1 ? absl::StrFormat(" and %d more", others.size() - 1) : std::string()));
   }
   if (database && !force) {
     return absl::FailedPreconditionError(absl::StrFormat(
@@ -145,7 +145,8 @@ absl::Status Run(const Args& a) {
   if (!header.has_radius) {
     if (a.radius > 0) {
       o.provenance["radius"] = absl::StrFormat("uniform %g (--radius)", a.radius);
-      std::fprintf(stderr, "pbgi build: %s has no 'radius' property: every surfel gets --radius %g\n",
+      std::fprintf(stderr,
+                   "pbgi build: %s has no 'radius' property: every surfel gets --radius %g\n",
                    a.input.c_str(), a.radius);
     } else {
       o.estimate.radius = true;

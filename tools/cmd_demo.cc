@@ -113,7 +113,7 @@ absl::Status ShadeDemoView(const DemoArgs& a, uint64_t cache, DemoRun* run) {
   so.raster.resolution = a.raster_res;
   so.raster.compute_radiance = scene.has_radiance;
   so.threads = ResolveThreads(a.threads);
-  Progress progress("demo: shade", "pixels", int64_t(a.width) * a.height);
+  Progress progress("demo: shade", "receivers");  // the total: the pixels whose rays hit
   so.progress = [&](const ShadeProgress& p) { progress.Update(p.done, int64_t(p.total)); };
   const Camera camera = DefaultCamera(scene, a.width, a.height);
   PBGI_ASSIGN_OR_RETURN(run->view, RenderView(*tracer, *db, camera, so));

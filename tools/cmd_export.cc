@@ -31,8 +31,7 @@ struct Args {
 // The meta record's provenance goes along, so that a database built from the export keeps
 // its scene's fingerprint (pbgi/ply.h, PlyHeader::Provenance()).
 bool CarriedOver(const std::string& k) {
-  return k.rfind("scene.", 0) == 0 || k.rfind("light.", 0) == 0 || k == "radius" ||
-         k == "normals";
+  return k.rfind("scene.", 0) == 0 || k.rfind("light.", 0) == 0 || k == "radius" || k == "normals";
 }
 
 absl::Status Run(const Args& a) {
@@ -94,6 +93,6 @@ CommandSetup Setup() {
 }
 
 }  // namespace
-PBGI_REGISTER_COMMAND(export, "export",
-                      "Write a database's surfels back out to a PLY point file", Setup());
+PBGI_REGISTER_COMMAND(export, "export", "Write a database's surfels back out to a PLY point file",
+                      Setup());
 }  // namespace pbgi::tools

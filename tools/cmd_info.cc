@@ -142,8 +142,8 @@ absl::StatusOr<PlySummary> SummarizePly(const std::string& path) {
     if (n == 0) break;
     for (size_t i = 0; i < n; ++i) {
       const Surfel& p = buf[i];
-      const bool finite = std::isfinite(p.position.x) && std::isfinite(p.position.y) &&
-                          std::isfinite(p.position.z);
+      const bool finite =
+          std::isfinite(p.position.x) && std::isfinite(p.position.y) && std::isfinite(p.position.z);
       if (!finite) {
         ++s.non_finite;
         continue;

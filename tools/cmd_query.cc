@@ -226,8 +226,8 @@ absl::Status Run(const Args& a) {
   q.radiance = HasRadiance(db->meta().channels);
   ro.compute_radiance = q.radiance;
   MicroBuffer buffer;
-  PBGI_RETURN_IF_ERROR(
-      Shade(q.gathered, ShadeReceiver{p, receiver.normal, receiver.normal}, ro, &buffer, &q.shaded));
+  PBGI_RETURN_IF_ERROR(Shade(q.gathered, ShadeReceiver{p, receiver.normal, receiver.normal}, ro,
+                             &buffer, &q.shaded));
   if (a.json) {
     std::fputs(DumpJson(QueryJson(a, q)).c_str(), stdout);
   } else {

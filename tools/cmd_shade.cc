@@ -151,9 +151,14 @@ absl::Status ShadePoints(const ShadeArgs& a, Database& db, const ShadeOptions& b
   Progress progress("shade", "receivers", in->KnownCount());
   ShadeOptions so = base;
   so.progress = [&](const ShadeProgress& p) { progress.Update(done + p.done); };
+  const InterruptGuard interrupt;
   for (;;) {
-    PBGI_ASSIGN_OR_RETURN(size_t n, in->NextWithReflections(absl::MakeSpan(chunk),
-                                                            absl::MakeSpan(refl)));
+    if (const absl::Status st = interrupt.Check("pbgi shade"); !st.ok()) {
+      progress.Abandon();
+      return st;
+    }
+    PBGI_ASSIGN_OR_RETURN(size_t n,
+                          in->NextWithReflections(absl::MakeSpan(chunk), absl::MakeSpan(refl)));
     if (n == 0) break;
     receivers.clear();
     index_of.clear();
@@ -219,8 +224,10 @@ absl::Status ShadePoints(const ShadeArgs& a, Database& db, const ShadeOptions& b
 
 // The EXR and PNG paths of a view's output.
 absl::StatusOr<std::pair<std::string, std::string>> ViewOutputs(const std::string& out) {
-  if (absl::EndsWith(out, ".exr")) return std::make_pair(out, out.substr(0, out.size() - 4) + ".png");
-  if (absl::EndsWith(out, ".png")) return std::make_pair(out.substr(0, out.size() - 4) + ".exr", out);
+  if (absl::EndsWith(out, ".exr"))
+    return std::make_pair(out, out.substr(0, out.size() - 4) + ".png");
+  if (absl::EndsWith(out, ".png"))
+    return std::make_pair(out.substr(0, out.size() - 4) + ".exr", out);
   return absl::InvalidArgumentError(
       absl::StrFormat("-o %s: the output of a camera view is an .exr or a .png", out));
 }
@@ -369,14 +376,14 @@ CommandSetup Setup() {
     app->add_option("--raster-res", a->raster_res, "Micro-buffer pixels per cube face edge")
         ->check(CLI::Range(4, 64))
         ->capture_default_str();
-    app->add_option("--bias", a->bias,
-                    "Offset of each receiver along its normal (world units)")
+    app->add_option("--bias", a->bias, "Offset of each receiver along its normal (world units)")
         ->capture_default_str();
     app->add_option("--hitsides", a->hitsides,
                     "Which sides of a surfel occlude and emit: front, back or both")
         ->check(CLI::IsMember({"front", "back", "both"}))
         ->capture_default_str();
-    app->add_option("--phong-exponent", a->phong_exponent, "Glossy lobe: cos^n around the reflection")
+    app->add_option("--phong-exponent", a->phong_exponent,
+                    "Glossy lobe: cos^n around the reflection")
         ->capture_default_str();
     app->add_option("--seed", a->seed, "Seed of a procedural scene")->capture_default_str();
     app->add_option("--size", a->size, "Scale of a procedural scene (0: its default)")

@@ -37,8 +37,7 @@ absl::Status WriteExr(const std::string& path, const Image& image) {
       px[i] = Imf::Rgba(c.x, c.y, c.z, 1.0f);
     }
     {
-      Imf::RgbaOutputFile file(out.tmp_path().c_str(), image.width, image.height,
-                               Imf::WRITE_RGBA);
+      Imf::RgbaOutputFile file(out.tmp_path().c_str(), image.width, image.height, Imf::WRITE_RGBA);
       file.setFrameBuffer(px.data(), 1, size_t(image.width));
       file.writePixels(image.height);
     }  // the file is complete when it closes

@@ -86,11 +86,17 @@ InterruptGuard::InterruptGuard() {
   g_interrupted.store(false);
   previous_int_ = std::signal(SIGINT, OnInterruptSignal);
   previous_term_ = std::signal(SIGTERM, OnInterruptSignal);
+  // A closed pipe (`pbgi shade ... 2>&1 | head`) and a closed terminal end the job the same way,
+  // instead of killing it with its temporary files left behind.
+  previous_hup_ = std::signal(SIGHUP, OnInterruptSignal);
+  previous_pipe_ = std::signal(SIGPIPE, OnInterruptSignal);
 }
 
 InterruptGuard::~InterruptGuard() {
   std::signal(SIGINT, previous_int_);
   std::signal(SIGTERM, previous_term_);
+  std::signal(SIGHUP, previous_hup_);
+  std::signal(SIGPIPE, previous_pipe_);
 }
 
 const std::atomic<bool>* InterruptGuard::flag() const { return &g_interrupted; }

@@ -37,9 +37,9 @@ class OutputFile {
   bool committed_ = false;
 };
 
-// SIGINT and SIGTERM caught while it lives: a command checks interrupted() between batches and
-// returns Cancelled, so that its outputs' destructors remove their temporary files and the
-// previous outputs stay (the default action would kill it mid-write).
+// SIGINT, SIGTERM, SIGHUP and SIGPIPE caught while it lives: a command checks interrupted() between
+// batches and returns Cancelled, so that its outputs' destructors remove their temporary files and
+// the previous outputs stay (the default action would kill it mid-write).
 class InterruptGuard {
  public:
   InterruptGuard();
@@ -54,6 +54,8 @@ class InterruptGuard {
  private:
   void (*previous_int_)(int);
   void (*previous_term_)(int);
+  void (*previous_hup_)(int);
+  void (*previous_pipe_)(int);
 };
 
 // The whole of `bytes` into `path`, through an OutputFile.

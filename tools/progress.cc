@@ -16,8 +16,7 @@ namespace pbgi::tools {
 namespace {
 
 double SteadySeconds() {
-  return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch())
-      .count();
+  return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count();
 }
 
 double IntervalFromEnvironment(Progress::Style style) {
@@ -63,8 +62,8 @@ Progress::Progress(std::string label, std::string unit, int64_t total)
     : Progress(std::move(label), std::move(unit), total, StyleFromEnvironment(),
                IntervalFromEnvironment(StyleFromEnvironment()), SteadySeconds, stderr) {}
 
-Progress::Progress(std::string label, std::string unit, int64_t total, Style style,
-                   double interval, Clock clock, std::FILE* out)
+Progress::Progress(std::string label, std::string unit, int64_t total, Style style, double interval,
+                   Clock clock, std::FILE* out)
     : job_(label),
       label_(std::move(label)),
       unit_(std::move(unit)),
@@ -91,8 +90,9 @@ std::string Progress::Line(uint64_t done, double now) const {
     }
     s += absl::StrFormat("%d / %d %s (%.1f%%), %s %s/s", done, total_, unit_, 100.0 * f,
                          ShortCount(rate), unit_);
-    const double left = rate > 0 ? double(uint64_t(total_) - std::min(done, uint64_t(total_))) / rate
-                                 : std::numeric_limits<double>::infinity();
+    const double left = rate > 0
+                            ? double(uint64_t(total_) - std::min(done, uint64_t(total_))) / rate
+                            : std::numeric_limits<double>::infinity();
     s += ", ETA " + Clocklike(left);
   } else {
     s += absl::StrFormat("%d %s, %s %s/s", done, unit_, ShortCount(rate), unit_);
@@ -153,9 +153,9 @@ void Progress::Finish(uint64_t done, const std::string& detail) {
   const double secs = now - start_;
   if (drew_) std::fputc('\r', out_);
   std::fprintf(out_, "%s: %llu %s in %.2f s (%s %s/s)%s%s%s\n", job_.c_str(),
-               static_cast<unsigned long long>(last_done_),
-               unit_.c_str(), secs, ShortCount(double(last_done_) / std::max(1e-9, secs)).c_str(),
-               unit_.c_str(), detail.empty() ? "" : ", ", detail.c_str(), drew_ ? "\033[K" : "");
+               static_cast<unsigned long long>(last_done_), unit_.c_str(), secs,
+               ShortCount(double(last_done_) / std::max(1e-9, secs)).c_str(), unit_.c_str(),
+               detail.empty() ? "" : ", ", detail.c_str(), drew_ ? "\033[K" : "");
   drew_ = false;
   std::fflush(out_);
 }

@@ -2,8 +2,8 @@
 
 #include <algorithm>
 #include <chrono>
-#include <cstring>
 #include <cmath>
+#include <cstring>
 #include <filesystem>
 #include <vector>
 
@@ -75,9 +75,8 @@ std::map<std::string, std::string> SceneFingerprint(const Scene& scene, uint64_t
     }
   }
   const Bounds b = scene.ComputeBounds();
-  const bool procedural =
-      std::find(ProceduralSceneNames().begin(), ProceduralSceneNames().end(), scene.name) !=
-      ProceduralSceneNames().end();
+  const bool procedural = std::find(ProceduralSceneNames().begin(), ProceduralSceneNames().end(),
+                                    scene.name) != ProceduralSceneNames().end();
   std::map<std::string, std::string> f;
   f["scene.name"] = scene.name;
   if (procedural) {
@@ -165,8 +164,7 @@ absl::Status CheckSceneMatchesDatabase(const Scene& scene,
     const auto tris = meta.stats.find("scene.triangles");
     const bool same = built->second == fingerprint.at("scene.geometry") &&
                       name != meta.stats.end() && name->second == fingerprint.at("scene.name") &&
-                      tris != meta.stats.end() &&
-                      tris->second == fingerprint.at("scene.triangles");
+                      tris != meta.stats.end() && tris->second == fingerprint.at("scene.triangles");
     if (same) return absl::OkStatus();
     std::map<std::string, std::string> db;
     for (const auto& [k, v] : meta.stats) {
@@ -179,8 +177,8 @@ absl::Status CheckSceneMatchesDatabase(const Scene& scene,
         fix += " --size " + db["scene.size"];
       }
     } else {
-      fix = absl::StrFormat("--scene %s%s", db["scene.name"],
-                            db["scene.up"] == "y" ? " --up y" : "");
+      fix =
+          absl::StrFormat("--scene %s%s", db["scene.name"], db["scene.up"] == "y" ? " --up y" : "");
     }
     return absl::FailedPreconditionError(absl::StrFormat(
         "%s was built from scene %s, but the view is of scene %s: its surfels do not lie on "

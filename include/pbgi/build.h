@@ -1,5 +1,5 @@
-// pbgi::BuildDatabase: the out-of-core octree builder (docs/design.md, "Build"; Kontkanen, Tabellion,
-// Overbeck, EGSR 2011; Salmon & Warren 1997).
+// pbgi::BuildDatabase: the out-of-core octree builder (docs/design.md, "Build"; Kontkanen,
+// Tabellion, Overbeck, EGSR 2011; Salmon & Warren 1997).
 //
 // The builder pulls surfels from any SurfelSource, computes 63-bit Morton keys inside the cubed,
 // padded bounds, sorts them externally inside a memory budget (radix-sorted runs spilled to

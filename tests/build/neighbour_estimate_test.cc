@@ -5,14 +5,14 @@
 #include "build/neighbour_estimate.h"
 
 #include <algorithm>
-#include <cstdio>
 #include <cmath>
+#include <cstdio>
 #include <random>
 #include <vector>
 
+#include "glm/gtc/type_ptr.hpp"
 #include "gtest/gtest.h"
 #include "tests/build/test_clouds.h"
-#include "glm/gtc/type_ptr.hpp"
 #include "tree/morton.h"
 
 namespace pbgi::internal {
@@ -76,7 +76,9 @@ TEST(NeighbourEstimateTest, SphereRadiiSumToItsAreaAndNormalsPointOutward) {
   }
   const double true_area = 4.0 * 3.14159265358979 * radius * radius;
   EXPECT_NEAR(area / true_area, 1.0, 0.05) << "total surfel area " << area;
-  std::printf("sphere: area ratio %.4f, outliers (r^2 > 2x) %.3f%%, normals > 5 deg off %.3f%%\n", area / true_area, 100.0 * double(outliers) / double(n), 100.0 * double(off_axis) / double(n));
+  std::printf("sphere: area ratio %.4f, outliers (r^2 > 2x) %.3f%%, normals > 5 deg off %.3f%%\n",
+              area / true_area, 100.0 * double(outliers) / double(n),
+              100.0 * double(off_axis) / double(n));
   // Points whose neighbours lie across an octant boundary outside the window: a few percent.
   EXPECT_LT(double(outliers) / double(n), 0.03) << outliers;
   EXPECT_EQ(misoriented, 0u);

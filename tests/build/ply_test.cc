@@ -2,8 +2,8 @@
 // extra properties, and malformed files with the record, line or byte offset in the error.
 #include "pbgi/ply.h"
 
-#include <filesystem>
 #include <cstring>
+#include <filesystem>
 #include <fstream>
 #include <string>
 #include <vector>
@@ -271,11 +271,10 @@ TEST(PlyRegressionTest, OwnOutputsWithColoursAndExtrasReadBack) {
     EXPECT_EQ(h.Provenance().at("scene.seed"), "3");
     std::vector<std::string> names;
     for (const auto& p : h.vertex_properties) names.push_back(p.name + ":" + p.type);
-    EXPECT_EQ(names, (std::vector<std::string>{"x:float", "y:float", "z:float", "nx:float",
-                                               "ny:float", "nz:float", "radius:float", "r:float",
-                                               "g:float", "b:float", "occlusion:float",
-                                               "weight:float", "red:uchar", "green:uchar",
-                                               "blue:uchar"}));
+    EXPECT_EQ(names, (std::vector<std::string>{
+                         "x:float", "y:float", "z:float", "nx:float", "ny:float", "nz:float",
+                         "radius:float", "r:float", "g:float", "b:float", "occlusion:float",
+                         "weight:float", "red:uchar", "green:uchar", "blue:uchar"}));
     // The float radiance wins over the tone-mapped uchar colours.
     auto got = ReadAll(**src);
     ASSERT_EQ(got.size(), cloud.size());

@@ -84,7 +84,8 @@ TEST(RebuildTest, EstimatedRadiiAndNormalsAreStoredAndNamed) {
   ASSERT_TRUE(db.ok());
   const auto& stats = (*db)->meta().stats;
   EXPECT_EQ(stats.at("radius"), "estimated from 16 nearest neighbours");
-  EXPECT_EQ(stats.at("normals"), "estimated from 16 nearest neighbours (PCA, away from the centre)");
+  EXPECT_EQ(stats.at("normals"),
+            "estimated from 16 nearest neighbours (PCA, away from the centre)");
   EXPECT_EQ(stats.at("input"), "sphere");
   auto reader = (*db)->NewReader();
   ASSERT_TRUE(reader.ok());

@@ -201,6 +201,11 @@ PBGI_PROGRESS=lines PBGI_PROGRESS_SECONDS=0 "$pbgi" shade "$dir/o3n.pbgi" --rece
   "$fixtures/open3d_normals.ply" -o "$dir/o3_shaded.ply" --raster-res 8 --chunk 500 >/dev/null 2>"$dir/progress.err"
 grep -qE '^shade: [0-9]+ / 1500 receivers \([0-9.]+%\), .*receivers/s, ETA' "$dir/progress.err" && ok ||
   fail "no progress lines: $(head -c 300 "$dir/progress.err")"
+# A closed pipe on stderr (`2>&1 | head`) ends the job like ^C: no temporary file is left.
+mkdir -p "$dir/pipe"
+PBGI_PROGRESS=lines PBGI_PROGRESS_SECONDS=0 "$pbgi" shade "$dir/c.pbgi" --receivers "$dir/c.ply" \
+  -o "$dir/pipe/s.ply" --raster-res 8 --chunk 2k 2>&1 >/dev/null | head -n 1 >/dev/null
+ls "$dir/pipe"/*.tmp-* >/dev/null 2>&1 && fail "a closed pipe left $(ls "$dir/pipe")" || ok
 # Every long job ends with a summary: count, time, rate.
 for job in "generate:generate" "build:build" "shade_points:shade" "demo:demo: shade" "eval:eval: sweeps" \
            "eval_view:eval --view: build" "up_y:import" "o3d_export:export"; do

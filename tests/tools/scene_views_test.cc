@@ -111,8 +111,8 @@ TEST(SceneViewsTest, AViewOfAnotherSceneIsRefused) {
   // The same scene with another seed (the blocks turn): another geometry.
   auto other = LoadScene("cornell", 4, 0);
   ASSERT_TRUE(other.ok());
-  EXPECT_FALSE(CheckSceneMatchesDatabase(**other, SceneFingerprint(**other, 4, 0, UpAxis::kZ),
-                                         meta, b.db_path, &warning)
+  EXPECT_FALSE(CheckSceneMatchesDatabase(**other, SceneFingerprint(**other, 4, 0, UpAxis::kZ), meta,
+                                         b.db_path, &warning)
                    .ok());
   // Without a fingerprint, bounds that do not fit warn.
   StoreMeta bare = meta;
@@ -194,7 +194,8 @@ TEST(ProgressTest, LinesSayDoneTotalRateAndEta) {
   size_t len = 0;
   std::FILE* out = open_memstream(&buf, &len);
   {
-    Progress p("shade", "receivers", 1000, Progress::Style::kLines, 2.0, [&] { return now; }, out);
+    Progress p(
+        "shade", "receivers", 1000, Progress::Style::kLines, 2.0, [&] { return now; }, out);
     now = 101.0;
     p.Update(100);  // within the first interval: nothing yet
     now = 104.0;
