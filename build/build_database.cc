@@ -208,6 +208,7 @@ absl::StatusOr<BuildStats> BuildDatabase(SurfelSource& source, const std::string
 }
 
 absl::Status VerifyTree(const PageStore& store) {
+  PBGI_RETURN_IF_ERROR(CheckDatabaseMeta(store.meta(), store.path()));
   PBGI_ASSIGN_OR_RETURN(ReadTxn txn, store.BeginRead());
   TxnGetter getter(&txn);
   absl::Status s = internal::VerifyTreePages(store.meta(), getter);

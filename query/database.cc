@@ -102,6 +102,9 @@ absl::StatusOr<std::unique_ptr<Database>> Database::OpenSource(
     return absl::FailedPreconditionError(
         absl::StrFormat("%s: page size %d is too small", source->name(), m.page_size));
   }
+  // A record crafted with a valid checksum (no points, bounds that are NaN or inverted, ...)
+  // must not be shaded as zeros.
+  PBGI_RETURN_IF_ERROR(CheckDatabaseMeta(m, source->name()));
   if (m.point_count > 0 && internal::RefSlot(m.root) >= 0xffffu) {
     return absl::DataLossError(absl::StrFormat("%s: meta: bad root reference", source->name()));
   }

@@ -30,6 +30,9 @@ CLI::Validator BytesValidator();
 std::string FormatBytes(uint64_t bytes);
 // Peak resident set size of this process (VmHWM), in bytes; 0 if unknown.
 uint64_t PeakRssBytes();
+// Prints to stderr what a build that did not finish left in the store directory `db` (or that a
+// build is writing it now), if anything: `pbgi info` and `pbgi verify` mention it.
+void NoteStoreLeftovers(const char* command, const std::string& db);
 // Whether stderr is a terminal (progress redraws a line) or not (a line per second).
 bool StderrIsTerminal();
 

@@ -12,6 +12,7 @@
 
 #include "absl/strings/numbers.h"
 #include "absl/strings/str_format.h"
+#include "pbgi/store.h"
 #include "tools/command.h"
 
 namespace pbgi::tools {
@@ -100,6 +101,21 @@ uint64_t PeakRssBytes() {
     }
   }
   return 0;
+}
+
+void NoteStoreLeftovers(const char* command, const std::string& db) {
+  const StoreLeftovers left = FindStoreLeftovers(db);
+  if (!left.active_writer.empty()) {
+    std::fprintf(stderr,
+                 "pbgi %s: note: a build (pid %s) is writing %s now; it replaces the store when "
+                 "it finishes\n",
+                 command, left.active_writer.c_str(), db.c_str());
+  } else if (!left.files.empty()) {
+    std::fprintf(stderr,
+                 "pbgi %s: note: %s (%s) is left over from a build that did not finish; the next "
+                 "build to %s removes it (or delete it)\n",
+                 command, left.files.front().c_str(), FormatBytes(left.bytes).c_str(), db.c_str());
+  }
 }
 
 bool StderrIsTerminal() { return isatty(STDERR_FILENO) != 0; }
