@@ -12,6 +12,7 @@
 #include "pbgi/build.h"
 #include "pbgi/ply.h"
 #include "pbgi/status.h"
+#include "pbgi/store.h"
 #include "tools/command.h"
 
 namespace pbgi::tools {
@@ -87,6 +88,7 @@ std::string StatsJson(const BuildStats& s, const Args& a, const BuildOptions& o)
 }
 
 absl::Status Run(const Args& a) {
+  if (!a.stats_json.empty()) PBGI_RETURN_IF_ERROR(CheckOutsideStores(a.stats_json));
   BuildOptions o;
   PBGI_ASSIGN_OR_RETURN(o.memory_bytes, ParseBytes(a.memory));
   o.leaf_size = a.leaf_size;

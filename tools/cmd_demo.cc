@@ -11,6 +11,7 @@
 #include "pbgi/query.h"
 #include "pbgi/scene.h"
 #include "pbgi/status.h"
+#include "pbgi/store.h"
 #include "tools/command.h"
 #include "tools/scene_views.h"
 
@@ -38,6 +39,7 @@ double Since(Clock::time_point t) {
 }
 
 absl::Status RunDemo(const DemoArgs& a) {
+  PBGI_RETURN_IF_ERROR(CheckOutsideStores(a.out_dir));
   PBGI_ASSIGN_OR_RETURN(uint64_t memory, ParseBytes(a.memory));
   PBGI_ASSIGN_OR_RETURN(uint64_t cache, ParseBytes(a.cache));
   std::error_code ec;

@@ -22,6 +22,7 @@
 #include "pbgi/scene.h"
 #include "pbgi/status.h"
 #include "tools/chart.h"
+#include "pbgi/store.h"
 #include "tools/command.h"
 #include "tools/scene_views.h"
 #include "tools/shading.h"
@@ -130,6 +131,7 @@ double ReferenceSecondsAt(const std::vector<Row>& rows, double mae, bool* extrap
 }
 
 absl::Status RunEval(const EvalArgs& a) {
+  PBGI_RETURN_IF_ERROR(CheckOutsideStores(a.out_dir));
   const bool occlusion = a.mode == "occlusion";
   PBGI_ASSIGN_OR_RETURN(uint64_t memory, ParseBytes(a.memory));
   PBGI_ASSIGN_OR_RETURN(uint64_t cache, ParseBytes(a.cache));

@@ -1,5 +1,7 @@
 // `pbgi shade`: occlusion, colour bleeding or glossy light from a database, for a point file of
 // receivers (RenderMan's ptfilter workflow) or for the pixels of a camera view of a scene.
+#include <unistd.h>
+
 #include <algorithm>
 #include <cerrno>
 #include <chrono>
@@ -17,6 +19,7 @@
 #include "pbgi/raster.h"
 #include "pbgi/scene.h"
 #include "pbgi/status.h"
+#include "pbgi/store.h"
 #include "tools/command.h"
 #include "tools/scene_views.h"
 #include "tools/shading.h"
@@ -56,10 +59,14 @@ class ResultPlyWriter {
                                                                  Mode mode) {
     auto w = std::unique_ptr<ResultPlyWriter>(new ResultPlyWriter());
     w->path_ = path;
+    // Written beside the output and renamed over it by Close(): an output is never replaced
+    // by a half-written one (a job that fails or is killed leaves the previous file).
+    w->tmp_path_ = absl::StrFormat("%s.tmp-%d", path, getpid());
     w->mode_ = mode;
-    w->file_ = std::fopen(path.c_str(), "wb");
+    w->file_ = std::fopen(w->tmp_path_.c_str(), "wb");
     if (w->file_ == nullptr) {
-      return absl::UnavailableError(absl::StrFormat("cannot create %s", path));
+      return absl::UnavailableError(
+          absl::StrFormat("cannot create %s: %s", w->tmp_path_, std::strerror(errno)));
     }
     std::string header =
         "ply\nformat binary_little_endian 1.0\ncomment written by pbgi shade\n"
@@ -82,6 +89,7 @@ class ResultPlyWriter {
   }
   ~ResultPlyWriter() {
     if (file_ != nullptr) std::fclose(file_);
+    if (!closed_) std::remove(tmp_path_.c_str());
   }
   absl::Status Write(const Surfel& s, const ShadeResult& r) {
     float v[11] = {s.position.x, s.position.y, s.position.z, s.normal.x,
@@ -102,18 +110,26 @@ class ResultPlyWriter {
         std::fwrite(count.data(), 1, count.size(), file_) != count.size()) {
       return WriteError();
     }
-    const int rc = std::fclose(file_);
+    bool ok = std::fflush(file_) == 0 && fsync(fileno(file_)) == 0;
+    ok = std::fclose(file_) == 0 && ok;
     file_ = nullptr;
-    if (rc != 0) return WriteError();
+    if (!ok) return WriteError();
+    if (std::rename(tmp_path_.c_str(), path_.c_str()) != 0) {
+      return absl::UnavailableError(absl::StrFormat("cannot rename %s to %s: %s", tmp_path_, path_,
+                                                    std::strerror(errno)));
+    }
+    closed_ = true;
     return absl::OkStatus();
   }
 
  private:
   absl::Status WriteError() {
     return absl::UnavailableError(
-        absl::StrFormat("cannot write %s: %s (disk full?)", path_, std::strerror(errno)));
+        absl::StrFormat("cannot write %s: %s (disk full?)", tmp_path_, std::strerror(errno)));
   }
   std::string path_;
+  std::string tmp_path_;
+  bool closed_ = false;
   Mode mode_ = Mode::kIrradiance;
   std::FILE* file_ = nullptr;
   long count_offset_ = 0;
@@ -201,6 +217,8 @@ absl::Status ShadeCamera(const ShadeArgs& a, Database& db, const ShadeJobOptions
     return absl::InvalidArgumentError(
         absl::StrFormat("%s: the output of a camera view is an .exr or a .png", a.out));
   }
+  PBGI_RETURN_IF_ERROR(CheckOutsideStores(exr));
+  PBGI_RETURN_IF_ERROR(CheckOutsideStores(png));
   PBGI_RETURN_IF_ERROR(WriteExr(exr, *image));
   PBGI_RETURN_IF_ERROR(WritePng(png, *image, 1.0f, mode != Mode::kOcclusion));
   std::printf("traced %dx%d primary rays in %.2f s\n", a.width, a.height, view.trace_seconds);
@@ -214,6 +232,7 @@ absl::Status RunShade(const ShadeArgs& a) {
   if (a.receivers.empty() == a.scene.empty()) {
     return absl::InvalidArgumentError("give either --receivers IN.ply or --scene SCENE");
   }
+  PBGI_RETURN_IF_ERROR(CheckOutsideStores(a.out));
   Mode mode = Mode::kIrradiance;
   if (a.mode == "occlusion")
     mode = Mode::kOcclusion;

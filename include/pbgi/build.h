@@ -61,7 +61,8 @@ struct BuildOptions {
   uint32_t page_size = kDefaultPageSize;
   Channels channels = Channels::kRadiance;
   Layout layout = Layout::kCoherent;
-  // Directory for the sort's temporary run files; empty: the database's parent directory.
+  // Directory for the sort's temporary run files; empty: the database's parent directory (or
+  // its nearest ancestor that exists, when the build creates the parent too).
   std::string tmp_dir;
   // Count and drop invalid surfels (NaN/Inf, zero normal, radius <= 0) instead of failing.
   bool skip_invalid = false;

@@ -157,6 +157,12 @@ struct StoreLeftovers {
 };
 StoreLeftovers FindStoreLeftovers(const std::string& path);
 
+// OK unless writing the file or directory `output` would put it inside a store directory or
+// replace one (following symbolic links): a store directory belongs to its store and its
+// builds, and `pbgi shade ... -o DB/data.mdb` destroyed a database. FailedPrecondition naming
+// both. Every command of the pbgi tool checks its outputs with it.
+absl::Status CheckOutsideStores(const std::string& output);
+
 // What CheckAllPages() found: per-section counts, and the first inconsistency it can name.
 struct StoreCheckReport {
   struct SectionCounts {

@@ -1,0 +1,89 @@
+#!/usr/bin/env bash
+# Regressions of issue 17 ("Nothing crashes, nothing lies") through the `pbgi` command: outputs
+# inside a database directory, two builds to one path, leftovers of a killed build.
+# Usage: reliability_cli_test.sh PBGI_BINARY SCRATCH_DIR
+set -uo pipefail
+pbgi="$1"
+dir="$2"
+rm -rf "$dir"
+mkdir -p "$dir"
+failures=0
+passes=0
+
+ok() { passes=$((passes + 1)); }
+fail() { echo "FAIL: $*" >&2; failures=$((failures + 1)); }
+run() {
+  local name="$1"; shift
+  if "$@" >"$dir/$name.out" 2>"$dir/$name.err"; then ok; else
+    fail "$name exited $? : $(tail -n 3 "$dir/$name.err")"; fi
+}
+refuse() {
+  local name="$1" pattern="$2"; shift 2
+  if "$@" >"$dir/$name.out" 2>"$dir/$name.err"; then
+    fail "$name succeeded but should have failed"
+  elif ! grep -qiE "$pattern" "$dir/$name.err"; then
+    fail "$name: stderr does not match '$pattern': $(head -c 300 "$dir/$name.err")"
+  else ok; fi
+}
+
+run generate "$pbgi" generate cornell -n 20000 -o "$dir/c.ply" --seed 3
+run build "$pbgi" build "$dir/c.ply" -o "$dir/db" --memory 64M --channels occlusion
+run receivers "$pbgi" generate cornell -n 300 -o "$dir/r.ply" --seed 4
+sum_before=$(md5sum < "$dir/db/data.mdb")
+
+# --- outputs inside a database directory (shade -o DB/data.mdb destroyed the database) ---
+refuse shade_into_db "database directory" \
+  "$pbgi" shade "$dir/db" --receivers "$dir/r.ply" -o "$dir/db/data.mdb" --mode occlusion
+refuse shade_onto_db "database directory" \
+  "$pbgi" shade "$dir/db" --receivers "$dir/r.ply" -o "$dir/db" --mode occlusion
+ln -s "$dir/db" "$dir/link"
+refuse shade_through_link "database directory" \
+  "$pbgi" shade "$dir/db" --receivers "$dir/r.ply" -o "$dir/link/x.ply" --mode occlusion
+refuse view_into_db "database directory" \
+  "$pbgi" shade "$dir/db" --scene cornell -o "$dir/db/view.exr" --mode occlusion --width 8 --height 8
+refuse generate_into_db "database directory" "$pbgi" generate cornell -n 100 -o "$dir/db/x.ply"
+refuse stats_into_db "database directory" \
+  "$pbgi" build "$dir/c.ply" -o "$dir/db2" --stats-json "$dir/db/data.mdb"
+refuse demo_into_db "database directory" "$pbgi" demo -o "$dir/db" --scene cornell --points 1000
+[ "$(md5sum < "$dir/db/data.mdb")" = "$sum_before" ] && ok || fail "a refused output changed data.mdb"
+[ "$(ls "$dir/db")" = "data.mdb" ] && ok || fail "the database directory holds $(ls "$dir/db")"
+run verify_after "$pbgi" verify "$dir/db"
+
+# --- shade writes its output beside it and renames: a failed job leaves the previous file ---
+run shade_ok "$pbgi" shade "$dir/db" --receivers "$dir/r.ply" -o "$dir/out.ply" --mode occlusion
+sum_out=$(md5sum < "$dir/out.ply")
+# Receivers whose body is cut short: the job fails after the header.
+head -c 2000 "$dir/r.ply" > "$dir/cut.ply"
+refuse shade_cut "truncated" \
+  "$pbgi" shade "$dir/db" --receivers "$dir/cut.ply" -o "$dir/out.ply" --mode occlusion
+[ "$(md5sum < "$dir/out.ply")" = "$sum_out" ] && ok || fail "a failed shade replaced its output"
+ls "$dir"/out.ply.tmp-* >/dev/null 2>&1 && fail "a failed shade left its temporary file" || ok
+
+# --- a killed build: info and verify name what it left, the next build removes it ---
+run big "$pbgi" generate cornell -n 400000 -o "$dir/big.ply" --seed 5
+"$pbgi" build "$dir/big.ply" -o "$dir/db" --memory 64M --channels occlusion >/dev/null 2>&1 &
+builder=$!
+for _ in $(seq 1 200); do
+  [ -s "$dir/db/data.mdb.tmp" ] && break
+  sleep 0.02
+done
+# A second build to the same path while the first runs is refused.
+refuse second_build "being written by another build" \
+  "$pbgi" build "$dir/c.ply" -o "$dir/db" --memory 64M --channels occlusion
+run info_during "$pbgi" info "$dir/db"
+grep -q "is writing" "$dir/info_during.err" && ok || fail "info does not say a build is running"
+kill -9 "$builder"
+wait "$builder" 2>/dev/null
+run info_left "$pbgi" info "$dir/db"
+grep -q "left over from a build that did not finish" "$dir/info_left.err" && ok ||
+  fail "info does not name the leftover: $(cat "$dir/info_left.err")"
+[ "$(md5sum < "$dir/db/data.mdb")" = "$sum_before" ] && ok || fail "the killed build changed data.mdb"
+run rebuild "$pbgi" build "$dir/c.ply" -o "$dir/db" --memory 64M --channels occlusion
+[ "$(ls "$dir/db")" = "data.mdb" ] && ok || fail "after a rebuild the directory holds $(ls "$dir/db")"
+# A build that fails on its input leaves no directory behind.
+printf 'ply\nformat ascii 1.0\nelement vertex 0\nproperty float x\nproperty float y\nproperty float z\nproperty float nx\nproperty float ny\nproperty float nz\nproperty float radius\nend_header\n' > "$dir/empty.ply"
+refuse empty_build "no surfels" "$pbgi" build "$dir/empty.ply" -o "$dir/new/db"
+[ -e "$dir/new" ] && fail "a failed build left $dir/new" || ok
+
+echo "reliability_cli_test: $passes passed, $failures failed"
+[ "$failures" -eq 0 ]
