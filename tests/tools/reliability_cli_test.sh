@@ -85,5 +85,14 @@ printf 'ply\nformat ascii 1.0\nelement vertex 0\nproperty float x\nproperty floa
 refuse empty_build "no surfels" "$pbgi" build "$dir/empty.ply" -o "$dir/new/db"
 [ -e "$dir/new" ] && fail "a failed build left $dir/new" || ok
 
+# --- parsers: binary-labelled ASCII receivers shaded garbage with exit 0 ---
+{
+  printf 'ply\nformat binary_little_endian 1.0\nelement vertex 3\n'
+  for p in x y z nx ny nz radius; do printf 'property float %s\n' "$p"; done
+  printf 'end_header\n0.5 0.5 0.1 0 0 1 0.01\n0.2 0.5 0.1 0 0 1 0.01\n0.7 0.5 0.1 0 0 1 0.01\n'
+} > "$dir/mislabelled.ply"
+refuse shade_mislabelled "not binary_little_endian" \
+  "$pbgi" shade "$dir/db" --receivers "$dir/mislabelled.ply" -o "$dir/m.ply" --mode occlusion
+
 echo "reliability_cli_test: $passes passed, $failures failed"
 [ "$failures" -eq 0 ]
