@@ -2,6 +2,7 @@
 #include "pbgi/ply.h"
 
 #include <sys/stat.h>
+#include <unistd.h>
 
 #include <algorithm>
 #include <cerrno>
@@ -352,18 +353,27 @@ class PlySource final : public SurfelSource {
     if (fstat(fileno(file_), &st) != 0 || !S_ISREG(st.st_mode)) return absl::OkStatus();
     const uint64_t body = static_cast<uint64_t>(st.st_size) - static_cast<uint64_t>(body_offset_);
     const uint64_t want = count_ * static_cast<uint64_t>(stride_);
+    // Numbers, signs, points, exponents and white space only: text, not floats.
+    char peek[64];
+    const ssize_t got = pread(fileno(file_), peek, sizeof(peek), body_offset_);
+    bool text = got > 0;
+    for (ssize_t i = 0; i < got && text; ++i) {
+      text = std::strchr("0123456789+-.eE \t\r\n", peek[i]) != nullptr && peek[i] != '\0';
+    }
+    const char* hint =
+        text ? " (the body looks like ASCII text: it is not binary_little_endian)" : "";
     if (stride_ > 0 && count_ > body / static_cast<uint64_t>(stride_)) {
       return absl::DataLossError(absl::StrFormat(
-          "%s: truncated at byte offset %d, in record %d of %d (each record is %d bytes)", path_,
-          st.st_size, body / static_cast<uint64_t>(stride_), count_, stride_));
+          "%s: truncated at byte offset %d, in record %d of %d (each record is %d bytes)%s", path_,
+          st.st_size, body / static_cast<uint64_t>(stride_), count_, stride_, hint));
     }
     if (body != want && !later_records_) {
       return absl::InvalidArgumentError(absl::StrFormat(
           "%s: the header says %d vertices of %d bytes (%d bytes), but the body after byte offset "
           "%d holds %d bytes%s: a wrong vertex count, or a body that is not "
-          "binary_little_endian",
+          "binary_little_endian%s",
           path_, count_, stride_, want, body_offset_, body,
-          body > want ? absl::StrFormat(" (%d more)", body - want) : std::string()));
+          body > want ? absl::StrFormat(" (%d more)", body - want) : std::string(), hint));
     }
     return absl::OkStatus();
   }
