@@ -37,7 +37,7 @@ class PointPageWriter {
   uint64_t points() const { return points_; }
 
  private:
-  Channels channels_;
+  [[maybe_unused]] Channels channels_;
   PageSink* sink_;
   uint32_t record_size_;
   uint32_t per_page_;

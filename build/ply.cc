@@ -597,7 +597,9 @@ absl::Status PlyWriter::Write(absl::Span<const Surfel> surfels) {
     if (options_.ascii) {
       for (int i = 0; i < n; ++i) {
         // %.9g round-trips every float exactly.
-        buf_ += absl::StrFormat(i + 1 < n ? "%.9g " : "%.9g\n", v[i]);
+        // (One constant format: absl checks formats at compile time, which clang enforces.)
+        absl::StrAppendFormat(&buf_, "%.9g", v[i]);
+        buf_ += i + 1 < n ? ' ' : '\n';
       }
     } else {
       buf_.append(reinterpret_cast<const char*>(v), n * sizeof(float));

@@ -360,6 +360,7 @@ absl::Status Reader::Impl::Gather(const Receiver& receiver, const Cut& cut, Gath
                   [&] { return NodeCutCosine(node.near_centre, node.near_radius2, p, n); }))) {
       // Built in place (C++20 aggregate initialization): no zeroing of ~200 bytes first.
       const float area = page->areas[slot];
+#if defined(__cpp_aggregate_paren_init)
       if (page->power) {
         out->clusters.emplace_back(Bounds{node.lo, node.hi}, area, node.sh_area, page->power[slot],
                                    uint32_t{node.depth}, node.first_point, node.point_count);
@@ -368,6 +369,11 @@ absl::Status Reader::Impl::Gather(const Receiver& receiver, const Cut& cut, Gath
                                    std::array<Sh9, 3>{}, uint32_t{node.depth}, node.first_point,
                                    node.point_count);
       }
+#else  // clang 14: no parenthesized aggregate initialization, the same Cluster by braces
+      out->clusters.push_back(Cluster{Bounds{node.lo, node.hi}, area, node.sh_area,
+                                      page->power ? page->power[slot] : std::array<Sh9, 3>{},
+                                      uint32_t{node.depth}, node.first_point, node.point_count});
+#endif
       ++q.clusters;
       continue;
     }
