@@ -4,8 +4,8 @@
 set -euo pipefail
 
 PACKAGES=(
-  # toolchain
-  g++ make cmake ninja-build pkg-config ca-certificates
+  # toolchain (clang and its runtime libraries: the clang build and libFuzzer's fuzz targets)
+  g++ make cmake ninja-build pkg-config ca-certificates clang libclang-rt-14-dev
   # libraries
   liblmdb-dev lmdb-utils libabsl-dev libglm-dev
   libgtest-dev libgmock-dev libbenchmark-dev
