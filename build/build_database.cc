@@ -1,5 +1,4 @@
 // BuildDatabase and VerifyTree over the LMDB store.
-#include <chrono>
 #include <condition_variable>
 #include <cstring>
 #include <filesystem>
@@ -12,28 +11,19 @@
 #include <vector>
 
 #include "absl/strings/str_format.h"
+#include "base/proc.h"
+#include "base/stopwatch.h"
 #include "build/builder.h"
 #include "pbgi/build.h"
 #include "pbgi/status.h"
 #include "pbgi/store.h"
+#include "store/page_io.h"
+#include "tree/verify.h"
 
 namespace pbgi {
 namespace {
 
 constexpr size_t kWriterSlots = 16;  // pages queued for the LMDB thread (1 MiB at 64 KiB pages)
-
-class WriterSink final : public internal::PageSink {
- public:
-  explicit WriterSink(PageWriter* w) : w_(w) {}
-  uint32_t page_size() const override { return w_->page_size(); }
-  absl::Status Append(Section section, uint64_t page_no, PageKind kind, uint32_t record_count,
-                      absl::Span<const uint8_t> payload) override {
-    return w_->Append(section, page_no, kind, record_count, payload);
-  }
-
- private:
-  PageWriter* w_;
-};
 
 // Runs a PageWriter on a thread of its own, so that LMDB's copies and writes overlap the octree
 // pass. Append copies the page into one of a few slots and returns; the writer thread appends
@@ -140,22 +130,6 @@ class AsyncWriterSink final : public internal::PageSink {
   std::thread thread_;
 };
 
-class TxnGetter final : public internal::PageGetter {
- public:
-  explicit TxnGetter(ReadTxn* txn) : txn_(txn) {}
-  absl::StatusOr<internal::PageRead> Get(Section section, uint64_t page_no) override {
-    PBGI_ASSIGN_OR_RETURN(PageView v, txn_->Get(section, page_no));
-    internal::PageRead r;
-    r.payload = v.payload;
-    r.record_count = v.header->record_count;
-    r.kind = v.header->kind;
-    return r;
-  }
-
- private:
-  ReadTxn* txn_;
-};
-
 uint64_t DirectoryBytes(const std::string& path) {
   std::error_code ec;
   uint64_t total = 0;
@@ -191,32 +165,29 @@ absl::StatusOr<BuildStats> BuildDatabase(SurfelSource& source, const std::string
   PBGI_ASSIGN_OR_RETURN(std::unique_ptr<PageWriter> writer, PageWriter::Create(db_path, so));
   StoreMeta meta;
   BuildStats stats;
-  std::chrono::steady_clock::time_point t;
+  internal::Stopwatch finish;
   if (plan.threads > 1) {
     AsyncWriterSink sink(std::move(writer), kWriterSlots);
     PBGI_ASSIGN_OR_RETURN(stats, internal::BuildToSink(source, sink, options, tmp_dir, &meta));
-    t = std::chrono::steady_clock::now();
+    finish.Restart();
     PBGI_RETURN_IF_ERROR(sink.Finish(meta));
   } else {
-    WriterSink sink(writer.get());
+    internal::StoreWriterSink sink(writer.get());
     PBGI_ASSIGN_OR_RETURN(stats, internal::BuildToSink(source, sink, options, tmp_dir, &meta));
-    t = std::chrono::steady_clock::now();
+    finish.Restart();
     PBGI_RETURN_IF_ERROR(writer->Finish(meta));
     writer.reset();
   }
-  stats.seconds_finish =
-      std::chrono::duration<double>(std::chrono::steady_clock::now() - t).count();
+  stats.seconds_finish = finish.Seconds();
   stats.seconds_total += stats.seconds_finish;
   stats.bytes_on_disk = DirectoryBytes(db_path);
-  stats.peak_rss_bytes = internal::PeakRss();
+  stats.peak_rss_bytes = internal::PeakRssBytes();
   return stats;
 }
 
 absl::Status VerifyTree(const PageStore& store) {
-  PBGI_RETURN_IF_ERROR(CheckDatabaseMeta(store.meta(), store.path()));
-  PBGI_ASSIGN_OR_RETURN(ReadTxn txn, store.BeginRead());
-  TxnGetter getter(&txn);
-  absl::Status s = internal::VerifyTreePages(store.meta(), getter);
+  PBGI_RETURN_IF_ERROR(internal::CheckDatabaseMeta(store.meta(), store.path()));
+  absl::Status s = internal::VerifyTreePages(store.meta(), *internal::BorrowStorePageSource(store));
   if (!s.ok()) {
     return absl::Status(s.code(), absl::StrFormat("%s: %s", store.path(), s.message()));
   }

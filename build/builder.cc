@@ -1,20 +1,19 @@
 #include "build/builder.h"
 
 #include <algorithm>
-#include <chrono>
 #include <cmath>
-#include <fstream>
 #include <string>
 #include <vector>
 
 #include "absl/strings/str_format.h"
+#include "base/stopwatch.h"
 #include "build/external_sort.h"
 #include "build/node_packer.h"
 #include "build/octree_builder.h"
 #include "build/sort_record.h"
 #include "pbgi/status.h"
-#include "store/morton.h"
-#include "store/page_format.h"
+#include "tree/format.h"
+#include "tree/morton.h"
 
 namespace pbgi {
 
@@ -48,11 +47,6 @@ constexpr size_t kBatch = 8192;
 constexpr uint64_t kProgressEvery = uint64_t{1} << 18;
 constexpr uint64_t kMinRunRecords = 256;
 constexpr uint64_t kMiB = uint64_t{1} << 20;
-
-using Clock = std::chrono::steady_clock;
-double Since(Clock::time_point t) {
-  return std::chrono::duration<double>(Clock::now() - t).count();
-}
 
 absl::Status CheckCancel(const BuildOptions& o) {
   if (o.cancel != nullptr && o.cancel->load(std::memory_order_relaxed)) {
@@ -89,15 +83,6 @@ int ThreadCount(const BuildOptions& o) {
   return o.threads > 0 ? o.threads : 1;
 }
 
-uint64_t PeakRss() {
-  std::ifstream in("/proc/self/status");
-  std::string line;
-  while (std::getline(in, line)) {
-    if (line.rfind("VmHWM:", 0) == 0) return std::strtoull(line.c_str() + 6, nullptr, 10) * 1024;
-  }
-  return 0;
-}
-
 namespace {
 
 MemoryPlan PlanFor(const BuildOptions& o, int64_t known_count, int threads) {
@@ -108,8 +93,8 @@ MemoryPlan PlanFor(const BuildOptions& o, int64_t known_count, int threads) {
   // Node packer pending sets, page buffers, the look-ahead window, the PLY reader, LMDB's own
   // allocations and the process's baseline (code, libraries). Threads add the merge's block
   // pipe and the LMDB writer's page slots, and LMDB's dirty pages then come from the writer
-  // thread's malloc arena, which keeps about one more batch of freed pages resident (measured:
-  // 16 M points, 256 MiB, +16 MiB anonymous memory during the merge).
+  // thread's malloc arena, which keeps about one more batch of freed pages resident
+  // (docs/format.md, "Memory plan").
   const uint64_t fixed =
       24 * kMiB + 4 * uint64_t{o.page_size} + (threads > 1 ? 4 * kMiB + p.batch_bytes : 0);
   uint64_t sort_bytes = m > p.batch_bytes + fixed ? m - p.batch_bytes - fixed : 0;
@@ -150,7 +135,7 @@ MemoryPlan PlanMemory(const BuildOptions& o, int64_t known_count) {
 absl::StatusOr<BuildStats> BuildToSink(SurfelSource& source, PageSink& sink,
                                        const BuildOptions& options, const std::string& tmp_dir,
                                        StoreMeta* meta) {
-  const auto t_start = Clock::now();
+  const Stopwatch total;
   PBGI_RETURN_IF_ERROR(CheckOptions(options, sink.page_size()));
   const bool radiance = HasRadiance(options.channels);
   const int64_t known = source.KnownCount();
@@ -190,17 +175,17 @@ absl::StatusOr<BuildStats> BuildToSink(SurfelSource& source, PageSink& sink,
 
   // Pass 1: bounds, unless the source knows them.
   Bounds bounds = source.KnownBounds();
-  auto t = Clock::now();
+  Stopwatch t;
   if (bounds.Empty()) {
     PBGI_RETURN_IF_ERROR(for_each_valid("bounds", [&](const Surfel& s) {
       bounds.Extend(s.position);
       return absl::OkStatus();
     }));
-    stats.seconds_bounds = Since(t);
+    stats.seconds_bounds = t.Seconds();
   }
 
   // Pass 2: keys and sorted runs.
-  t = Clock::now();
+  t.Restart();
   const MemoryPlan plan = PlanMemory(options, known);
   stats.run_capacity = plan.run_capacity;
   stats.threads = plan.threads;
@@ -224,7 +209,7 @@ absl::StatusOr<BuildStats> BuildToSink(SurfelSource& source, PageSink& sink,
   }));
   sorter.Commit(used);
   PBGI_RETURN_IF_ERROR(sorter.FinishInput());
-  stats.seconds_sort = Since(t);
+  stats.seconds_sort = t.Seconds();
   stats.runs_spilled = sorter.runs_spilled();
   stats.merge_passes = sorter.merge_passes();
   stats.spill_bytes = sorter.spill_bytes();
@@ -237,7 +222,7 @@ absl::StatusOr<BuildStats> BuildToSink(SurfelSource& source, PageSink& sink,
   }
 
   // Pass 3: merge, octree, pages.
-  t = Clock::now();
+  t.Restart();
   NodePacker packer(options.layout, options.channels, &sink, options.shuffle_seed);
   packer.set_upper_limit_bytes(plan.upper_bytes);
   PointPageWriter points(options.channels, &sink);
@@ -255,7 +240,7 @@ absl::StatusOr<BuildStats> BuildToSink(SurfelSource& source, PageSink& sink,
     }
   }
   PBGI_ASSIGN_OR_RETURN(NodeRef root, octree.Finish());
-  stats.seconds_merge = Since(t);
+  stats.seconds_merge = t.Seconds();
 
   const OctreeStats& os = octree.stats();
   stats.points = points.points();
@@ -270,7 +255,7 @@ absl::StatusOr<BuildStats> BuildToSink(SurfelSource& source, PageSink& sink,
                                                    (double(packer.pages()) * packer.capacity());
   stats.upper_records = packer.upper_records();
   stats.early_upper_writes = packer.early_upper_writes();
-  stats.seconds_total = Since(t_start);
+  stats.seconds_total = total.Seconds();
 
   *meta = StoreMeta{};
   meta->page_size = sink.page_size();

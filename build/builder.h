@@ -1,5 +1,5 @@
-// The builder's pipeline over any PageSink (BuildDatabase runs it over a PageWriter; unit tests
-// over a MemoryPageSink), and the tree checker over any PageGetter.
+// The builder's pipeline over any PageSink (store/page_io.h): BuildDatabase runs it over a
+// PageWriter, unit tests over the in-memory store (store/mem_page_store.h).
 #ifndef PBGI_BUILD_BUILDER_H_
 #define PBGI_BUILD_BUILDER_H_
 
@@ -8,10 +8,10 @@
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
-#include "build/page_sink.h"
 #include "pbgi/build.h"
 #include "pbgi/store.h"
 #include "pbgi/surfel.h"
+#include "store/page_io.h"
 
 namespace pbgi::internal {
 
@@ -34,12 +34,6 @@ MemoryPlan PlanMemory(const BuildOptions& options, int64_t known_count);
 absl::StatusOr<BuildStats> BuildToSink(SurfelSource& source, PageSink& sink,
                                        const BuildOptions& options, const std::string& tmp_dir,
                                        StoreMeta* meta);
-
-// VerifyTree over any page source (see pbgi/build.h).
-absl::Status VerifyTreePages(const StoreMeta& meta, PageGetter& pages);
-
-// VmHWM of this process in bytes (0 if unknown).
-uint64_t PeakRss();
 
 }  // namespace pbgi::internal
 

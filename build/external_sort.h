@@ -1,4 +1,4 @@
-// External sort of SortRecords by Morton key inside a memory budget (DESIGN.md, "Build" step 2):
+// External sort of SortRecords by Morton key inside a memory budget (docs/design.md, "Build" step 2):
 // runs of `run_capacity` records are radix-sorted in memory and spilled to temporary files; a
 // k-way merge streams them back in key order. An input that fits one run is never spilled.
 //

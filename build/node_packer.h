@@ -1,8 +1,8 @@
-// Packs closed octree nodes into node pages (DESIGN.md, "Build" step 5).
+// Packs closed octree nodes into node pages (docs/design.md, "Build" step 5).
 //
 // Nodes arrive in post-order, children before parents. The children of one node (a sibling
 // group) always share one page, so a parent points at them with one NodeRef and a count
-// (store/page_format.h).
+// (tree/format.h).
 //
 // Coherent layout. A gather at the default cut visits ~90 nodes per level, in a disc of a few
 // cells around the receiver at every level of the tree (the far field), and descends to the
@@ -37,9 +37,9 @@
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
 #include "absl/types/span.h"
-#include "build/page_sink.h"
 #include "pbgi/build.h"
-#include "store/page_format.h"
+#include "store/page_io.h"
+#include "tree/format.h"
 
 namespace pbgi::internal {
 

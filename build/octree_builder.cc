@@ -7,7 +7,7 @@
 #include "absl/strings/str_format.h"
 #include "pbgi/sh.h"
 #include "pbgi/status.h"
-#include "store/morton.h"
+#include "tree/morton.h"
 
 namespace pbgi::internal {
 

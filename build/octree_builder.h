@@ -1,4 +1,4 @@
-// Builds the octree in one streaming pass over points sorted by Morton key (DESIGN.md, "Build"
+// Builds the octree in one streaming pass over points sorted by Morton key (docs/design.md, "Build"
 // step 3; Salmon & Warren 1997; Kontkanen et al. keep leaf_size + 1 points in memory).
 //
 // A node is interior iff it holds more than leaf_size points and lies above the maximum depth.
@@ -20,10 +20,10 @@
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
 #include "build/node_packer.h"
-#include "build/page_sink.h"
 #include "build/sort_record.h"
 #include "pbgi/surfel.h"
-#include "store/page_format.h"
+#include "store/page_io.h"
+#include "tree/format.h"
 
 namespace pbgi::internal {
 
@@ -47,7 +47,7 @@ class PointPageWriter {
   uint64_t points_ = 0;
 };
 
-// Sums of a node's points, in double (DESIGN.md, "Build" step 4).
+// Sums of a node's points, in double (docs/design.md, "Build" step 4).
 struct NodeAggregate {
   Bounds bounds;
   double area = 0;

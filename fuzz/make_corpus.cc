@@ -12,7 +12,7 @@
 #include "pbgi/store.h"
 #include "pbgi/testing.h"
 #include "store/meta_codec.h"
-#include "store/page_format.h"
+#include "tree/format.h"
 
 namespace {
 

@@ -7,6 +7,7 @@
 #include "fuzz/fuzz_util.h"
 #include "pbgi/store.h"
 #include "store/meta_codec.h"
+#include "tree/verify.h"
 
 namespace {
 
@@ -27,7 +28,7 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   const absl::string_view bytes(reinterpret_cast<const char*>(data), size);
   auto d = pbgi::internal::DecodeMeta(bytes, "fuzz");
   if (!d.ok()) return 0;
-  (void)pbgi::CheckDatabaseMeta(d->meta, "fuzz");
+  (void)pbgi::internal::CheckDatabaseMeta(d->meta, "fuzz");
   const std::string again = pbgi::internal::EncodeMeta(d->meta, d->complete);
   auto e = pbgi::internal::DecodeMeta(again, "fuzz");
   pbgi::fuzz::Require(e.ok() && e->complete == d->complete && Same(e->meta, d->meta));

@@ -1,4 +1,4 @@
-// The page decoder (query/decoded_page.h) and the gather that trusts what it decoded, on any
+// The page decoder (tree/decoded_page.h) and the gather that trusts what it decoded, on any
 // bytes: one node page and one point page made of the input, a receiver from it, a gather from
 // a root slot in it. Errors (DataLoss naming the page, InvalidArgument for the receiver), never
 // a crash, an endless walk or a read outside a page.
@@ -10,9 +10,10 @@
 
 #include "fuzz/fuzz_util.h"
 #include "pbgi/query.h"
-#include "query/decoded_page.h"
-#include "query/page_source.h"
-#include "store/page_format.h"
+#include "query/database_internal.h"
+#include "store/mem_page_store.h"
+#include "tree/decoded_page.h"
+#include "tree/format.h"
 
 namespace {
 
@@ -69,17 +70,22 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
     PageView v;
     v.header = &h;
     v.payload = absl::MakeConstSpan(payload);
-    auto page = DecodePage(v, s, 0, m, "fuzz");
-    if (page.ok()) pbgi::fuzz::Require((*page)->count == h.record_count && (*page)->Charge() > 0);
+    DecodedPage page;
+    if (DecodePage(v, s, 0, m, "fuzz", &page).ok()) {
+      pbgi::fuzz::Require(page.count == h.record_count);
+      (void)page.ArrayBytes();
+    }
   }
 
   // A gather over them.
-  auto src = std::make_unique<MemPageSource>(m, "fuzz");
-  src->PutPage(Section::kNodes, 0, PageKind::kNode, node_records, node_payload);
-  src->PutPage(Section::kPoints, 0, PageKind::kPoint, points, point_payload);
+  auto src = std::make_unique<MemPageStore>(m, "fuzz");
+  if (!src->Append(Section::kNodes, 0, PageKind::kNode, node_records, node_payload).ok() ||
+      !src->Append(Section::kPoints, 0, PageKind::kPoint, points, point_payload).ok()) {
+    return 0;
+  }
   DatabaseOptions o;
   o.cache_bytes = 1 << 20;
-  auto db = Database::OpenSource(std::move(src), o);
+  auto db = OpenDatabase(std::move(src), o);
   if (!db.ok()) return 0;
   auto reader = (*db)->NewReader();
   if (!reader.ok()) return 0;

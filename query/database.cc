@@ -1,4 +1,4 @@
-// Database, Reader and the gather traversal (DESIGN.md, "Query"; the cut is documented in
+// Database, Reader and the gather traversal (docs/design.md, "Query"; the cut is documented in
 // include/pbgi/query.h).
 #include <algorithm>
 #include <atomic>
@@ -12,20 +12,33 @@
 #include "absl/strings/str_format.h"
 #include "pbgi/query.h"
 #include "pbgi/status.h"
-#include "query/decoded_page.h"
+#include "query/database_internal.h"
 #include "query/front_cache.h"
 #include "query/page_cache.h"
-#include "query/page_source.h"
-#include "store/morton.h"
-#include "store/page_format.h"
+#include "store/page_io.h"
+#include "tree/cut.h"
+#include "tree/decoded_page.h"
+#include "tree/format.h"
+#include "tree/morton.h"
+#include "tree/verify.h"
 
 namespace pbgi {
 
+using internal::AbsMax;
+using internal::BelowCut;
+using internal::CachedPage;
 using internal::DecodedPage;
+using internal::NodeBeyondMargin;
+using internal::NodeCutCosine;
 using internal::NodeHot;
+using internal::NodeMarginOf;
+using internal::NodeNearFieldSphere;
 using internal::NodeRef;
+using internal::NodeSolidAngleFrom;
+using internal::NodeWhollyBehindFar;
 using internal::PageCache;
 using internal::PageKey;
+using internal::SurfelWhollyBehindUnit;
 
 void QueryStats::Add(const QueryStats& o) {
   queries += o.queries;
@@ -65,25 +78,29 @@ uint64_t QueryStats::TotalSharedMisses() const { return Sum(shared_misses); }
 // Counters of all Readers, exact whenever asked: each live Reader publishes its own on a cache
 // line of its own (single writer, relaxed stores, nothing shared on the gather path), and a
 // Reader adds its final counters to `retired` when it goes.
-struct Database::Totals {
-  std::mutex mu;
-  uint64_t retired[10] ABSL_GUARDED_BY(mu) = {};
-  std::vector<const std::atomic<uint64_t>*> live ABSL_GUARDED_BY(mu);
-};
-
 namespace {
-void CountersToArray(const CacheStats& s, uint64_t v[10]) {
-  const uint64_t a[10] = {
-      s.reader.hits, s.reader.misses, s.reader.pages_read, s.reader.bytes_read, s.reader.evictions,
-      s.shared.hits, s.shared.misses, s.shared.pages_read, s.shared.bytes_read, s.shared.evictions};
-  std::memcpy(v, a, sizeof(a));
+// The counters of CacheStats in one fixed order: the one list that a Reader's published copy
+// and Database::TotalStats share. f(counter) for each, `s` a CacheStats or a const one.
+constexpr int kCacheCounters = 10;
+template <typename Stats, typename F>
+void ForEachCounter(Stats& s, F&& f) {
+  for (auto* level : {&s.reader, &s.shared}) {
+    f(level->hits), f(level->misses), f(level->pages_read), f(level->bytes_read);
+    f(level->evictions);
+  }
 }
 }  // namespace
+
+struct Database::Totals {
+  std::mutex mu;
+  CacheStats retired ABSL_GUARDED_BY(mu);
+  std::vector<const std::atomic<uint64_t>*> live ABSL_GUARDED_BY(mu);
+};
 
 Database::Database(std::unique_ptr<internal::PageSource> source, const DatabaseOptions& options)
     : source_(std::move(source)), options_(options), totals_(new Totals) {
   const StoreMeta& m = source_->meta();
-  // A decoded page costs about its stored size (see DecodedPage::Charge).
+  // A decoded page costs about its stored size (see CachedPage::Charge).
   const uint64_t page_charge = std::max<uint64_t>(m.page_size, 4096);
   page_charge_ = page_charge;
   const int bits = options_.cache_shard_bits >= 0
@@ -94,9 +111,17 @@ Database::Database(std::unique_ptr<internal::PageSource> source, const DatabaseO
 
 Database::~Database() = default;
 
-absl::StatusOr<std::unique_ptr<Database>> Database::OpenSource(
+absl::StatusOr<std::unique_ptr<Database>> Database::Open(const std::string& path,
+                                                         const DatabaseOptions& options) {
+  absl::StatusOr<std::unique_ptr<internal::PageSource>> source =
+      internal::OpenStorePageSource(path, options.verify_checksums, options.copy_pages);
+  if (!source.ok()) return source.status();
+  return internal::OpenDatabase(std::move(*source), options);
+}
+
+absl::StatusOr<std::unique_ptr<Database>> internal::OpenDatabase(
     std::unique_ptr<internal::PageSource> source, const DatabaseOptions& options) {
-  if (source == nullptr) return absl::InvalidArgumentError("Database::OpenSource: no source");
+  if (source == nullptr) return absl::InvalidArgumentError("OpenDatabase: no source");
   const StoreMeta& m = source->meta();
   if (m.page_size <= sizeof(PageHeader) + internal::NodeRecordSize(m.channels)) {
     return absl::FailedPreconditionError(
@@ -104,7 +129,7 @@ absl::StatusOr<std::unique_ptr<Database>> Database::OpenSource(
   }
   // A record crafted with a valid checksum (no points, bounds that are NaN or inverted, ...)
   // must not be shaded as zeros.
-  PBGI_RETURN_IF_ERROR(CheckDatabaseMeta(m, source->name()));
+  PBGI_RETURN_IF_ERROR(internal::CheckDatabaseMeta(m, source->name()));
   if (m.point_count > 0 && internal::RefSlot(m.root) >= 0xffffu) {
     return absl::DataLossError(absl::StrFormat("%s: meta: bad root reference", source->name()));
   }
@@ -120,24 +145,20 @@ absl::StatusOr<uint64_t> Database::MapResidentBytes() const { return source_->Ma
 void Database::DropCache() { cache_->Prune(); }
 
 void Database::AddTotals(const CacheStats& s) {
-  uint64_t add[10];
-  CountersToArray(s, add);
   std::lock_guard<std::mutex> l(totals_->mu);
-  for (int i = 0; i < 10; ++i) totals_->retired[i] += add[i];
+  totals_->retired.Add(s);
 }
 
 CacheStats Database::TotalStats() const {
-  uint64_t v[10];
+  CacheStats s;
   {
     std::lock_guard<std::mutex> l(totals_->mu);
-    for (int i = 0; i < 10; ++i) v[i] = totals_->retired[i];
+    s = totals_->retired;
     for (const std::atomic<uint64_t>* c : totals_->live) {
-      for (int i = 0; i < 10; ++i) v[i] += c[i].load(std::memory_order_relaxed);
+      int i = 0;
+      ForEachCounter(s, [&](uint64_t& v) { v += c[i++].load(std::memory_order_relaxed); });
     }
   }
-  CacheStats s;
-  s.reader = {v[0], v[1], v[2], v[3], v[4]};
-  s.shared = {v[5], v[6], v[7], v[8], v[9]};
   s.shared.evictions = cache_->counters().evictions;
   return s;
 }
@@ -223,13 +244,12 @@ struct Reader::Impl {
   std::unique_ptr<internal::PageReader> source;
   internal::FrontCache front;
   const uint64_t points_per_page;
-  // This Reader's CacheStats as Database::TotalStats() reads them (CountersToArray order), on
+  // This Reader's CacheStats as Database::TotalStats() reads them (ForEachCounter order), on
   // cache lines of their own: the other thread never shares a line that a gather writes.
-  alignas(64) std::atomic<uint64_t> published[10] = {};
+  alignas(64) std::atomic<uint64_t> published[kCacheCounters] = {};
   void Publish(const CacheStats& s) {
-    uint64_t v[10];
-    CountersToArray(s, v);
-    for (int i = 0; i < 10; ++i) published[i].store(v[i], std::memory_order_relaxed);
+    int i = 0;
+    ForEachCounter(s, [&](uint64_t v) { published[i++].store(v, std::memory_order_relaxed); });
   }
   alignas(64) QueryStats q;  // counters of the current query
   Memo memo[1 << kMemoBits];
@@ -243,12 +263,12 @@ absl::Status Reader::Impl::FetchSlow(Section section, uint64_t page_no, uint64_t
     absl::StatusOr<PageView> view = source->Read(section, page_no);
     if (!view.ok()) return view.status();
     bytes = meta.page_size;  // pages are stored at their fixed size
-    absl::StatusOr<std::unique_ptr<DecodedPage>> page =
-        internal::DecodePage(*view, section, page_no, meta, db->path());
-    if (!page.ok()) return page.status();
+    auto page = std::make_unique<CachedPage>();
+    PBGI_RETURN_IF_ERROR(
+        internal::DecodePage(*view, section, page_no, meta, db->path(), &page->page));
     PageCache::Loaded loaded;
-    loaded.charge = (*page)->Charge();
-    loaded.value = std::move(*page);
+    loaded.charge = page->Charge();
+    loaded.value = std::move(page);
     return loaded;
   };
   PageCache::Outcome outcome;
@@ -285,7 +305,7 @@ absl::Status Reader::Impl::EmitLeafPoints(uint64_t first, uint64_t count, const 
     for (uint64_t k = 0; k < run; ++k) {
       const Surfel& s = pts[k];
       if (SurfelWhollyBehindUnit(s, p, n)) continue;
-      if (check_distance && SurfelBeyond(s, Receiver{p, n}, max_distance)) continue;
+      if (check_distance && internal::SurfelBeyondPoint(s, p, max_distance)) continue;
       out->surfels.push_back(s);
       out->surfel_ids.push_back(i + k);
     }
@@ -347,7 +367,7 @@ absl::Status Reader::Impl::Gather(const Receiver& receiver, const Cut& cut, Gath
     ++q.nodes_visited;
     ++q.nodes[level];
 
-    // The public tests of query.h with the node's terms precomputed in its decoded page.
+    // The tests of tree/cut.h with the node's terms precomputed in its decoded page.
     const float margin = NodeMarginOf(node.abs_max, p_abs_max);
     if (NodeWhollyBehindFar(internal::NodeCorner(node, far_word), node.reach, p, n, margin) ||
         (check_distance && NodeBeyondMargin(node.lo, node.hi, node.reach, p, max_d, margin))) {
@@ -502,20 +522,10 @@ absl::Status Reader::ReadPoints(uint64_t first, uint64_t count, std::vector<Surf
 // ---------------------------------------------------------------------------------------------
 // Z-order of receivers
 
-// Receivers are sorted by the same Morton key as the points on disk (store/morton.h), inside
+// Receivers are sorted by the same Morton key as the points on disk (tree/morton.h), inside
 // their own bounds, so consecutive receivers walk neighbouring subtrees.
 std::vector<uint32_t> ZOrder(absl::Span<const Receiver> receivers) {
-  Bounds b;
-  for (const Receiver& r : receivers) b.Extend(r.position);
-  const internal::MortonQuantizer quantizer(b);
-  std::vector<std::pair<uint64_t, uint32_t>> keyed(receivers.size());
-  for (size_t i = 0; i < receivers.size(); ++i) {
-    keyed[i] = {quantizer.Key(receivers[i].position), static_cast<uint32_t>(i)};
-  }
-  std::sort(keyed.begin(), keyed.end());
-  std::vector<uint32_t> order(receivers.size());
-  for (size_t i = 0; i < keyed.size(); ++i) order[i] = keyed[i].second;
-  return order;
+  return internal::MortonOrder(receivers.size(), [&](size_t i) { return receivers[i].position; });
 }
 
 }  // namespace pbgi

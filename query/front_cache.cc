@@ -55,7 +55,7 @@ const DecodedPage* FrontCache::Insert(uint64_t key, PageCache::Handle handle) {
   free_.pop_back();
   Slot& s = slots_[i];
   s.key = key;
-  s.page = static_cast<const DecodedPage*>(handle.value());
+  s.page = &static_cast<const CachedPage*>(handle.value())->page;
   s.handle = std::move(handle);
   used_ += charge;
   ++size_;

@@ -10,10 +10,16 @@
 #include <vector>
 
 #include "absl/container/flat_hash_map.h"
-#include "query/decoded_page.h"
 #include "query/page_cache.h"
+#include "tree/decoded_page.h"
 
 namespace pbgi::internal {
+
+// A decoded page as both cache levels hold it; charged its own size and its arrays'.
+struct CachedPage final : public CacheValue {
+  DecodedPage page;
+  uint64_t Charge() const { return sizeof(CachedPage) + page.ArrayBytes(); }
+};
 
 class FrontCache {
  public:

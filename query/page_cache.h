@@ -1,4 +1,4 @@
-// PageCache: the shared, sharded LRU of decoded pages (DESIGN.md, "Query").
+// PageCache: the shared, sharded LRU of decoded pages (docs/design.md, "Query").
 //
 // The shape of LevelDB's util/cache.cc -- per shard a table, a list of pinned entries and a list
 // of evictable ones in LRU order, capacity in bytes of charge -- with what RocksDB added later:

@@ -6,9 +6,20 @@
 #include <random>
 
 #include "absl/strings/str_format.h"
+#include "tree/cut.h"
 
 namespace pbgi::testing {
 namespace {
+
+using internal::BelowCut;
+using internal::NearSphere;
+using internal::NodeBeyond;
+using internal::NodeCutCosine;
+using internal::NodeNearField;
+using internal::NodeNearSphere;
+using internal::NodeReach;
+using internal::NodeWhollyBehind;
+using internal::SurfelWhollyBehindUnit;
 
 std::string Describe(const Receiver& r) {
   return absl::StrFormat("receiver at (%g, %g, %g) normal (%g, %g, %g)", r.position.x, r.position.y,

@@ -30,11 +30,11 @@ struct ClusterMoments {
 namespace cluster_model_internal {
 // Inverse of sh::ProjectClampedCosine's scale per coefficient: zonal factor * basis constant.
 constexpr double kPi = sh::kPi;
-constexpr double kBand0 = kPi * 0.282094791773878;
-constexpr double kBand1 = 2.0 * kPi / 3.0 * 0.488602511902920;
-constexpr double kBand2Xy = kPi / 4.0 * 1.092548430592079;
-constexpr double kBand2Z = kPi / 4.0 * 0.315391565252520;
-constexpr double kBand2Xx = kPi / 4.0 * 0.546274215296040;
+constexpr double kBand0 = kPi * sh::kY0;
+constexpr double kBand1 = 2.0 * kPi / 3.0 * sh::kY1;
+constexpr double kBand2Xy = kPi / 4.0 * sh::kY2;
+constexpr double kBand2Z = kPi / 4.0 * sh::kY6;
+constexpr double kBand2Xx = kPi / 4.0 * sh::kY8;
 }  // namespace cluster_model_internal
 
 // Plain SH evaluation of the projected area (ClusterModel::kShEval).
@@ -109,11 +109,11 @@ struct ClusterSight {
 };
 
 namespace cluster_model_internal {
-constexpr float kY0 = 0.282094791773878f;
-constexpr float kY1 = 0.488602511902920f;
-constexpr float kY2 = 1.092548430592079f;  // Y4, Y5, Y7
-constexpr float kY6 = 0.315391565252520f;
-constexpr float kY8 = 0.546274215296040f;
+constexpr float kY0 = static_cast<float>(sh::kY0);
+constexpr float kY1 = static_cast<float>(sh::kY1);
+constexpr float kY2 = static_cast<float>(sh::kY2);  // Y4, Y5, Y7
+constexpr float kY6 = static_cast<float>(sh::kY6);
+constexpr float kY8 = static_cast<float>(sh::kY8);
 // Weight of the mean radiance in the regularised ratio P(w) / A(w) (see ClusterRadiance).
 constexpr float kRadianceBlend = 0.1f;
 }  // namespace cluster_model_internal

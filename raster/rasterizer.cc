@@ -6,6 +6,7 @@
 #include <cstring>
 #include <limits>
 
+#include "base/math.h"
 #include "glm/geometric.hpp"
 #include "pbgi/sh.h"
 #include "raster/cluster_model.h"
@@ -70,12 +71,7 @@ inline void Rasterizer::Reset() {
 
 void Rasterizer::SetFrame(const ShadeReceiver& r) {
   n_ = glm::normalize(r.normal);
-  // Duff et al. 2017, "Building an Orthonormal Basis, Revisited".
-  const float sign = std::copysign(1.0f, n_.z);
-  const float a = -1.0f / (sign + n_.z);
-  const float b = n_.x * n_.y * a;
-  t_ = glm::vec3(1.0f + sign * n_.x * n_.x * a, sign * b, -sign * n_.x);
-  b_ = glm::vec3(b, sign + n_.y * n_.y * a, -n_.y);
+  OrthonormalBasis(n_, &t_, &b_);
   origin_ = r.position + o_.bias * n_;
 }
 
@@ -196,9 +192,8 @@ void Rasterizer::SplatCone(const PreparedSplat& s) {
   // pixel's coverage its overlap with the square (separable: no per-pixel direction or square
   // root). On the face plane at distance 1, a solid angle omega around the axis spans an area
   // omega / z^3 (z = the axis's component along the face normal). Larger squares lose more
-  // where the depth layers clamp (ShadeTest.ClosedBoxMixedCut, corner receiver: 0.9927 with
-  // squares up to 2 pixels, 0.9905 up to 3, 0.9882 up to 4; the ramp alone 0.9954), so larger
-  // cones take the ramp below.
+  // where the depth layers clamp (docs/raster.md, "Square splats"), so larger cones take the
+  // ramp below.
   const float side = std::sqrt(s.omega * inv * inv * inv) * half;  // in pixels
   if (side <= 2.0f * kBoxMaxHalf) {
     SplatBox<kClamp, kRad>(s, base, x + 0.5f, y + 0.5f, 0.5f * side, q);
@@ -330,13 +325,7 @@ void Rasterizer::SplatDisk(const PreparedSplat& s) {
   const float min_t2 = (1e-4f * r) * (1e-4f * r);
   // The disk's own frame, for its exact image on each face.
   glm::vec3 e1, e2;
-  {
-    const float sign = std::copysign(1.0f, nrm.z);
-    const float a = -1.0f / (sign + nrm.z);
-    const float b = nrm.x * nrm.y * a;
-    e1 = glm::vec3(1.0f + sign * nrm.x * nrm.x * a, sign * b, -sign * nrm.x);
-    e2 = glm::vec3(b, sign + nrm.y * nrm.y * a, -nrm.y);
-  }
+  OrthonormalBasis(nrm, &e1, &e2);
   // Faces -x, +x, -y, +y, +z; -z lies wholly below the horizon, and so do the lower rows of the
   // side faces: pixels there count for nothing, so they are not sampled.
   for (int fi = 0; fi < 5; ++fi) {

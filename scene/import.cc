@@ -48,6 +48,101 @@ Material ReadMaterial(const aiMaterial* m) {
   return out;
 }
 
+// One aiMesh as a pbgi mesh: its valid triangles (counting what is dropped in `r`), or false
+// when none is left.
+bool ConvertMesh(const aiMesh* am, uint32_t material, ImportReport& r, Mesh* out) {
+  if (!am->HasNormals()) ++r.meshes_without_normals;
+  Mesh mesh;
+  mesh.positions.reserve(am->mNumVertices);
+  for (unsigned v = 0; v < am->mNumVertices; ++v) {
+    const aiVector3D& p = am->mVertices[v];
+    mesh.positions.emplace_back(p.x, p.y, p.z);
+  }
+  for (unsigned f = 0; f < am->mNumFaces; ++f) {
+    const aiFace& face = am->mFaces[f];
+    if (face.mNumIndices != 3) {
+      ++r.non_triangle_faces;
+      continue;
+    }
+    const unsigned a = face.mIndices[0], b = face.mIndices[1], c = face.mIndices[2];
+    if (a >= am->mNumVertices || b >= am->mNumVertices || c >= am->mNumVertices) {
+      ++r.degenerate_triangles;
+      continue;
+    }
+    if (!Finite(am->mVertices[a]) || !Finite(am->mVertices[b]) || !Finite(am->mVertices[c])) {
+      ++r.nan_triangles;
+      continue;
+    }
+    glm::dvec3 pa(mesh.positions[a]), pb(mesh.positions[b]), pc(mesh.positions[c]);
+    double area2 = glm::length(glm::cross(pb - pa, pc - pa));
+    if (!(area2 > 0.0) || !std::isfinite(area2)) {
+      ++r.degenerate_triangles;
+      continue;
+    }
+    mesh.triangles.emplace_back(a, b, c);
+    mesh.materials.push_back(material);
+  }
+  if (mesh.triangles.empty()) {
+    ++r.empty_meshes;
+    return false;
+  }
+  // Non-finite vertices that no kept triangle uses would still fail Validate(): zero them.
+  for (glm::vec3& p : mesh.positions) {
+    if (!std::isfinite(p.x) || !std::isfinite(p.y) || !std::isfinite(p.z)) p = glm::vec3(0.0f);
+  }
+  r.triangles += static_cast<int64_t>(mesh.triangles.size());
+  *out = std::move(mesh);
+  return true;
+}
+
+// Walks the node hierarchy: each (node, mesh) pair is an instance with the node's world
+// transform, so a mesh placed many times is stored once. Returns the placements dropped for a
+// non-finite transform.
+int64_t PlaceInstances(const aiNode* root, const std::vector<int>& mesh_of, Scene* scene) {
+  struct Item {
+    const aiNode* node;
+    glm::mat4 parent;
+  };
+  std::vector<Item> stack;
+  if (root) stack.push_back({root, glm::mat4(1.0f)});
+  int64_t bad_transforms = 0;
+  while (!stack.empty()) {
+    Item it = stack.back();
+    stack.pop_back();
+    glm::mat4 world = it.parent * ToGlm(it.node->mTransformation);
+    bool finite = true;
+    for (int c = 0; c < 4; ++c) {
+      for (int k = 0; k < 4; ++k) finite = finite && std::isfinite(world[c][k]);
+    }
+    for (unsigned k = 0; k < it.node->mNumMeshes; ++k) {
+      unsigned mi = it.node->mMeshes[k];
+      if (mi >= mesh_of.size() || mesh_of[mi] < 0) continue;
+      if (!finite) {
+        ++bad_transforms;
+        continue;
+      }
+      scene->instances.push_back({static_cast<uint32_t>(mesh_of[mi]), world, -1});
+    }
+    for (unsigned c = 0; c < it.node->mNumChildren; ++c) {
+      stack.push_back({it.node->mChildren[c], world});
+    }
+  }
+  return bad_transforms;
+}
+
+// One warning per kind of thing dropped.
+void AddWarnings(const std::string& path, int64_t bad_transforms, ImportReport& r) {
+  auto warn = [&](int64_t n, const char* what) {
+    if (n > 0) r.warnings.push_back(absl::StrFormat("mesh '%s': %d %s", path, n, what));
+  };
+  warn(r.meshes_without_normals, "mesh(es) without normals (normals taken from the geometry)");
+  warn(r.empty_meshes, "empty mesh(es) without usable triangles, skipped");
+  warn(r.degenerate_triangles, "degenerate (zero-area) triangle(s) dropped");
+  warn(r.nan_triangles, "triangle(s) with NaN or infinite vertices dropped");
+  warn(r.non_triangle_faces, "point or line primitive(s) dropped");
+  warn(bad_transforms, "placement(s) with a non-finite node transform dropped");
+}
+
 }  // namespace
 
 absl::StatusOr<Scene> ImportMesh(const std::string& path, ImportReport* report) {
@@ -84,93 +179,18 @@ absl::StatusOr<Scene> ImportMesh(const std::string& path, ImportReport* report) 
   std::vector<int> mesh_of(ai->mNumMeshes, -1);
   for (unsigned mi = 0; mi < ai->mNumMeshes; ++mi) {
     const aiMesh* am = ai->mMeshes[mi];
-    if (!am->HasNormals()) ++r.meshes_without_normals;
-    Mesh mesh;
-    mesh.positions.reserve(am->mNumVertices);
-    for (unsigned v = 0; v < am->mNumVertices; ++v) {
-      const aiVector3D& p = am->mVertices[v];
-      mesh.positions.emplace_back(p.x, p.y, p.z);
-    }
     const uint32_t material =
         am->mMaterialIndex < ai->mNumMaterials ? am->mMaterialIndex : default_material;
-    for (unsigned f = 0; f < am->mNumFaces; ++f) {
-      const aiFace& face = am->mFaces[f];
-      if (face.mNumIndices != 3) {
-        ++r.non_triangle_faces;
-        continue;
-      }
-      const unsigned a = face.mIndices[0], b = face.mIndices[1], c = face.mIndices[2];
-      if (a >= am->mNumVertices || b >= am->mNumVertices || c >= am->mNumVertices) {
-        ++r.degenerate_triangles;
-        continue;
-      }
-      if (!Finite(am->mVertices[a]) || !Finite(am->mVertices[b]) || !Finite(am->mVertices[c])) {
-        ++r.nan_triangles;
-        continue;
-      }
-      glm::dvec3 pa(mesh.positions[a]), pb(mesh.positions[b]), pc(mesh.positions[c]);
-      double area2 = glm::length(glm::cross(pb - pa, pc - pa));
-      if (!(area2 > 0.0) || !std::isfinite(area2)) {
-        ++r.degenerate_triangles;
-        continue;
-      }
-      mesh.triangles.emplace_back(a, b, c);
-      mesh.materials.push_back(material);
-    }
-    if (mesh.triangles.empty()) {
-      ++r.empty_meshes;
-      continue;
-    }
-    // Non-finite vertices that no kept triangle uses would still fail Validate(): zero them.
-    for (glm::vec3& p : mesh.positions) {
-      if (!std::isfinite(p.x) || !std::isfinite(p.y) || !std::isfinite(p.z)) p = glm::vec3(0.0f);
-    }
-    r.triangles += static_cast<int64_t>(mesh.triangles.size());
+    Mesh mesh;
+    if (!ConvertMesh(am, material, r, &mesh)) continue;
     mesh_of[mi] = static_cast<int>(scene.meshes.size());
     scene.meshes.push_back(std::move(mesh));
   }
-  // Walk the node hierarchy: each (node, mesh) pair is an instance with the node's world
-  // transform, so a mesh placed many times is stored once.
-  struct Item {
-    const aiNode* node;
-    glm::mat4 parent;
-  };
-  std::vector<Item> stack;
-  if (ai->mRootNode) stack.push_back({ai->mRootNode, glm::mat4(1.0f)});
-  int64_t bad_transforms = 0;
-  while (!stack.empty()) {
-    Item it = stack.back();
-    stack.pop_back();
-    glm::mat4 world = it.parent * ToGlm(it.node->mTransformation);
-    bool finite = true;
-    for (int c = 0; c < 4; ++c) {
-      for (int k = 0; k < 4; ++k) finite = finite && std::isfinite(world[c][k]);
-    }
-    for (unsigned k = 0; k < it.node->mNumMeshes; ++k) {
-      unsigned mi = it.node->mMeshes[k];
-      if (mi >= mesh_of.size() || mesh_of[mi] < 0) continue;
-      if (!finite) {
-        ++bad_transforms;
-        continue;
-      }
-      scene.instances.push_back({static_cast<uint32_t>(mesh_of[mi]), world, -1});
-    }
-    for (unsigned c = 0; c < it.node->mNumChildren; ++c) {
-      stack.push_back({it.node->mChildren[c], world});
-    }
-  }
+  const int64_t bad_transforms = PlaceInstances(ai->mRootNode, mesh_of, &scene);
   r.meshes = static_cast<int64_t>(scene.meshes.size());
   r.instances = static_cast<int64_t>(scene.instances.size());
   r.materials = static_cast<int64_t>(ai->mNumMaterials);
-  auto warn = [&](int64_t n, const char* what) {
-    if (n > 0) r.warnings.push_back(absl::StrFormat("mesh '%s': %d %s", path, n, what));
-  };
-  warn(r.meshes_without_normals, "mesh(es) without normals (normals taken from the geometry)");
-  warn(r.empty_meshes, "empty mesh(es) without usable triangles, skipped");
-  warn(r.degenerate_triangles, "degenerate (zero-area) triangle(s) dropped");
-  warn(r.nan_triangles, "triangle(s) with NaN or infinite vertices dropped");
-  warn(r.non_triangle_faces, "point or line primitive(s) dropped");
-  warn(bad_transforms, "placement(s) with a non-finite node transform dropped");
+  AddWarnings(path, bad_transforms, r);
   if (scene.instances.empty()) {
     return absl::InvalidArgumentError(absl::StrFormat(
         "mesh '%s': nothing usable left (%d meshes, %d empty, %d degenerate and %d NaN triangles "

@@ -12,7 +12,7 @@
 namespace pbgi {
 namespace {
 
-using internal::kPi;
+using internal::kPiFloat;
 
 // A small deterministic generator for scene layout (not for sampling).
 class Rng {
@@ -25,7 +25,7 @@ class Rng {
   }
   float Normal() {
     float u1 = std::max(Uniform(), 1e-7f), u2 = Uniform();
-    return std::sqrt(-2.0f * std::log(u1)) * std::cos(2.0f * kPi * u2);
+    return std::sqrt(-2.0f * std::log(u1)) * std::cos(2.0f * kPiFloat * u2);
   }
 
  private:
@@ -85,8 +85,8 @@ void AddBox(Mesh* m, glm::vec3 lo, glm::vec3 hi, const glm::mat4& xf, uint32_t m
 void AddSphere(Mesh* m, glm::vec3 center, float radius, int rings, int segments,
                uint32_t material) {
   auto point = [&](int i, int j) {
-    float theta = kPi * static_cast<float>(i) / static_cast<float>(rings);
-    float phi = 2.0f * kPi * static_cast<float>(j % segments) / static_cast<float>(segments);
+    float theta = kPiFloat * static_cast<float>(i) / static_cast<float>(rings);
+    float phi = 2.0f * kPiFloat * static_cast<float>(j % segments) / static_cast<float>(segments);
     return center + radius * glm::vec3(std::sin(theta) * std::cos(phi),
                                        std::sin(theta) * std::sin(phi), std::cos(theta));
   };
@@ -231,8 +231,8 @@ Scene MakeForestScene(const SceneOptions& options) {
     Mesh tree;
     const float height = rng.Uniform(3.0f, 5.0f), radius = rng.Uniform(0.1f, 0.2f);
     for (int k = 0; k < kSides; ++k) {
-      float a0 = 2.0f * kPi * static_cast<float>(k) / kSides;
-      float a1 = 2.0f * kPi * static_cast<float>(k + 1) / kSides;
+      float a0 = 2.0f * kPiFloat * static_cast<float>(k) / kSides;
+      float a1 = 2.0f * kPiFloat * static_cast<float>(k + 1) / kSides;
       glm::vec3 p0(radius * std::cos(a0), radius * std::sin(a0), 0.0f);
       glm::vec3 p1(radius * std::cos(a1), radius * std::sin(a1), 0.0f);
       glm::vec3 up(0.0f, 0.0f, height);
@@ -248,7 +248,7 @@ Scene MakeForestScene(const SceneOptions& options) {
       p = crown_c + p * glm::vec3(crown_r, crown_r, crown_h);
       glm::vec3 n = glm::normalize(glm::vec3(rng.Normal(), rng.Normal(), rng.Normal() + 1e-3f));
       glm::vec3 t, b;
-      internal::Basis(n, &t, &b);
+      internal::OrthonormalBasis(n, &t, &b);
       const float lw = 0.18f, lh = 0.12f;
       AddQuad(&tree, p - t * lw - b * lh, p + t * lw - b * lh, p + t * lw + b * lh,
               p - t * lw + b * lh, n, leaf);
@@ -262,7 +262,8 @@ Scene MakeForestScene(const SceneOptions& options) {
                   0.0f);
       uint32_t shape = first_tree + static_cast<uint32_t>(rng.Int(0, kShapes - 1));
       float scale = rng.Uniform(0.75f, 1.3f);
-      s.instances.push_back({shape, Place(c, rng.Uniform(0.0f, 2.0f * kPi), glm::vec3(scale)), -1});
+      s.instances.push_back(
+          {shape, Place(c, rng.Uniform(0.0f, 2.0f * kPiFloat), glm::vec3(scale)), -1});
     }
   }
   s.lights.has_sun = true;
@@ -279,8 +280,8 @@ Scene MakeDiskScene(float radius, int segments, glm::vec3 emission) {
   Mesh m;
   segments = std::max(segments, 3);
   for (int i = 0; i < segments; ++i) {
-    float a0 = 2.0f * kPi * static_cast<float>(i) / static_cast<float>(segments);
-    float a1 = 2.0f * kPi * static_cast<float>(i + 1) / static_cast<float>(segments);
+    float a0 = 2.0f * kPiFloat * static_cast<float>(i) / static_cast<float>(segments);
+    float a1 = 2.0f * kPiFloat * static_cast<float>(i + 1) / static_cast<float>(segments);
     AddTriangle(&m, glm::vec3(0.0f), radius * glm::vec3(std::cos(a0), std::sin(a0), 0.0f),
                 radius * glm::vec3(std::cos(a1), std::sin(a1), 0.0f), {0.0f, 0.0f, -1.0f}, mat);
   }

@@ -9,14 +9,13 @@
 #include <cmath>
 #include <cstdint>
 
+#include "base/math.h"
 #include "glm/geometric.hpp"
 #include "glm/mat4x4.hpp"
 #include "glm/vec2.hpp"
 #include "glm/vec3.hpp"
 
 namespace pbgi::internal {
-
-inline constexpr float kPi = 3.14159265358979323846f;
 
 // SplitMix64's finalizer: a bijective 64-bit mix.
 inline uint64_t Mix64(uint64_t x) {
@@ -77,21 +76,11 @@ inline glm::vec3 TrianglePoint(const glm::vec3& a, const glm::vec3& b, const glm
   return a * (1.0f - bc.x - bc.y) + b * bc.x + c * bc.y;
 }
 
-// Orthonormal basis around a unit normal (Duff et al., "Building an Orthonormal Basis,
-// Revisited", JCGT 2017).
-inline void Basis(const glm::vec3& n, glm::vec3* t, glm::vec3* b) {
-  float sign = std::copysign(1.0f, n.z);
-  float a = -1.0f / (sign + n.z);
-  float bb = n.x * n.y * a;
-  *t = glm::vec3(1.0f + sign * n.x * n.x * a, sign * bb, -sign * n.x);
-  *b = glm::vec3(bb, sign + n.y * n.y * a, -n.y);
-}
-
 // A cosine-weighted direction around n (Malley's method: uniform on the disk, lifted).
 inline glm::vec3 CosineDirection(const glm::vec3& n, const glm::vec3& t, const glm::vec3& b,
                                  glm::vec2 u) {
   float r = std::sqrt(u.x);
-  float phi = 2.0f * kPi * u.y;
+  float phi = 2.0f * kPiFloat * u.y;
   float z = std::sqrt(std::max(0.0f, 1.0f - u.x));
   return glm::normalize(t * (r * std::cos(phi)) + b * (r * std::sin(phi)) + n * z);
 }

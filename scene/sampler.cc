@@ -1,5 +1,5 @@
 // The scene surfel sampler: a streaming SurfelSource that stratifies surfels over the area of a
-// scene's instanced triangles and bakes direct light into them (DESIGN.md, "Scenes").
+// scene's instanced triangles and bakes direct light into them (docs/design.md, "Scenes").
 //
 // Counts per triangle come from systematic sampling along the cumulative area, measured in
 // surfels: triangle i owns the surfels s with floor(C_i + u) <= s < floor(C_{i+1} + u), where
@@ -127,7 +127,7 @@ class SceneSurfelSource final : public SurfelSource {
     if (request == 0) count_ = 0;
     layout_ = MakeLayout(count_, options_.seed);
     area_per_surfel_ = count_ > 0 ? area / static_cast<double>(count_) : 0.0;
-    radius_ = static_cast<float>(std::sqrt(area_per_surfel_ / 3.14159265358979323846));
+    radius_ = static_cast<float>(std::sqrt(area_per_surfel_ / sh::kPi));
     const size_t chunk = static_cast<size_t>(std::min(options_.chunk_size, count_));
     for (auto& b : buffers_) b.resize(chunk);
     for (auto& k : keep_) k.resize(test_hidden_ ? chunk : 0);

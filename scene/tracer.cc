@@ -1,6 +1,6 @@
 // The Embree wrapper: device and scenes held by RAII handles, one RTCScene per mesh instanced
 // into a top-level scene; camera rays, shadow rays, the lighting function that bakes surfels,
-// and the reference integrator that checks PBGI against ray tracing (DESIGN.md, "Accuracy").
+// and the reference integrator that checks PBGI against ray tracing (docs/design.md, "Accuracy").
 #include <embree3/rtcore.h>
 
 #include <algorithm>
@@ -285,7 +285,7 @@ glm::vec3 Camera::Direction(float px, float py) const {
   glm::vec3 forward = glm::normalize(look_at - eye);
   glm::vec3 right = glm::normalize(glm::cross(forward, up));
   glm::vec3 true_up = glm::cross(right, forward);
-  float tan_half = std::tan(0.5f * fov_y_degrees * internal::kPi / 180.0f);
+  float tan_half = std::tan(0.5f * fov_y_degrees * internal::kPiFloat / 180.0f);
   float aspect = static_cast<float>(width) / static_cast<float>(height);
   float sx = (2.0f * px / static_cast<float>(width) - 1.0f) * tan_half * aspect;
   float sy = (1.0f - 2.0f * py / static_cast<float>(height)) * tan_half;
@@ -352,7 +352,7 @@ void Tracer::DirectLightGroup(int count, const glm::vec3* p, const glm::vec3* n,
     const float r0 = internal::Random(k, 0), r1 = internal::Random(k, 1);
     int open[kGroup] = {};
     for (int i = 0; i < count; ++i) {
-      internal::Basis(n[i], &t[i], &b[i]);
+      internal::OrthonormalBasis(n[i], &t[i], &b[i]);
       tfar[i] = inf;
     }
     for (int ray = 0; ray < m; ++ray) {
@@ -374,7 +374,7 @@ void Tracer::DirectLightGroup(int count, const glm::vec3* p, const glm::vec3* n,
     const auto& cdf = impl_->index.emitter_cdf();
     const double total = cdf.back();
     // Irradiance / pi averaged over the m samples.
-    const float norm = 1.0f / (internal::kPi * static_cast<float>(m));
+    const float norm = 1.0f / (internal::kPiFloat * static_cast<float>(m));
     for (int s = 0; s < m; ++s) {
       // Stratified over the power CDF: sample s picks an emitter in the s-th 1/m of the power,
       // and a point on it shared by the group.
@@ -446,7 +446,7 @@ float Tracer::ReferenceOcclusion(const glm::vec3& p, const glm::vec3& n, int ray
                                  float max_distance, uint64_t seed) const {
   if (rays <= 0) return 0.0f;
   glm::vec3 t, b;
-  internal::Basis(n, &t, &b);
+  internal::OrthonormalBasis(n, &t, &b);
   const float r0 = internal::Random(seed, 0), r1 = internal::Random(seed, 1);
   const glm::vec3 origin = p + n * impl_->eps;
   int hits = 0;
@@ -461,7 +461,7 @@ float Tracer::ReferenceOcclusionPackets(const glm::vec3& p, const glm::vec3& n, 
                                         float max_distance, uint64_t seed) const {
   if (rays <= 0) return 0.0f;
   glm::vec3 t, b;
-  internal::Basis(n, &t, &b);
+  internal::OrthonormalBasis(n, &t, &b);
   const float r0 = internal::Random(seed, 0), r1 = internal::Random(seed, 1);
   const glm::vec3 origin = p + n * impl_->eps;
   RTCIntersectContext ctx;
@@ -499,7 +499,7 @@ glm::vec3 Tracer::ReferenceIrradiance(const glm::vec3& p, const glm::vec3& n, in
                                       uint64_t seed) const {
   if (rays <= 0) return glm::vec3(0.0f);
   glm::vec3 t, b;
-  internal::Basis(n, &t, &b);
+  internal::OrthonormalBasis(n, &t, &b);
   const float r0 = internal::Random(seed, 0), r1 = internal::Random(seed, 1);
   const glm::vec3 origin = p + n * impl_->eps;
   std::vector<glm::vec3> points, normals, radiance;
@@ -519,7 +519,7 @@ glm::vec3 Tracer::ReferenceIrradiance(const glm::vec3& p, const glm::vec3& n, in
   glm::vec3 sum(0.0f);
   for (const glm::vec3& l : radiance) sum += l;
   // Cosine-weighted estimator of the integral of L cos: pi / N * sum L.
-  return sum * (internal::kPi / static_cast<float>(rays));
+  return sum * (internal::kPiFloat / static_cast<float>(rays));
 }
 
 std::vector<float> Tracer::ReferenceOcclusion(absl::Span<const Receiver> receivers, int rays,

@@ -10,6 +10,7 @@ PACKAGES=(
   liblmdb-dev lmdb-utils libabsl-dev libglm-dev
   libgtest-dev libgmock-dev libbenchmark-dev
   libembree-dev libassimp-dev libopenexr-dev libstb-dev libcli11-dev libtbb-dev
+  nlohmann-json3-dev
   # tools used by the test suite and the measurements
   time valgrind
 )

@@ -1,5 +1,5 @@
 // The one place where LMDB's integer return codes (and the errno values it passes through)
-// become absl::Status values (STYLE.md, "Errors").
+// become absl::Status values (docs/design.md, "Errors").
 #ifndef PBGI_STORE_LMDB_STATUS_H_
 #define PBGI_STORE_LMDB_STATUS_H_
 

@@ -38,7 +38,7 @@ struct DecodedMeta {
 // FailedPrecondition with both numbers, damaged record -> DataLoss, and so is a record that no
 // store can hold (SH order other than 2, NaN, inverted or infinite bounds other than the empty
 // box, a depth of 32 or more) even with a valid checksum. What only a pbgi database must hold
-// (points, nodes, counts that fit the pages) is CheckDatabaseMeta's (pbgi/store.h).
+// (points, nodes, counts that fit the pages) is CheckDatabaseMeta's (tree/verify.h).
 absl::StatusOr<DecodedMeta> DecodeMeta(absl::string_view bytes, absl::string_view where);
 
 }  // namespace pbgi::internal

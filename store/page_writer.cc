@@ -1,5 +1,5 @@
 // PageWriter: appends fixed-size pages to a new store with MDB_APPEND | MDB_RESERVE, in batches,
-// growing the map on MDB_MAP_FULL, and commits the meta record last (DESIGN.md, "Store").
+// growing the map on MDB_MAP_FULL, and commits the meta record last (docs/design.md, "Store").
 #include <fcntl.h>
 #include <lmdb.h>
 #include <sys/mman.h>
@@ -22,6 +22,7 @@
 #include "pbgi/store.h"
 #include "store/lmdb_status.h"
 #include "store/meta_codec.h"
+#include "store/page_io.h"
 #include "store/store_internal.h"
 #include "store/write_lock.h"
 
@@ -374,15 +375,7 @@ absl::Status PageWriter::Append(Section section, uint64_t page_no, PageKind kind
   // Header, payload and zero padding go straight into the map's reserved space; the checksum
   // covers all of it after the checksum field.
   const uint32_t size = w.options.page_size;
-  PageHeader h{};
-  h.kind = static_cast<uint16_t>(kind);
-  h.format = static_cast<uint16_t>(kStoreFormatVersion);
-  h.record_count = record_count;
-  h.payload_bytes = static_cast<uint32_t>(payload.size());
-  h.page_no = page_no;
-  std::memcpy(page, &h, sizeof(h));
-  if (!payload.empty()) std::memcpy(page + sizeof(h), payload.data(), payload.size());
-  std::memset(page + sizeof(h) + payload.size(), 0, size - sizeof(h) - payload.size());
+  internal::FormatPage(page, size, kind, record_count, page_no, payload);
   const uint32_t crc = internal::PageChecksum(page, size);
   std::memcpy(page, &crc, sizeof(crc));
 

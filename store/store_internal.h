@@ -13,6 +13,7 @@
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
+#include "base/proc.h"
 #include "pbgi/store.h"
 #include "store/lmdb_check.h"
 
@@ -54,18 +55,6 @@ absl::Status CheckPage(const std::string& path, Section section, uint64_t page_n
 
 // pread()s exactly `size` bytes at `offset` (retrying short reads); errors name `file`.
 absl::Status ReadFully(int fd, void* out, size_t size, uint64_t offset, const std::string& file);
-
-// The mapping of `file` (at file offset 0) that holds `inside` (or, with nullptr, the first such
-// mapping), from /proc/self/maps.
-struct FileMapping {
-  const uint8_t* start = nullptr;
-  uint64_t bytes = 0;
-};
-absl::StatusOr<FileMapping> FindFileMapping(const struct stat& file, const void* inside,
-                                            const std::string& file_name);
-
-// Rss of the mapping that starts at `start`, from /proc/self/smaps.
-absl::StatusOr<uint64_t> MappingRssBytes(const void* start);
 
 // CRC-32C of a page as stored in its header: bytes [4, page_size).
 uint32_t PageChecksum(const void* page, uint32_t page_size);

@@ -9,11 +9,13 @@
 #include <string>
 
 #include "absl/strings/str_format.h"
+#include "base/proc.h"
 #include "pbgi/build.h"
 #include "pbgi/ply.h"
 #include "pbgi/status.h"
 #include "pbgi/store.h"
 #include "tools/command.h"
+#include "tools/report.h"
 
 namespace pbgi::tools {
 namespace {
@@ -67,26 +69,6 @@ class Progress {
   std::string last_pass_;
 };
 
-std::string StatsJson(const BuildStats& s, const Args& a, const BuildOptions& o) {
-  const double pps = s.seconds_total > 0 ? double(s.points) / s.seconds_total : 0;
-  return absl::StrFormat(
-      "{\n  \"input\": \"%s\",\n  \"output\": \"%s\",\n  \"layout\": \"%s\",\n"
-      "  \"channels\": \"%s\",\n  \"threads\": %d,\n  \"memory_bytes\": %d,\n  \"leaf_size\": %d,\n"
-      "  \"page_size\": %d,\n  \"points\": %d,\n  \"skipped\": %d,\n  \"nodes\": %d,\n"
-      "  \"leaves\": %d,\n  \"node_pages\": %d,\n  \"point_pages\": %d,\n  \"max_depth\": %d,\n"
-      "  \"max_leaf_points\": %d,\n  \"node_page_fill\": %.4f,\n  \"bytes_on_disk\": %d,\n"
-      "  \"bytes_per_point\": %.2f,\n  \"seconds_bounds\": %.3f,\n  \"seconds_sort\": %.3f,\n"
-      "  \"seconds_merge\": %.3f,\n  \"seconds_finish\": %.3f,\n  \"seconds_total\": %.3f,\n"
-      "  \"points_per_second\": %.0f,\n  \"runs_spilled\": %d,\n  \"merge_passes\": %d,\n"
-      "  \"run_capacity\": %d,\n  \"spill_bytes\": %d,\n  \"peak_rss_bytes\": %d\n}\n",
-      a.input, a.output, LayoutName(o.layout), a.channels, s.threads, o.memory_bytes, o.leaf_size,
-      o.page_size, s.points, s.skipped, s.nodes, s.leaves, s.node_pages, s.point_pages, s.max_depth,
-      s.max_leaf_points, s.node_page_fill, s.bytes_on_disk,
-      s.points ? double(s.bytes_on_disk) / double(s.points) : 0.0, s.seconds_bounds, s.seconds_sort,
-      s.seconds_merge, s.seconds_finish, s.seconds_total, pps, s.runs_spilled, s.merge_passes,
-      s.run_capacity, s.spill_bytes, s.peak_rss_bytes);
-}
-
 absl::Status Run(const Args& a) {
   if (!a.stats_json.empty()) PBGI_RETURN_IF_ERROR(CheckOutsideStores(a.stats_json));
   BuildOptions o;
@@ -137,32 +119,11 @@ absl::Status Run(const Args& a) {
   const BuildStats& s = *st;
   // The library's own VmHWM reading is taken after Finish; ours includes the PLY reader too.
   BuildStats shown = s;
-  shown.peak_rss_bytes = std::max(s.peak_rss_bytes, PeakRssBytes());
-  const double pps = s.seconds_total > 0 ? double(s.points) / s.seconds_total : 0;
-  std::printf("built %s from %s (%s layout, %s)\n", a.output.c_str(), a.input.c_str(),
-              LayoutName(o.layout), a.channels.c_str());
-  std::printf("  points      %14llu  (%llu invalid skipped)\n", (unsigned long long)s.points,
-              (unsigned long long)s.skipped);
-  std::printf("  nodes       %14llu  (%llu leaves, depth %u, largest leaf %llu points)\n",
-              (unsigned long long)s.nodes, (unsigned long long)s.leaves, s.max_depth,
-              (unsigned long long)s.max_leaf_points);
-  std::printf("  pages       %14llu node (%.0f%% full) + %llu point, %u bytes each\n",
-              (unsigned long long)s.node_pages, 100.0 * s.node_page_fill,
-              (unsigned long long)s.point_pages, o.page_size);
-  std::printf("  on disk     %14s  (%.1f bytes/point)\n", FormatBytes(s.bytes_on_disk).c_str(),
-              s.points ? double(s.bytes_on_disk) / double(s.points) : 0.0);
-  std::printf("  time        %13.2fs  (bounds %.2f, sort %.2f, merge+octree %.2f, commit %.2f)\n",
-              s.seconds_total, s.seconds_bounds, s.seconds_sort, s.seconds_merge, s.seconds_finish);
-  std::printf("  throughput  %12.2f M points/s\n", pps / 1e6);
-  std::printf("  threads     %14d\n", s.threads);
-  std::printf("  sort        %14llu runs spilled (%s), %llu extra merge passes\n",
-              (unsigned long long)s.runs_spilled, FormatBytes(s.spill_bytes).c_str(),
-              (unsigned long long)s.merge_passes);
-  std::printf("  peak memory %14s  (budget %s)\n", FormatBytes(shown.peak_rss_bytes).c_str(),
-              FormatBytes(o.memory_bytes).c_str());
+  shown.peak_rss_bytes = std::max(s.peak_rss_bytes, internal::PeakRssBytes());
+  PrintBuildStats(shown, o, a.input, a.output, a.channels);
   if (!a.stats_json.empty()) {
     std::ofstream f(a.stats_json);
-    f << StatsJson(shown, a, o);
+    f << DumpJson(BuildStatsJson(shown, o, a.input, a.output, a.channels));
     if (!f) {
       return absl::InternalError(absl::StrFormat("cannot write %s", a.stats_json));
     }

@@ -1,12 +1,15 @@
 // `pbgi demo`: the whole pipeline in one command. Generates the city, bakes direct light into
 // its surfels, builds the database out of core under a memory cap, shades a camera view with
 // colour bleeding, and writes the occlusion, the indirect light and the composite as EXR and PNG.
-#include <chrono>
 #include <cstdio>
 #include <filesystem>
+#include <memory>
 #include <string>
+#include <vector>
 
 #include "absl/strings/str_format.h"
+#include "base/proc.h"
+#include "base/stopwatch.h"
 #include "pbgi/build.h"
 #include "pbgi/query.h"
 #include "pbgi/scene.h"
@@ -33,9 +36,137 @@ struct DemoArgs {
   uint64_t seed = 1;
 };
 
-using Clock = std::chrono::steady_clock;
-double Since(Clock::time_point t) {
-  return std::chrono::duration<double>(Clock::now() - t).count();
+// What the demo made, for its summary.
+struct DemoRun {
+  std::shared_ptr<const Scene> scene;
+  std::string db_path;
+  BuildStats build;
+  double build_seconds = 0;  // sampling, baking and the build
+  ViewImages view;
+  double shade_seconds = 0;  // tracing the view and shading it
+};
+
+struct DemoImage {
+  const char* name;
+  const Image* image;
+};
+
+std::vector<DemoImage> Images(const ViewImages& v) {
+  return {{"occlusion", &v.occlusion},
+          {"indirect", &v.indirect},
+          {"direct", &v.direct},
+          {"composite", &v.composite}};
+}
+
+// 1. The scene and its surfels, direct light baked in with Embree shadow rays; 2. the
+// out-of-core build, surfels streamed straight from the sampler.
+absl::Status BuildDemoDatabase(const DemoArgs& a, uint64_t memory, bool tty, DemoRun* run) {
+  const internal::Stopwatch t;
+  PBGI_ASSIGN_OR_RETURN(run->scene, LoadScene(a.scene, a.seed, 0));
+  const Scene& scene = *run->scene;
+  SamplerOptions sampler;
+  sampler.count = a.points;
+  sampler.seed = a.seed;
+  sampler.bake = scene.has_radiance;
+  PBGI_ASSIGN_OR_RETURN(std::unique_ptr<SurfelSource> surfels,
+                        MakeSceneSurfelSource(run->scene, sampler));
+  std::fprintf(stderr, "demo: scene %s, %lld triangles, %s surfels requested\n", scene.name.c_str(),
+               static_cast<long long>(scene.TriangleCount()),
+               absl::StrFormat("%d", a.points).c_str());
+  run->db_path = a.out_dir + "/" + scene.name + ".pbgi";
+  BuildOptions build;
+  build.memory_bytes = memory;
+  build.channels = scene.has_radiance ? Channels::kRadiance : Channels::kOcclusion;
+  build.tmp_dir = a.out_dir;
+  internal::Stopwatch since_line;
+  build.progress = [&](const BuildProgress& p) {
+    if (since_line.Seconds() < (tty ? 0.2 : 1.0)) return;
+    since_line.Restart();
+    std::fprintf(stderr, tty ? "\rdemo: build %-14s %12llu points" : "demo: build %s %llu points\n",
+                 p.pass, static_cast<unsigned long long>(p.points_done));
+  };
+  PBGI_ASSIGN_OR_RETURN(run->build, BuildDatabase(*surfels, run->db_path, build));
+  if (tty) std::fprintf(stderr, "\n");
+  run->build_seconds = t.Seconds();
+  return absl::OkStatus();
+}
+
+// 3. A camera view shaded from the database.
+absl::Status ShadeDemoView(const DemoArgs& a, uint64_t cache, bool tty, DemoRun* run) {
+  const internal::Stopwatch t;
+  const Scene& scene = *run->scene;
+  DatabaseOptions dbo;
+  dbo.cache_bytes = cache;
+  PBGI_ASSIGN_OR_RETURN(std::unique_ptr<Database> db, Database::Open(run->db_path, dbo));
+  PBGI_ASSIGN_OR_RETURN(std::unique_ptr<Tracer> tracer, Tracer::Create(scene));
+  ShadeOptions so;
+  so.cut.max_solid_angle = a.max_solid_angle;
+  so.cut.cosine_weighted = a.cut == "cosine";
+  so.raster.resolution = a.raster_res;
+  so.raster.compute_radiance = scene.has_radiance;
+  so.threads = a.threads;
+  so.progress = [&](const ShadeProgress& p) {
+    std::fprintf(stderr, tty ? "\rdemo: shade %llu receivers" : "demo: shade %llu receivers\n",
+                 static_cast<unsigned long long>(p.done));
+  };
+  const Camera camera = DefaultCamera(scene, a.width, a.height);
+  PBGI_ASSIGN_OR_RETURN(run->view, RenderView(*tracer, *db, camera, so));
+  if (tty) std::fprintf(stderr, "\n");
+  run->shade_seconds = t.Seconds();
+  return absl::OkStatus();
+}
+
+// 4. Images, EXR and PNG.
+absl::Status WriteDemoImages(const std::string& base, const ViewImages& view) {
+  for (const DemoImage& o : Images(view)) {
+    PBGI_RETURN_IF_ERROR(WriteExr(absl::StrFormat("%s_%s.exr", base, o.name), *o.image));
+    PBGI_RETURN_IF_ERROR(WritePng(absl::StrFormat("%s_%s.png", base, o.name), *o.image, 1.0f,
+                                  std::string(o.name) != "occlusion"));
+  }
+  return absl::OkStatus();
+}
+
+void PrintDemoSummary(const DemoArgs& a, const DemoRun& run, uint64_t memory, uint64_t cache,
+                      const std::string& base, double total_seconds) {
+  const BuildStats& bs = run.build;
+  const ViewImages& view = run.view;
+  const CacheStats& cs = view.shade.cache;
+  const uint64_t lookups = cs.reader.hits + cs.reader.misses;
+  const double receivers = double(std::max<uint64_t>(1, view.receivers));
+  std::printf("Coherent PBGI demo: %s\n", run.scene->name.c_str());
+  std::printf("  surfels        %llu (%s on disk, %.1f bytes/point)\n",
+              static_cast<unsigned long long>(bs.points), FormatBytes(bs.bytes_on_disk).c_str(),
+              bs.points ? double(bs.bytes_on_disk) / double(bs.points) : 0.0);
+  std::printf(
+      "  build          %.1f s (%.2f M points/s incl. sampling and baking), %llu nodes, "
+      "%llu runs spilled, build memory cap %s\n",
+      run.build_seconds, double(bs.points) / run.build_seconds / 1e6,
+      static_cast<unsigned long long>(bs.nodes), static_cast<unsigned long long>(bs.runs_spilled),
+      FormatBytes(memory).c_str());
+  std::printf(
+      "  shade          %.1f s: %llu receivers (%dx%d), %.1f us/receiver on %d threads, "
+      "trace %.2f s\n",
+      run.shade_seconds, static_cast<unsigned long long>(view.receivers), a.width, a.height,
+      view.shade.seconds * 1e6 / receivers, a.threads > 0 ? a.threads : DefaultShadeThreads(),
+      view.trace_seconds);
+  std::printf(
+      "  cache          %s cap, reader hits %.2f%%, shared hits %.2f%%, %llu pages read "
+      "(%s)\n",
+      FormatBytes(cache).c_str(),
+      lookups ? 100.0 * double(cs.reader.hits) / double(lookups) : 100.0,
+      100.0 * cs.shared.HitRate(), static_cast<unsigned long long>(cs.shared.pages_read),
+      FormatBytes(cs.shared.bytes_read).c_str());
+  std::printf(
+      "  cut            max_solid_angle %.3g (%s), raster %d^2 x 6, %.1f clusters + %.1f "
+      "surfels per receiver\n",
+      a.max_solid_angle, a.cut.c_str(), a.raster_res, double(view.shade.query.clusters) / receivers,
+      double(view.shade.query.surfels) / receivers);
+  std::printf("  total          %.1f s, peak memory %s\n", total_seconds,
+              FormatBytes(internal::PeakRssBytes()).c_str());
+  std::printf("  database       %s\n", run.db_path.c_str());
+  for (const DemoImage& o : Images(view)) {
+    std::printf("  image          %s_%s.png (.exr)\n", base.c_str(), o.name);
+  }
 }
 
 absl::Status RunDemo(const DemoArgs& a) {
@@ -47,113 +178,14 @@ absl::Status RunDemo(const DemoArgs& a) {
   if (ec) {
     return absl::UnavailableError(absl::StrFormat("cannot create %s: %s", a.out_dir, ec.message()));
   }
-  const auto t_all = Clock::now();
+  const internal::Stopwatch total;
   const bool tty = StderrIsTerminal();
-
-  // 1. The scene and its surfels, direct light baked in with Embree shadow rays.
-  auto t = Clock::now();
-  PBGI_ASSIGN_OR_RETURN(std::shared_ptr<const Scene> scene, LoadScene(a.scene, a.seed, 0));
-  SamplerOptions sampler;
-  sampler.count = a.points;
-  sampler.seed = a.seed;
-  sampler.bake = scene->has_radiance;
-  PBGI_ASSIGN_OR_RETURN(std::unique_ptr<SurfelSource> surfels,
-                        MakeSceneSurfelSource(scene, sampler));
-  std::fprintf(stderr, "demo: scene %s, %lld triangles, %s surfels requested\n",
-               scene->name.c_str(), static_cast<long long>(scene->TriangleCount()),
-               absl::StrFormat("%d", a.points).c_str());
-
-  // 2. The out-of-core build, surfels streamed straight from the sampler.
-  const std::string db_path = a.out_dir + "/" + scene->name + ".pbgi";
-  BuildOptions build;
-  build.memory_bytes = memory;
-  build.channels = scene->has_radiance ? Channels::kRadiance : Channels::kOcclusion;
-  build.tmp_dir = a.out_dir;
-  auto last = Clock::now();
-  build.progress = [&](const BuildProgress& p) {
-    if (Since(last) < (tty ? 0.2 : 1.0)) return;
-    last = Clock::now();
-    std::fprintf(stderr, tty ? "\rdemo: build %-14s %12llu points" : "demo: build %s %llu points\n",
-                 p.pass, static_cast<unsigned long long>(p.points_done));
-  };
-  PBGI_ASSIGN_OR_RETURN(BuildStats bs, BuildDatabase(*surfels, db_path, build));
-  if (tty) std::fprintf(stderr, "\n");
-  const double build_seconds = Since(t);
-
-  // 3. A camera view shaded from the database.
-  t = Clock::now();
-  DatabaseOptions dbo;
-  dbo.cache_bytes = cache;
-  PBGI_ASSIGN_OR_RETURN(std::unique_ptr<Database> db, Database::Open(db_path, dbo));
-  PBGI_ASSIGN_OR_RETURN(std::unique_ptr<Tracer> tracer, Tracer::Create(*scene));
-  ShadeJobOptions so;
-  so.cut.max_solid_angle = a.max_solid_angle;
-  so.cut.cosine_weighted = a.cut == "cosine";
-  so.raster.resolution = a.raster_res;
-  so.raster.compute_radiance = scene->has_radiance;
-  so.threads = a.threads;
-  so.progress = [&](uint64_t done) {
-    std::fprintf(stderr, tty ? "\rdemo: shade %llu receivers" : "demo: shade %llu receivers\n",
-                 static_cast<unsigned long long>(done));
-  };
-  const Camera camera = DefaultCamera(*scene, a.width, a.height);
-  PBGI_ASSIGN_OR_RETURN(ViewImages view, RenderView(*tracer, *db, camera, so));
-  if (tty) std::fprintf(stderr, "\n");
-  const double shade_seconds = Since(t);
-
-  // 4. Images.
-  const std::string base = a.out_dir + "/" + scene->name;
-  struct Out {
-    const char* name;
-    const Image* image;
-    float exposure;
-  } outs[] = {{"occlusion", &view.occlusion, 1.0f},
-              {"indirect", &view.indirect, 1.0f},
-              {"direct", &view.direct, 1.0f},
-              {"composite", &view.composite, 1.0f}};
-  for (const Out& o : outs) {
-    PBGI_RETURN_IF_ERROR(WriteExr(absl::StrFormat("%s_%s.exr", base, o.name), *o.image));
-    PBGI_RETURN_IF_ERROR(WritePng(absl::StrFormat("%s_%s.png", base, o.name), *o.image, o.exposure,
-                                  std::string(o.name) != "occlusion"));
-  }
-
-  const CacheStats& cs = view.shade.cache;
-  const uint64_t lookups = cs.reader.hits + cs.reader.misses;
-  std::printf("Coherent PBGI demo: %s\n", scene->name.c_str());
-  std::printf("  surfels        %llu (%s on disk, %.1f bytes/point)\n",
-              static_cast<unsigned long long>(bs.points), FormatBytes(bs.bytes_on_disk).c_str(),
-              bs.points ? double(bs.bytes_on_disk) / double(bs.points) : 0.0);
-  std::printf(
-      "  build          %.1f s (%.2f M points/s incl. sampling and baking), %llu nodes, "
-      "%llu runs spilled, build memory cap %s\n",
-      build_seconds, double(bs.points) / build_seconds / 1e6,
-      static_cast<unsigned long long>(bs.nodes), static_cast<unsigned long long>(bs.runs_spilled),
-      FormatBytes(memory).c_str());
-  std::printf(
-      "  shade          %.1f s: %llu receivers (%dx%d), %.1f us/receiver on %d threads, "
-      "trace %.2f s\n",
-      shade_seconds, static_cast<unsigned long long>(view.receivers), a.width, a.height,
-      view.shade.seconds * 1e6 / double(std::max<uint64_t>(1, view.receivers)),
-      a.threads > 0 ? a.threads : DefaultThreads(), view.trace_seconds);
-  std::printf(
-      "  cache          %s cap, reader hits %.2f%%, shared hits %.2f%%, %llu pages read "
-      "(%s)\n",
-      FormatBytes(cache).c_str(),
-      lookups ? 100.0 * double(cs.reader.hits) / double(lookups) : 100.0,
-      100.0 * cs.shared.HitRate(), static_cast<unsigned long long>(cs.shared.pages_read),
-      FormatBytes(cs.shared.bytes_read).c_str());
-  std::printf(
-      "  cut            max_solid_angle %.3g (%s), raster %d^2 x 6, %.1f clusters + %.1f "
-      "surfels per receiver\n",
-      a.max_solid_angle, a.cut.c_str(), a.raster_res,
-      double(view.shade.query.clusters) / double(std::max<uint64_t>(1, view.receivers)),
-      double(view.shade.query.surfels) / double(std::max<uint64_t>(1, view.receivers)));
-  std::printf("  total          %.1f s, peak memory %s\n", Since(t_all),
-              FormatBytes(PeakRssBytes()).c_str());
-  std::printf("  database       %s\n", db_path.c_str());
-  for (const Out& o : outs) {
-    std::printf("  image          %s_%s.png (.exr)\n", base.c_str(), o.name);
-  }
+  DemoRun run;
+  PBGI_RETURN_IF_ERROR(BuildDemoDatabase(a, memory, tty, &run));
+  PBGI_RETURN_IF_ERROR(ShadeDemoView(a, cache, tty, &run));
+  const std::string base = a.out_dir + "/" + run.scene->name;
+  PBGI_RETURN_IF_ERROR(WriteDemoImages(base, run.view));
+  PrintDemoSummary(a, run, memory, cache, base, total.Seconds());
   return absl::OkStatus();
 }
 

@@ -3,7 +3,6 @@
 // Embree reference over a sweep of ray counts, all against a converged reference (many rays).
 // Prints a table, writes eval.json and a log-log chart eval.png (error vs seconds/receiver).
 #include <algorithm>
-#include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
@@ -16,16 +15,18 @@
 #include "absl/strings/match.h"
 #include "absl/strings/str_format.h"
 #include "absl/strings/str_join.h"
+#include "base/stopwatch.h"
 #include "oneapi/tbb/global_control.h"
 #include "pbgi/build.h"
 #include "pbgi/query.h"
 #include "pbgi/scene.h"
+#include "pbgi/shade.h"
 #include "pbgi/status.h"
-#include "tools/chart.h"
 #include "pbgi/store.h"
+#include "tools/chart.h"
 #include "tools/command.h"
+#include "tools/report.h"
 #include "tools/scene_views.h"
-#include "tools/shading.h"
 
 namespace pbgi::tools {
 namespace {
@@ -57,11 +58,6 @@ struct Errors {
   double mae = 0, rmse = 0, max = 0;
 };
 
-using Clock = std::chrono::steady_clock;
-double Since(Clock::time_point t) {
-  return std::chrono::duration<double>(Clock::now() - t).count();
-}
-
 // The short name of a --cuts value in a row's setting and the chart's series.
 const char* CutTag(const std::string& cut) { return cut == "cosine" ? "cos" : "plain"; }
 
@@ -79,8 +75,11 @@ Errors Compare(const std::vector<double>& got, const std::vector<double>& truth)
   return e;
 }
 
+enum class Method { kReference, kPbgi };
+const char* MethodName(Method m) { return m == Method::kPbgi ? "pbgi" : "reference"; }
+
 struct Row {
-  std::string method;
+  Method method = Method::kReference;
   std::string setting;
   double seconds_per_receiver = 0;
   Errors err;
@@ -104,7 +103,7 @@ double ReferenceSecondsAt(const std::vector<Row>& rows, double mae, bool* extrap
   *extrapolated = false;
   std::vector<std::pair<double, double>> curve;  // (log MAE, log seconds), by MAE
   for (const Row& r : rows) {
-    if (r.method == "reference" && r.err.mae > 0 && r.seconds_per_receiver > 0) {
+    if (r.method == Method::kReference && r.err.mae > 0 && r.seconds_per_receiver > 0) {
       curve.push_back({std::log(r.err.mae), std::log(r.seconds_per_receiver)});
     }
   }
@@ -130,55 +129,55 @@ double ReferenceSecondsAt(const std::vector<Row>& rows, double mae, bool* extrap
   return std::exp(curve.back().second);
 }
 
-absl::Status RunEval(const EvalArgs& a) {
-  PBGI_RETURN_IF_ERROR(CheckOutsideStores(a.out_dir));
-  const bool occlusion = a.mode == "occlusion";
-  PBGI_ASSIGN_OR_RETURN(uint64_t memory, ParseBytes(a.memory));
-  PBGI_ASSIGN_OR_RETURN(uint64_t cache, ParseBytes(a.cache));
-  std::error_code ec;
-  std::filesystem::create_directories(a.out_dir, ec);
-  if (ec) return absl::UnavailableError(absl::StrFormat("cannot create %s", a.out_dir));
-  const int threads = a.threads > 0 ? a.threads : DefaultThreads();
-  tbb::global_control limit(tbb::global_control::max_allowed_parallelism, threads);
+// What one eval run works on: the scene, its database, the receivers and the converged truth.
+struct EvalSetup {
+  std::shared_ptr<const Scene> scene;
+  std::unique_ptr<Tracer> tracer;
+  std::string db_path;
+  BuildStats build;
+  double build_seconds = 0;  // sampling, baking (shadow rays) and the build
+  std::vector<Receiver> receivers;
+  std::vector<double> truth;  // the converged reference per receiver
+  int threads = 1;
+  bool occlusion = true;
+};
 
-  PBGI_ASSIGN_OR_RETURN(std::shared_ptr<const Scene> scene, LoadScene(a.scene, a.seed, a.size));
-  if (!occlusion && !scene->has_radiance) {
-    return absl::FailedPreconditionError(
-        absl::StrFormat("scene %s has no radiance: use --mode occlusion", scene->name));
-  }
-  // The database.
-  auto t = Clock::now();
+// The database: what PBGI pays once per scene.
+absl::Status BuildEvalDatabase(const EvalArgs& a, uint64_t memory, EvalSetup* e) {
+  const internal::Stopwatch t;
   SamplerOptions sampler;
   sampler.count = a.points;
   sampler.seed = a.seed;
-  sampler.bake = !occlusion;
+  sampler.bake = !e->occlusion;
   sampler.drop_hidden = !a.keep_hidden;
-  PBGI_ASSIGN_OR_RETURN(auto surfels, MakeSceneSurfelSource(scene, sampler));
-  const std::string db_path = a.out_dir + "/" + scene->name + ".pbgi";
+  PBGI_ASSIGN_OR_RETURN(auto surfels, MakeSceneSurfelSource(e->scene, sampler));
+  e->db_path = a.out_dir + "/" + e->scene->name + ".pbgi";
   BuildOptions bo;
   bo.memory_bytes = memory;
-  bo.channels = occlusion ? Channels::kOcclusion : Channels::kRadiance;
+  bo.channels = e->occlusion ? Channels::kOcclusion : Channels::kRadiance;
   bo.tmp_dir = a.out_dir;
-  PBGI_ASSIGN_OR_RETURN(BuildStats bs, BuildDatabase(*surfels, db_path, bo));
-  // Sampling, baking (shadow rays) and the build: what PBGI pays once per database.
-  const double build_seconds = Since(t);
+  PBGI_ASSIGN_OR_RETURN(e->build, BuildDatabase(*surfels, e->db_path, bo));
+  e->build_seconds = t.Seconds();
   std::fprintf(stderr, "eval: %s, %lld triangles placed; built %llu surfels in %.1f s\n",
-               scene->name.c_str(), static_cast<long long>(scene->TriangleCount()),
-               static_cast<unsigned long long>(bs.points), build_seconds);
+               e->scene->name.c_str(), static_cast<long long>(e->scene->TriangleCount()),
+               static_cast<unsigned long long>(e->build.points), e->build_seconds);
+  return absl::OkStatus();
+}
 
-  // Receivers: points on the scene's surfaces from an independent sample, lifted off the
-  // surface like a renderer's shading points.
-  PBGI_ASSIGN_OR_RETURN(std::unique_ptr<Tracer> tracer, Tracer::Create(*scene));
+// Receivers: points on the scene's surfaces from an independent sample (or the default view's
+// primary hits), lifted off the surface like a renderer's shading points.
+absl::StatusOr<std::vector<Receiver>> MakeEvalReceivers(const EvalArgs& a, const EvalSetup& e) {
   std::vector<Receiver> receivers;
+  const Tracer& tracer = *e.tracer;
   if (a.receivers_from == "camera") {
     // As a renderer has them: the primary hits of the scene's default view, on a grid of about
     // 4x the requested count, every k-th hit kept.
     const int h = std::max(1, static_cast<int>(std::sqrt(3.0 * double(a.receivers))));
     const int w = std::max(1, h * 4 / 3);
-    const std::vector<CameraHit> hits = tracer->TraceCamera(DefaultCamera(*scene, 2 * w, 2 * h));
+    const std::vector<CameraHit> hits = tracer.TraceCamera(DefaultCamera(*e.scene, 2 * w, 2 * h));
     std::vector<Receiver> all;
     for (const CameraHit& c : hits) {
-      if (c.hit) all.push_back({c.position + tracer->epsilon() * c.normal, c.normal});
+      if (c.hit) all.push_back({c.position + tracer.epsilon() * c.normal, c.normal});
     }
     const size_t want = std::min(all.size(), static_cast<size_t>(a.receivers));
     for (size_t i = 0; i < want; ++i) receivers.push_back(all[i * all.size() / want]);
@@ -191,13 +190,13 @@ absl::Status RunEval(const EvalArgs& a) {
     // ground under a building): no camera sees them, and the reference (which counts back
     // faces) and PBGI disagree there by construction. So the count is the request within 1%.
     rs.drop_hidden = true;
-    PBGI_ASSIGN_OR_RETURN(auto rsrc, MakeSceneSurfelSource(scene, rs));
+    PBGI_ASSIGN_OR_RETURN(auto rsrc, MakeSceneSurfelSource(e.scene, rs));
     std::vector<Surfel> buf(4096);
     for (;;) {
       PBGI_ASSIGN_OR_RETURN(size_t got, rsrc->Next(absl::MakeSpan(buf)));
       if (got == 0) break;
       for (size_t i = 0; i < got; ++i) {
-        receivers.push_back({buf[i].position + tracer->epsilon() * buf[i].normal, buf[i].normal});
+        receivers.push_back({buf[i].position + tracer.epsilon() * buf[i].normal, buf[i].normal});
       }
     }
   }
@@ -205,163 +204,188 @@ absl::Status RunEval(const EvalArgs& a) {
   std::fprintf(stderr, "eval: %zu receivers from the %s\n", receivers.size(),
                a.receivers_from == "camera" ? "default camera's primary hits"
                                             : "visible surfaces (hidden samples dropped)");
-  const double n = double(std::max<size_t>(1, receivers.size()));
+  return receivers;
+}
 
-  auto reference = [&](int rays, uint64_t seed) -> std::vector<double> {
-    std::vector<double> v(receivers.size());
-    if (occlusion) {
-      auto r =
-          tracer->ReferenceOcclusion(receivers, rays, std::numeric_limits<float>::infinity(), seed);
-      for (size_t i = 0; i < v.size(); ++i) v[i] = r[i];
-    } else {
-      auto r = tracer->ReferenceIrradiance(receivers, rays, seed);
-      for (size_t i = 0; i < v.size(); ++i) v[i] = (r[i].x + r[i].y + r[i].z) / 3.0;
-    }
-    return v;
-  };
+// One scalar per receiver from the Embree reference: occlusion, or the mean of the irradiance's
+// channels.
+std::vector<double> Reference(const EvalSetup& e, int rays, uint64_t seed) {
+  std::vector<double> v(e.receivers.size());
+  if (e.occlusion) {
+    auto r = e.tracer->ReferenceOcclusion(e.receivers, rays, std::numeric_limits<float>::infinity(),
+                                          seed);
+    for (size_t i = 0; i < v.size(); ++i) v[i] = r[i];
+  } else {
+    auto r = e.tracer->ReferenceIrradiance(e.receivers, rays, seed);
+    for (size_t i = 0; i < v.size(); ++i) v[i] = (r[i].x + r[i].y + r[i].z) / 3.0;
+  }
+  return v;
+}
 
-  t = Clock::now();
-  const std::vector<double> truth = reference(a.truth_rays, a.seed + 1);
-  std::fprintf(stderr, "eval: converged reference, %d rays x %zu receivers, %.1f s\n", a.truth_rays,
-               receivers.size(), Since(t));
-
+// The reference's sweep of ray counts, each timed a.repeat times (median).
+std::vector<Row> ReferenceRows(const EvalArgs& a, const EvalSetup& e) {
+  const double n = double(std::max<size_t>(1, e.receivers.size()));
   std::vector<Row> rows;
   for (int rays : a.ray_sweep) {
     std::vector<double> v, times;
     for (int k = 0; k < a.repeat; ++k) {
-      t = Clock::now();
-      v = reference(rays, a.seed + 2);
-      times.push_back(Since(t) / n);
+      const internal::Stopwatch t;
+      v = Reference(e, rays, a.seed + 2);
+      times.push_back(t.Seconds() / n);
     }
     Row r;
-    r.method = "reference";
+    r.method = Method::kReference;
     r.setting = absl::StrFormat("%d rays", rays);
     r.seconds_per_receiver = Median(times);
-    r.err = Compare(v, truth);
+    r.err = Compare(v, e.truth);
     rows.push_back(r);
   }
-  // The truth's own error, from the largest sweep row by the rays^-1/2 law: PBGI errors near it
-  // are not resolved (run with more --rays).
+  return rows;
+}
+
+// The truth's own error, from the largest sweep row below the truth's rays by the rays^-1/2
+// law: PBGI errors near it are not resolved (run with more --rays).
+double TruthNoise(const EvalArgs& a, const std::vector<Row>& reference_rows) {
   double truth_noise = 0;
   int noise_rays = 0;
-  for (size_t i = 0; i < rows.size(); ++i) {
+  for (size_t i = 0; i < reference_rows.size(); ++i) {
     if (a.ray_sweep[i] > noise_rays && a.ray_sweep[i] < a.truth_rays) {
       noise_rays = a.ray_sweep[i];
-      truth_noise = rows[i].err.mae * std::sqrt(double(noise_rays) / double(a.truth_rays));
+      truth_noise =
+          reference_rows[i].err.mae * std::sqrt(double(noise_rays) / double(a.truth_rays));
     }
   }
+  return truth_noise;
+}
 
-  DatabaseOptions dbo;
-  dbo.cache_bytes = cache;
-  PBGI_ASSIGN_OR_RETURN(std::unique_ptr<Database> db, Database::Open(db_path, dbo));
-  auto job = [&](float msa, int res, bool cosine) {
-    ShadeJobOptions so;
-    so.threads = threads;
-    so.cut.max_solid_angle = msa;
-    so.cut.cosine_weighted = cosine;
-    so.raster.resolution = res;
-    so.raster.compute_radiance = !occlusion;
-    return so;
-  };
+ShadeOptions EvalShadeOptions(const EvalSetup& e, float msa, int res, bool cosine) {
+  ShadeOptions so;
+  so.threads = e.threads;
+  so.cut.max_solid_angle = msa;
+  so.cut.cosine_weighted = cosine;
+  so.raster.resolution = res;
+  so.raster.compute_radiance = !e.occlusion;
+  return so;
+}
+
+// PBGI's sweep of cut, resolution and max_solid_angle, appended to `rows`; returns the index of
+// the default row (the first of the default settings, or the first PBGI row when the sweep
+// lacks the default).
+absl::StatusOr<size_t> PbgiRows(const EvalArgs& a, const EvalSetup& e, Database& db,
+                                std::vector<Row>* rows) {
+  const double n = double(std::max<size_t>(1, e.receivers.size()));
+  const std::vector<ShadeReceiver> shade_receivers = ShadeReceiversOf(e.receivers);
   // One untimed pass at the finest plain cut first (it touches every page the others do), so
   // that every timed row finds the pages decoded in the cache, as they are for all but the
   // first of a frame's receivers (the database is built for this run and fits the cache).
   {
-    std::vector<ShadeResult> results;
-    ShadeJobStats st;
+    std::vector<ShadeResult> results(e.receivers.size());
     const float finest = *std::min_element(a.solid_angles.begin(), a.solid_angles.end());
-    PBGI_RETURN_IF_ERROR(ShadeReceivers(
-        *db, receivers, {}, job(finest, a.resolutions.front(), /*cosine=*/false), &results, &st));
+    PBGI_RETURN_IF_ERROR(ShadeBatch(db, shade_receivers,
+                                    EvalShadeOptions(e, finest, a.resolutions.front(), false),
+                                    absl::MakeSpan(results)));
   }
   size_t default_row = 0;
   bool found_default = false;
   for (const std::string& cut : a.cuts) {
     for (int res : a.resolutions) {
       for (float msa : a.solid_angles) {
-        const ShadeJobOptions so = job(msa, res, cut == "cosine");
-        std::vector<ShadeResult> results;
-        ShadeJobStats st;
+        const ShadeOptions so = EvalShadeOptions(e, msa, res, cut == "cosine");
+        std::vector<ShadeResult> results(e.receivers.size());
+        ShadeStats st;
         std::vector<double> times, gather, raster;
         for (int k = 0; k < a.repeat; ++k) {
-          PBGI_RETURN_IF_ERROR(ShadeReceivers(*db, receivers, {}, so, &results, &st));
+          PBGI_RETURN_IF_ERROR(ShadeBatch(db, shade_receivers, so, absl::MakeSpan(results), &st));
           times.push_back(st.seconds / n);
           gather.push_back(st.gather_seconds / n * 1e6);
           raster.push_back(st.raster_seconds / n * 1e6);
         }
         std::vector<double> v(results.size());
         for (size_t i = 0; i < v.size(); ++i) {
+          const ShadeResult& s = results[i];
           v[i] =
-              occlusion
-                  ? results[i].occlusion
-                  : (results[i].irradiance.x + results[i].irradiance.y + results[i].irradiance.z) /
-                        3.0;
+              e.occlusion ? s.occlusion : (s.irradiance.x + s.irradiance.y + s.irradiance.z) / 3.0;
         }
         Row r;
-        r.method = "pbgi";
+        r.method = Method::kPbgi;
         r.setting = absl::StrFormat("msa %.3g res %d %s", msa, res, CutTag(cut));
         r.seconds_per_receiver = Median(times);
         r.gather_us = Median(gather);
         r.raster_us = Median(raster);
-        r.err = Compare(v, truth);
+        r.err = Compare(v, e.truth);
         r.clusters = double(st.query.clusters) / n;
         r.surfels = double(st.query.surfels) / n;
-        rows.push_back(r);
-        // The default row (the first of the default settings), or the first PBGI row when the
-        // sweep lacks the default.
+        rows->push_back(r);
         const bool is_default = res == 12 && std::abs(msa - 0.03f) < 1e-6f && cut == "cosine";
-        if (!found_default && (is_default || rows[default_row].method != "pbgi")) {
-          default_row = rows.size() - 1;
+        if (!found_default && (is_default || (*rows)[default_row].method != Method::kPbgi)) {
+          default_row = rows->size() - 1;
           found_default = is_default;
         }
       }
     }
   }
+  return default_row;
+}
 
-  // Speed at equal error, on the reference's log-log curve.
-  const Row& def = rows[default_row];
-  size_t best_row = default_row;
-  for (size_t i = 0; i < rows.size(); ++i) {
-    Row& r = rows[i];
-    if (r.method != "pbgi") continue;
-    r.speedup = ReferenceSecondsAt(rows, r.err.mae, &r.extrapolated) /
+// The speed of every PBGI row at equal error, on the reference's log-log curve, and the summary.
+struct EvalSummary {
+  size_t default_row = 0, best_row = 0;
+  double ratio = 0;             // the default row's speedup
+  double ratio_with_build = 0;  // the same with the build shared by a frame of receivers
+  double truth_noise = 0;
+};
+
+EvalSummary Summarize(const EvalArgs& a, const EvalSetup& e, size_t default_row, double truth_noise,
+                      std::vector<Row>* rows) {
+  EvalSummary s;
+  s.default_row = s.best_row = default_row;
+  s.truth_noise = truth_noise;
+  for (size_t i = 0; i < rows->size(); ++i) {
+    Row& r = (*rows)[i];
+    if (r.method != Method::kPbgi) continue;
+    r.speedup = ReferenceSecondsAt(*rows, r.err.mae, &r.extrapolated) /
                 std::max(1e-12, r.seconds_per_receiver);
-    if (r.speedup > rows[best_row].speedup) best_row = i;
+    if (r.speedup > (*rows)[s.best_row].speedup) s.best_row = i;
   }
-  const double ratio = def.speedup;
-  const Row& best = rows[best_row];
-  // With the database's cost (sampling, baking, build) shared by a frame of receivers.
-  const double amortized = build_seconds / double(std::max<int64_t>(1, a.frame));
+  const Row& def = (*rows)[default_row];
+  s.ratio = def.speedup;
+  const double amortized = e.build_seconds / double(std::max<int64_t>(1, a.frame));
   bool unused = false;
-  const double ratio_with_build = ReferenceSecondsAt(rows, def.err.mae, &unused) /
-                                  std::max(1e-12, def.seconds_per_receiver + amortized);
-  auto ratio_text = [](const Row& r) {
-    return absl::StrFormat("%.3gx%s", r.speedup, r.extrapolated ? "*" : "");
-  };
+  s.ratio_with_build = ReferenceSecondsAt(*rows, def.err.mae, &unused) /
+                       std::max(1e-12, def.seconds_per_receiver + amortized);
+  return s;
+}
 
+std::string RatioText(const Row& r) {
+  return absl::StrFormat("%.3gx%s", r.speedup, r.extrapolated ? "*" : "");
+}
+
+void PrintEval(const EvalArgs& a, const EvalSetup& e, const std::vector<Row>& rows,
+               const EvalSummary& s) {
   std::printf(
       "pbgi eval: scene %s, %s, %llu surfels, %zu receivers, %d threads, truth = %d "
       "rays (its own MAE ~%.2g), times = median of %d\n",
-      scene->name.c_str(), a.mode.c_str(), static_cast<unsigned long long>(bs.points),
-      receivers.size(), threads, a.truth_rays, truth_noise, a.repeat);
+      e.scene->name.c_str(), a.mode.c_str(), static_cast<unsigned long long>(e.build.points),
+      e.receivers.size(), e.threads, a.truth_rays, s.truth_noise, a.repeat);
   std::printf("%-10s %-20s %12s %10s %10s %10s %9s %9s %9s %9s %9s\n", "method", "setting",
               "us/receiver", "MAE", "RMSE", "max", "clusters", "surfels", "gather_us", "raster_us",
               "speedup");
   for (const Row& r : rows) {
-    const bool pbgi = r.method == "pbgi";
-    std::printf("%-10s %-20s %12.2f %10.5f %10.5f %10.5f %9s %9s %9s %9s %9s\n", r.method.c_str(),
-                r.setting.c_str(), r.seconds_per_receiver * 1e6, r.err.mae, r.err.rmse, r.err.max,
-                pbgi ? absl::StrFormat("%.1f", r.clusters).c_str() : "",
+    const bool pbgi = r.method == Method::kPbgi;
+    std::printf("%-10s %-20s %12.2f %10.5f %10.5f %10.5f %9s %9s %9s %9s %9s\n",
+                MethodName(r.method), r.setting.c_str(), r.seconds_per_receiver * 1e6, r.err.mae,
+                r.err.rmse, r.err.max, pbgi ? absl::StrFormat("%.1f", r.clusters).c_str() : "",
                 pbgi ? absl::StrFormat("%.1f", r.surfels).c_str() : "",
                 pbgi ? absl::StrFormat("%.1f", r.gather_us).c_str() : "",
                 pbgi ? absl::StrFormat("%.1f", r.raster_us).c_str() : "",
-                pbgi ? ratio_text(r).c_str() : "");
+                pbgi ? RatioText(r).c_str() : "");
   }
   std::printf(
       "(us/receiver: wall time over %d threads; gather_us, raster_us: thread time per receiver "
       "in Gather and Shade)\n",
-      threads);
+      e.threads);
   for (const Row& r : rows) {
-    if (r.method == "pbgi" && r.extrapolated) {
+    if (r.method == Method::kPbgi && r.extrapolated) {
       std::printf(
           "* the MAE lies outside the reference sweep's: the reference's time there is "
           "extrapolated by time ~ MAE^-2 (widen --ray-sweep to measure it)\n");
@@ -369,63 +393,90 @@ absl::Status RunEval(const EvalArgs& a) {
     }
   }
   for (const Row& r : rows) {
-    if (r.method == "pbgi" && r.err.mae < 2.0 * truth_noise) {
+    if (r.method == Method::kPbgi && r.err.mae < 2.0 * s.truth_noise) {
       std::printf(
           "note: PBGI MAE %.3g (%s) is within 2x of the truth's own error ~%.2g: raise --rays\n",
-          r.err.mae, r.setting.c_str(), truth_noise);
+          r.err.mae, r.setting.c_str(), s.truth_noise);
     }
   }
-  if (ratio > 0) {
+  const Row& def = rows[s.default_row];
+  const Row& best = rows[s.best_row];
+  if (s.ratio > 0) {
     std::printf(
         "default (%s): MAE %.5f at %.2f us/receiver; the reference needs %.3gx that time for the "
         "same MAE\n",
-        def.setting.c_str(), def.err.mae, def.seconds_per_receiver * 1e6, ratio);
+        def.setting.c_str(), def.err.mae, def.seconds_per_receiver * 1e6, s.ratio);
     std::printf(
         "PBGI vs reference at equal error: %s at the default, best %s (%s, MAE %.5f); "
         "with the database build (%.1f s) shared by %lld receivers: %.3gx\n",
-        ratio_text(def).c_str(), ratio_text(best).c_str(), best.setting.c_str(), best.err.mae,
-        build_seconds, static_cast<long long>(a.frame), ratio_with_build);
+        RatioText(def).c_str(), RatioText(best).c_str(), best.setting.c_str(), best.err.mae,
+        e.build_seconds, static_cast<long long>(a.frame), s.ratio_with_build);
   } else {
     std::printf(
         "default (%s): MAE %.5f at %.2f us/receiver; the reference is exact here at every ray "
         "count (e.g. a closed box), so no ratio\n",
         def.setting.c_str(), def.err.mae, def.seconds_per_receiver * 1e6);
   }
+}
 
-  // JSON and chart.
-  const std::string json_path = a.out_dir + "/eval.json";
-  std::ofstream js(json_path);
-  js << absl::StrFormat(
-      "{\n  \"scene\": \"%s\", \"mode\": \"%s\", \"points\": %d, \"receivers\": %d, "
-      "\"threads\": %d, \"truth_rays\": %d,\n  \"default_mae\": %.6g, "
-      "\"speedup_at_equal_error\": %.4g,\n  \"default_setting\": \"%s\", "
-      "\"best_speedup\": %.4g, \"best_setting\": \"%s\", \"build_seconds\": %.4g, "
-      "\"frame_receivers\": %d, \"speedup_with_build\": %.4g, \"receivers_from\": \"%s\", "
-      "\"size\": %d, \"triangles\": %d, \"repeat\": %d, \"truth_noise_mae\": %.4g, "
-      "\"default_extrapolated\": %s,\n  \"rows\": [\n",
-      scene->name, a.mode, bs.points, receivers.size(), threads, a.truth_rays, def.err.mae, ratio,
-      def.setting, best.speedup, best.setting, build_seconds, a.frame, ratio_with_build,
-      a.receivers_from, a.size, scene->TriangleCount(), a.repeat, truth_noise,
-      def.extrapolated ? "true" : "false");
-  for (size_t i = 0; i < rows.size(); ++i) {
-    const Row& r = rows[i];
-    js << absl::StrFormat(
-        "    {\"method\": \"%s\", \"setting\": \"%s\", \"seconds_per_receiver\": %.6g, "
-        "\"mae\": %.6g, \"rmse\": %.6g, \"max\": %.6g, \"clusters\": %.4g, \"surfels\": "
-        "%.4g, \"gather_us\": %.4g, \"raster_us\": %.4g, \"speedup\": %.4g, "
-        "\"extrapolated\": %s}%s\n",
-        r.method, r.setting, r.seconds_per_receiver, r.err.mae, r.err.rmse, r.err.max, r.clusters,
-        r.surfels, r.gather_us, r.raster_us, r.speedup, r.extrapolated ? "true" : "false",
-        i + 1 < rows.size() ? "," : "");
+absl::Status WriteEvalJson(const std::string& path, const EvalArgs& a, const EvalSetup& e,
+                           const std::vector<Row>& rows, const EvalSummary& s) {
+  const Row& def = rows[s.default_row];
+  const Row& best = rows[s.best_row];
+  Json j;
+  j["scene"] = e.scene->name;
+  j["mode"] = a.mode;
+  j["points"] = e.build.points;
+  j["receivers"] = e.receivers.size();
+  j["threads"] = e.threads;
+  j["truth_rays"] = a.truth_rays;
+  j["default_mae"] = def.err.mae;
+  j["speedup_at_equal_error"] = s.ratio;
+  j["default_setting"] = def.setting;
+  j["best_speedup"] = best.speedup;
+  j["best_setting"] = best.setting;
+  j["build_seconds"] = e.build_seconds;
+  j["frame_receivers"] = a.frame;
+  j["speedup_with_build"] = s.ratio_with_build;
+  j["receivers_from"] = a.receivers_from;
+  j["size"] = a.size;
+  j["triangles"] = e.scene->TriangleCount();
+  j["repeat"] = a.repeat;
+  j["truth_noise_mae"] = s.truth_noise;
+  j["default_extrapolated"] = def.extrapolated;
+  j["rows"] = Json::array();
+  for (const Row& r : rows) {
+    Json row;
+    row["method"] = MethodName(r.method);
+    row["setting"] = r.setting;
+    row["seconds_per_receiver"] = r.seconds_per_receiver;
+    row["mae"] = r.err.mae;
+    row["rmse"] = r.err.rmse;
+    row["max"] = r.err.max;
+    row["clusters"] = r.clusters;
+    row["surfels"] = r.surfels;
+    row["gather_us"] = r.gather_us;
+    row["raster_us"] = r.raster_us;
+    row["speedup"] = r.speedup;
+    row["extrapolated"] = r.extrapolated;
+    j["rows"].push_back(row);
   }
-  js << "  ]\n}\n";
-  if (!js.good()) return absl::UnavailableError(absl::StrFormat("cannot write %s", json_path));
+  std::ofstream js(path);
+  js << DumpJson(j);
+  if (!js.good()) return absl::UnavailableError(absl::StrFormat("cannot write %s", path));
+  return absl::OkStatus();
+}
 
+// Log-log chart of error against time per receiver: the reference, then PBGI by resolution and
+// cut.
+absl::Status WriteEvalChart(const std::string& path, const EvalArgs& a,
+                            const std::vector<Row>& rows) {
   std::vector<ChartSeries> series;
   ChartSeries ref{"reference", glm::vec3(0.15f, 0.35f, 0.8f), true, {}, {}};
   for (const Row& r : rows) {
-    if (r.method == "reference")
+    if (r.method == Method::kReference) {
       ref.x.push_back(r.err.mae), ref.y.push_back(r.seconds_per_receiver);
+    }
   }
   series.push_back(ref);
   const glm::vec3 colors[] = {
@@ -436,15 +487,54 @@ absl::Status RunEval(const EvalArgs& a) {
       const std::string tag = absl::StrFormat("res %d %s", res, CutTag(cut));
       ChartSeries s{"pbgi " + tag, colors[color++ % 4], true, {}, {}};
       for (const Row& r : rows) {
-        if (r.method == "pbgi" && absl::EndsWith(r.setting, tag)) {
+        if (r.method == Method::kPbgi && absl::EndsWith(r.setting, tag)) {
           s.x.push_back(r.err.mae), s.y.push_back(r.seconds_per_receiver);
         }
       }
       series.push_back(s);
     }
   }
+  return WriteLogLogChart(path, series);
+}
+
+absl::Status RunEval(const EvalArgs& a) {
+  PBGI_RETURN_IF_ERROR(CheckOutsideStores(a.out_dir));
+  EvalSetup e;
+  e.occlusion = a.mode == "occlusion";
+  PBGI_ASSIGN_OR_RETURN(uint64_t memory, ParseBytes(a.memory));
+  PBGI_ASSIGN_OR_RETURN(uint64_t cache, ParseBytes(a.cache));
+  std::error_code ec;
+  std::filesystem::create_directories(a.out_dir, ec);
+  if (ec) return absl::UnavailableError(absl::StrFormat("cannot create %s", a.out_dir));
+  e.threads = a.threads > 0 ? a.threads : DefaultShadeThreads();
+  tbb::global_control limit(tbb::global_control::max_allowed_parallelism, e.threads);
+
+  PBGI_ASSIGN_OR_RETURN(e.scene, LoadScene(a.scene, a.seed, a.size));
+  if (!e.occlusion && !e.scene->has_radiance) {
+    return absl::FailedPreconditionError(
+        absl::StrFormat("scene %s has no radiance: use --mode occlusion", e.scene->name));
+  }
+  PBGI_RETURN_IF_ERROR(BuildEvalDatabase(a, memory, &e));
+  PBGI_ASSIGN_OR_RETURN(e.tracer, Tracer::Create(*e.scene));
+  PBGI_ASSIGN_OR_RETURN(e.receivers, MakeEvalReceivers(a, e));
+  const internal::Stopwatch t;
+  e.truth = Reference(e, a.truth_rays, a.seed + 1);
+  std::fprintf(stderr, "eval: converged reference, %d rays x %zu receivers, %.1f s\n", a.truth_rays,
+               e.receivers.size(), t.Seconds());
+
+  std::vector<Row> rows = ReferenceRows(a, e);
+  const double truth_noise = TruthNoise(a, rows);
+  DatabaseOptions dbo;
+  dbo.cache_bytes = cache;
+  PBGI_ASSIGN_OR_RETURN(std::unique_ptr<Database> db, Database::Open(e.db_path, dbo));
+  PBGI_ASSIGN_OR_RETURN(size_t default_row, PbgiRows(a, e, *db, &rows));
+  const EvalSummary summary = Summarize(a, e, default_row, truth_noise, &rows);
+  PrintEval(a, e, rows, summary);
+
+  const std::string json_path = a.out_dir + "/eval.json";
+  PBGI_RETURN_IF_ERROR(WriteEvalJson(json_path, a, e, rows, summary));
   const std::string chart_path = a.out_dir + "/eval.png";
-  PBGI_RETURN_IF_ERROR(WriteLogLogChart(chart_path, series));
+  PBGI_RETURN_IF_ERROR(WriteEvalChart(chart_path, a, rows));
   std::printf(
       "wrote %s and %s (x: log10 MAE, y: log10 seconds/receiver; blue = reference, "
       "then PBGI by raster resolution %s and cut %s)\n",

@@ -10,6 +10,7 @@
 #include "absl/strings/numbers.h"
 #include "absl/strings/str_format.h"
 #include "absl/strings/str_join.h"
+#include "base/proc.h"
 #include "pbgi/ply.h"
 #include "pbgi/scene.h"
 #include "pbgi/status.h"
@@ -120,7 +121,7 @@ absl::Status Run(const Options& o) {
   absl::PrintF(
       "%s: %d points%s, %.2f s, %.0f points/s, peak memory %s\n", o.out.c_str(), done,
       exact ? "" : absl::StrFormat(" (%d asked; samples inside solid geometry dropped)", count),
-      secs, static_cast<double>(done) / secs, FormatBytes(PeakRssBytes()).c_str());
+      secs, static_cast<double>(done) / secs, FormatBytes(internal::PeakRssBytes()).c_str());
   return absl::OkStatus();
 }
 

@@ -10,6 +10,7 @@
 #include "absl/strings/numbers.h"
 #include "absl/strings/str_format.h"
 #include "absl/strings/str_split.h"
+#include "base/proc.h"
 #include "pbgi/ply.h"
 #include "pbgi/scene.h"
 #include "pbgi/status.h"
@@ -142,7 +143,7 @@ absl::Status Run(const Options& o) {
   const double secs =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   absl::PrintF("%s: %d points, %.2f s, %.0f points/s, peak memory %s\n", o.out.c_str(), done, secs,
-               static_cast<double>(done) / secs, FormatBytes(PeakRssBytes()).c_str());
+               static_cast<double>(done) / secs, FormatBytes(internal::PeakRssBytes()).c_str());
   return absl::OkStatus();
 }
 

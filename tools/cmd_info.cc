@@ -6,72 +6,38 @@
 #include "pbgi/status.h"
 #include "pbgi/store.h"
 #include "tools/command.h"
+#include "tools/report.h"
+#include "tree/verify.h"
 
 namespace pbgi::tools {
 namespace {
-
-std::string JsonString(const std::string& s) {
-  std::string out = "\"";
-  for (unsigned char c : s) {
-    switch (c) {
-      case '"':
-        out += "\\\"";
-        break;
-      case '\\':
-        out += "\\\\";
-        break;
-      case '\n':
-        out += "\\n";
-        break;
-      case '\t':
-        out += "\\t";
-        break;
-      default:
-        if (c < 0x20) {
-          out += absl::StrFormat("\\u%04x", c);
-        } else {
-          out += static_cast<char>(c);
-        }
-    }
-  }
-  return out + "\"";
-}
-
-// JSON has no inf or nan: an empty box's float limits are printed as they are (finite).
-std::string JsonNumber(float v) { return absl::StrFormat("%.9g", v); }
 
 const char* ChannelsName(Channels c) { return HasRadiance(c) ? "radiance" : "occlusion"; }
 
 void PrintJson(const PageStore& store) {
   const StoreMeta& m = store.meta();
-  std::string out = "{\n";
-  out += absl::StrFormat("  \"path\": %s,\n", JsonString(store.path()));
-  out += absl::StrFormat("  \"magic\": \"0x%016x\",\n", m.magic);
-  out += absl::StrFormat("  \"version\": %d,\n", m.version);
-  out += absl::StrFormat("  \"page_size\": %d,\n", m.page_size);
-  out += absl::StrFormat("  \"channels\": \"%s\",\n", ChannelsName(m.channels));
-  out += absl::StrFormat("  \"sh_order\": %d,\n", m.sh_order);
-  out += absl::StrFormat("  \"leaf_size\": %d,\n", m.leaf_size);
-  out += absl::StrFormat("  \"bounds\": {\"lo\": [%s, %s, %s], \"hi\": [%s, %s, %s]},\n",
-                         JsonNumber(m.bounds.lo.x), JsonNumber(m.bounds.lo.y),
-                         JsonNumber(m.bounds.lo.z), JsonNumber(m.bounds.hi.x),
-                         JsonNumber(m.bounds.hi.y), JsonNumber(m.bounds.hi.z));
-  out += absl::StrFormat("  \"point_count\": %d,\n", m.point_count);
-  out += absl::StrFormat("  \"node_count\": %d,\n", m.node_count);
-  out += absl::StrFormat("  \"node_pages\": %d,\n", m.node_pages);
-  out += absl::StrFormat("  \"point_pages\": %d,\n", m.point_pages);
-  out += absl::StrFormat("  \"root\": %d,\n", m.root);
-  out += absl::StrFormat("  \"max_depth\": %d,\n", m.max_depth);
-  out += absl::StrFormat("  \"layout\": %s,\n", JsonString(m.layout));
-  out += absl::StrFormat("  \"file_bytes\": %d,\n", store.FileBytes());
-  out += "  \"stats\": {";
-  bool first = true;
-  for (const auto& [k, v] : m.stats) {
-    out += absl::StrFormat("%s\n    %s: %s", first ? "" : ",", JsonString(k), JsonString(v));
-    first = false;
-  }
-  out += first ? "}\n}\n" : "\n  }\n}\n";
-  std::fputs(out.c_str(), stdout);
+  Json j;
+  j["path"] = store.path();
+  j["magic"] = absl::StrFormat("0x%016x", m.magic);
+  j["version"] = m.version;
+  j["page_size"] = m.page_size;
+  j["channels"] = ChannelsName(m.channels);
+  j["sh_order"] = m.sh_order;
+  j["leaf_size"] = m.leaf_size;
+  // An empty box's float limits are finite, so they print as they are.
+  j["bounds"] = {{"lo", JsonVec3(m.bounds.lo)}, {"hi", JsonVec3(m.bounds.hi)}};
+  j["point_count"] = m.point_count;
+  j["node_count"] = m.node_count;
+  j["node_pages"] = m.node_pages;
+  j["point_pages"] = m.point_pages;
+  j["root"] = m.root;
+  j["max_depth"] = m.max_depth;
+  j["layout"] = m.layout;
+  j["file_bytes"] = store.FileBytes();
+  // Build statistics are free-form text in the meta record: kept as strings.
+  j["stats"] = Json::object();
+  for (const auto& [k, v] : m.stats) j["stats"][k] = v;
+  std::fputs(DumpJson(j).c_str(), stdout);
 }
 
 void PrintTable(const PageStore& store) {
@@ -115,7 +81,7 @@ CommandSetup Setup() {
       }
       // info shows what the record holds, even when it is no database (a bare store of pages);
       // verify and shade refuse such a record.
-      if (absl::Status s = CheckDatabaseMeta(store->meta(), store->path()); !s.ok()) {
+      if (absl::Status s = internal::CheckDatabaseMeta(store->meta(), store->path()); !s.ok()) {
         std::fflush(stdout);
         std::fprintf(stderr, "pbgi info: warning: %s\n", std::string(s.message()).c_str());
       }

@@ -1,6 +1,5 @@
 // `pbgi query DB --at X,Y,Z --normal X,Y,Z`: gathers the cut for one receiver and prints what
 // was gathered and what it cost (nodes visited, pages touched per level, cache hits).
-#include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <limits>
@@ -11,9 +10,11 @@
 #include "absl/strings/numbers.h"
 #include "absl/strings/str_format.h"
 #include "absl/strings/str_split.h"
+#include "base/stopwatch.h"
 #include "pbgi/query.h"
 #include "pbgi/status.h"
 #include "tools/command.h"
+#include "tools/report.h"
 
 namespace pbgi::tools {
 namespace {
@@ -45,107 +46,110 @@ struct Args {
   bool list = false;
 };
 
-std::string Json(float v) {
-  return std::isfinite(v) ? absl::StrFormat("%.9g", v) : std::string("null");
+// One receiver's gather, cold then warm, and what it cost.
+struct QueryRun {
+  Receiver receiver;
+  Cut cut;
+  Gathered gathered;
+  QueryStats stats;  // of the cold gather
+  double ms = 0, warm_ms = 0;
+  std::vector<int> rows;  // levels to report: the tree's, then kPointLevel
+};
+
+std::string LevelName(int l) {
+  return l == kPointLevel ? std::string("points") : absl::StrFormat("%d", l);
 }
 
-absl::Status Run(const Args& a) {
-  PBGI_ASSIGN_OR_RETURN(glm::vec3 p, ParseVec3("--at", a.at));
-  PBGI_ASSIGN_OR_RETURN(glm::vec3 n, ParseVec3("--normal", a.normal));
-  if (glm::length(n) == 0.0f) return absl::InvalidArgumentError("--normal must not be 0,0,0");
-  if (!(a.max_solid_angle >= 0)) {
-    return absl::InvalidArgumentError("--max-solid-angle must be >= 0");
-  }
-  PBGI_ASSIGN_OR_RETURN(uint64_t cache, ParseBytes(a.cache));
-  DatabaseOptions options;
-  options.cache_bytes = cache;
-  PBGI_ASSIGN_OR_RETURN(std::unique_ptr<Database> db, Database::Open(a.db, options));
-  PBGI_ASSIGN_OR_RETURN(std::unique_ptr<Reader> reader, db->NewReader());
-  const Receiver r{p, glm::normalize(n)};
-  const Cut cut{a.max_solid_angle, a.max_distance};
-  Gathered g;
-  QueryStats stats;
-  const auto t0 = std::chrono::steady_clock::now();
-  PBGI_RETURN_IF_ERROR(reader->Gather(r, cut, &g, &stats));
-  const double ms =
-      std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+absl::StatusOr<QueryRun> GatherColdAndWarm(Reader& reader, const Receiver& r, const Cut& cut) {
+  QueryRun q{r, cut, {}, {}, 0, 0, {}};
+  internal::Stopwatch t;
+  PBGI_RETURN_IF_ERROR(reader.Gather(r, cut, &q.gathered, &q.stats));
+  q.ms = t.Milliseconds();
   // The same query again, warm: the cost of a gather once its pages are cached.
   QueryStats warm;
-  const auto t1 = std::chrono::steady_clock::now();
-  PBGI_RETURN_IF_ERROR(reader->Gather(r, cut, &g, &warm));
-  const double warm_ms =
-      std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t1).count();
-
+  t.Restart();
+  PBGI_RETURN_IF_ERROR(reader.Gather(r, cut, &q.gathered, &warm));
+  q.warm_ms = t.Milliseconds();
   int levels = 0;
   for (int l = 0; l < kMaxTreeDepth; ++l) {
-    if (stats.nodes[l] > 0) levels = l + 1;
+    if (q.stats.nodes[l] > 0) levels = l + 1;
   }
-  std::vector<int> rows;
-  for (int l = 0; l < levels; ++l) rows.push_back(l);
-  rows.push_back(kPointLevel);
-  const auto level_name = [](int l) {
-    return l == kPointLevel ? std::string("points") : absl::StrFormat("%d", l);
-  };
+  for (int l = 0; l < levels; ++l) q.rows.push_back(l);
+  q.rows.push_back(kPointLevel);
+  return q;
+}
 
-  if (a.json) {
-    std::string out = "{\n";
-    absl::StrAppendFormat(&out, "  \"db\": \"%s\",\n", a.db);
-    absl::StrAppendFormat(
-        &out, "  \"receiver\": {\"at\": [%s, %s, %s], \"normal\": [%s, %s, %s]},\n", Json(p.x),
-        Json(p.y), Json(p.z), Json(r.normal.x), Json(r.normal.y), Json(r.normal.z));
-    absl::StrAppendFormat(&out, "  \"cut\": {\"max_solid_angle\": %s, \"max_distance\": %s},\n",
-                          Json(cut.max_solid_angle), Json(cut.max_distance));
-    absl::StrAppendFormat(&out,
-                          "  \"gathered\": {\"clusters\": %d, \"surfels\": %d},\n"
-                          "  \"cost\": {\"ms\": %.4f, \"warm_ms\": %.4f, \"nodes_visited\": %d, "
-                          "\"nodes_culled\": %d, \"points_tested\": %d, \"pages_read\": %d, "
-                          "\"bytes_read\": %d,\n    \"levels\": [",
-                          g.clusters.size(), g.surfels.size(), ms, warm_ms, stats.nodes_visited,
-                          stats.nodes_culled, stats.points_tested, stats.pages_read,
-                          stats.bytes_read);
-    for (size_t i = 0; i < rows.size(); ++i) {
-      const int l = rows[i];
-      absl::StrAppendFormat(&out,
-                            "%s\n      {\"level\": \"%s\", \"nodes\": %d, \"pages_touched\": %d, "
-                            "\"reader_hits\": %d, \"shared_hits\": %d, \"shared_misses\": %d}",
-                            i == 0 ? "" : ",", level_name(l), stats.nodes[l],
-                            stats.pages_touched[l], stats.reader_hits[l], stats.shared_hits[l],
-                            stats.shared_misses[l]);
-    }
-    out += "]}";
-    if (a.list) {
-      out += ",\n  \"clusters\": [";
-      for (size_t i = 0; i < g.clusters.size(); ++i) {
-        const Cluster& c = g.clusters[i];
-        absl::StrAppendFormat(&out,
-                              "%s\n    {\"depth\": %d, \"first_point\": %d, \"point_count\": %d, "
-                              "\"area\": %s, \"solid_angle\": %s, \"lo\": [%s, %s, %s], "
-                              "\"hi\": [%s, %s, %s]}",
-                              i == 0 ? "" : ",", c.depth, c.first_point, c.point_count,
-                              Json(c.area), Json(ClusterSolidAngle(c, r)), Json(c.bounds.lo.x),
-                              Json(c.bounds.lo.y), Json(c.bounds.lo.z), Json(c.bounds.hi.x),
-                              Json(c.bounds.hi.y), Json(c.bounds.hi.z));
-      }
-      out += "],\n  \"surfels\": [";
-      for (size_t i = 0; i < g.surfels.size(); ++i) {
-        const Surfel& s = g.surfels[i];
-        absl::StrAppendFormat(&out,
-                              "%s\n    {\"id\": %d, \"position\": [%s, %s, %s], "
-                              "\"normal\": [%s, %s, %s], \"radius\": %s}",
-                              i == 0 ? "" : ",", g.surfel_ids[i], Json(s.position.x),
-                              Json(s.position.y), Json(s.position.z), Json(s.normal.x),
-                              Json(s.normal.y), Json(s.normal.z), Json(s.radius));
-      }
-      out += "]";
-    }
-    out += "\n}\n";
-    std::fputs(out.c_str(), stdout);
-    return absl::OkStatus();
+Json QueryJson(const Args& a, const QueryRun& q) {
+  const Receiver& r = q.receiver;
+  const glm::vec3 p = r.position;
+  const Cut& cut = q.cut;
+  const Gathered& g = q.gathered;
+  const QueryStats& stats = q.stats;
+  const std::vector<int>& rows = q.rows;
+  const double ms = q.ms, warm_ms = q.warm_ms;
+  Json j;
+  j["db"] = a.db;
+  j["receiver"] = {{"at", JsonVec3(p)}, {"normal", JsonVec3(r.normal)}};
+  j["cut"] = {{"max_solid_angle", JsonFloat(cut.max_solid_angle)},
+              {"max_distance", JsonFloat(cut.max_distance)}};
+  j["gathered"] = {{"clusters", g.clusters.size()}, {"surfels", g.surfels.size()}};
+  Json cost;
+  cost["ms"] = ms;
+  cost["warm_ms"] = warm_ms;
+  cost["nodes_visited"] = stats.nodes_visited;
+  cost["nodes_culled"] = stats.nodes_culled;
+  cost["points_tested"] = stats.points_tested;
+  cost["pages_read"] = stats.pages_read;
+  cost["bytes_read"] = stats.bytes_read;
+  cost["levels"] = Json::array();
+  for (int l : rows) {
+    Json level;
+    level["level"] = LevelName(l);
+    level["nodes"] = stats.nodes[l];
+    level["pages_touched"] = stats.pages_touched[l];
+    level["reader_hits"] = stats.reader_hits[l];
+    level["shared_hits"] = stats.shared_hits[l];
+    level["shared_misses"] = stats.shared_misses[l];
+    cost["levels"].push_back(level);
   }
+  j["cost"] = cost;
+  if (a.list) {
+    j["clusters"] = Json::array();
+    for (const Cluster& c : g.clusters) {
+      Json e;
+      e["depth"] = c.depth;
+      e["first_point"] = c.first_point;
+      e["point_count"] = c.point_count;
+      e["area"] = JsonFloat(c.area);
+      e["solid_angle"] = JsonFloat(ClusterSolidAngle(c, r));
+      e["lo"] = JsonVec3(c.bounds.lo);
+      e["hi"] = JsonVec3(c.bounds.hi);
+      j["clusters"].push_back(e);
+    }
+    j["surfels"] = Json::array();
+    for (size_t i = 0; i < g.surfels.size(); ++i) {
+      const Surfel& s = g.surfels[i];
+      Json e;
+      e["id"] = g.surfel_ids[i];
+      e["position"] = JsonVec3(s.position);
+      e["normal"] = JsonVec3(s.normal);
+      e["radius"] = JsonFloat(s.radius);
+      j["surfels"].push_back(e);
+    }
+  }
+  return j;
+}
 
+void PrintQuery(const Args& a, const Database& db, const QueryRun& q) {
+  const Receiver& r = q.receiver;
+  const glm::vec3 p = r.position;
+  const Cut& cut = q.cut;
+  const Gathered& g = q.gathered;
+  const QueryStats& stats = q.stats;
+  const double ms = q.ms, warm_ms = q.warm_ms;
   std::printf("%s: %llu points, %llu nodes, layout %s\n", a.db.c_str(),
-              static_cast<unsigned long long>(db->meta().point_count),
-              static_cast<unsigned long long>(db->meta().node_count), db->meta().layout.c_str());
+              static_cast<unsigned long long>(db.meta().point_count),
+              static_cast<unsigned long long>(db.meta().node_count), db.meta().layout.c_str());
   std::printf("receiver (%g, %g, %g) normal (%g, %g, %g), max_solid_angle %g, max_distance %g\n",
               p.x, p.y, p.z, r.normal.x, r.normal.y, r.normal.z, cut.max_solid_angle,
               cut.max_distance);
@@ -159,8 +163,8 @@ absl::Status Run(const Args& a) {
               FormatBytes(stats.bytes_read).c_str());
   std::printf("%-7s %10s %10s %10s %10s %10s\n", "level", "nodes", "pages", "reader-hit",
               "shared-hit", "read");
-  for (int l : rows) {
-    std::printf("%-7s %10llu %10llu %10llu %10llu %10llu\n", level_name(l).c_str(),
+  for (int l : q.rows) {
+    std::printf("%-7s %10llu %10llu %10llu %10llu %10llu\n", LevelName(l).c_str(),
                 static_cast<unsigned long long>(stats.nodes[l]),
                 static_cast<unsigned long long>(stats.pages_touched[l]),
                 static_cast<unsigned long long>(stats.reader_hits[l]),
@@ -179,6 +183,27 @@ absl::Status Run(const Args& a) {
                   static_cast<unsigned long long>(g.surfel_ids[i]), s.position.x, s.position.y,
                   s.position.z, s.radius);
     }
+  }
+}
+
+absl::Status Run(const Args& a) {
+  PBGI_ASSIGN_OR_RETURN(glm::vec3 p, ParseVec3("--at", a.at));
+  PBGI_ASSIGN_OR_RETURN(glm::vec3 n, ParseVec3("--normal", a.normal));
+  if (glm::length(n) == 0.0f) return absl::InvalidArgumentError("--normal must not be 0,0,0");
+  if (!(a.max_solid_angle >= 0)) {
+    return absl::InvalidArgumentError("--max-solid-angle must be >= 0");
+  }
+  PBGI_ASSIGN_OR_RETURN(uint64_t cache, ParseBytes(a.cache));
+  DatabaseOptions options;
+  options.cache_bytes = cache;
+  PBGI_ASSIGN_OR_RETURN(std::unique_ptr<Database> db, Database::Open(a.db, options));
+  PBGI_ASSIGN_OR_RETURN(std::unique_ptr<Reader> reader, db->NewReader());
+  PBGI_ASSIGN_OR_RETURN(QueryRun q, GatherColdAndWarm(*reader, Receiver{p, glm::normalize(n)},
+                                                      Cut{a.max_solid_angle, a.max_distance}));
+  if (a.json) {
+    std::fputs(DumpJson(QueryJson(a, q)).c_str(), stdout);
+  } else {
+    PrintQuery(a, *db, q);
   }
   return absl::OkStatus();
 }

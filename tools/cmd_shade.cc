@@ -14,6 +14,7 @@
 
 #include "absl/strings/match.h"
 #include "absl/strings/str_format.h"
+#include "base/proc.h"
 #include "pbgi/ply.h"
 #include "pbgi/query.h"
 #include "pbgi/raster.h"
@@ -22,7 +23,6 @@
 #include "pbgi/store.h"
 #include "tools/command.h"
 #include "tools/scene_views.h"
-#include "tools/shading.h"
 
 namespace pbgi::tools {
 namespace {
@@ -136,7 +136,7 @@ class ResultPlyWriter {
   uint64_t count_ = 0;
 };
 
-void PrintSummary(const char* what, uint64_t receivers, const ShadeJobStats& s, int threads,
+void PrintSummary(const char* what, uint64_t receivers, const ShadeStats& s, int threads,
                   uint64_t cache) {
   const CacheStats& cs = s.cache;
   const uint64_t lookups = cs.reader.hits + cs.reader.misses;
@@ -158,42 +158,42 @@ void PrintSummary(const char* what, uint64_t receivers, const ShadeJobStats& s, 
       FormatBytes(cache).c_str(),
       lookups ? 100.0 * double(cs.reader.hits) / double(lookups) : 100.0,
       100.0 * cs.shared.HitRate(), static_cast<unsigned long long>(cs.shared.pages_read),
-      FormatBytes(cs.shared.bytes_read).c_str(), FormatBytes(PeakRssBytes()).c_str());
+      FormatBytes(cs.shared.bytes_read).c_str(), FormatBytes(internal::PeakRssBytes()).c_str());
 }
 
-absl::Status ShadePoints(const ShadeArgs& a, Database& db, const ShadeJobOptions& so, Mode mode,
+absl::Status ShadePoints(const ShadeArgs& a, Database& db, const ShadeOptions& so, Mode mode,
                          uint64_t cache) {
   PBGI_ASSIGN_OR_RETURN(std::unique_ptr<SurfelSource> in, OpenPly(a.receivers));
   PBGI_ASSIGN_OR_RETURN(std::unique_ptr<ResultPlyWriter> out, ResultPlyWriter::Create(a.out, mode));
   // Receivers stream through in chunks (Z-ordered within each chunk), so a receiver file of any
   // size shades inside the cache budget plus one chunk.
   std::vector<Surfel> chunk(static_cast<size_t>(a.chunk));
-  std::vector<Receiver> receivers;
+  std::vector<ShadeReceiver> receivers;
   std::vector<ShadeResult> results;
-  ShadeJobStats total, s;
+  ShadeStats total, s;
   uint64_t done = 0;
   for (;;) {
     PBGI_ASSIGN_OR_RETURN(size_t n, in->Next(absl::MakeSpan(chunk)));
     if (n == 0) break;
     receivers.resize(n);
-    for (size_t i = 0; i < n; ++i) receivers[i] = {chunk[i].position, chunk[i].normal};
-    PBGI_RETURN_IF_ERROR(ShadeReceivers(db, receivers, {}, so, &results, &s));
+    for (size_t i = 0; i < n; ++i) {
+      receivers[i] = {chunk[i].position, chunk[i].normal, chunk[i].normal};
+    }
+    results.resize(n);
+    PBGI_RETURN_IF_ERROR(ShadeBatch(db, receivers, so, absl::MakeSpan(results), &s));
     for (size_t i = 0; i < n; ++i) PBGI_RETURN_IF_ERROR(out->Write(chunk[i], results[i]));
     done += n;
-    total.seconds += s.seconds;
-    total.gather_seconds += s.gather_seconds;
-    total.raster_seconds += s.raster_seconds;
-    total.query.Add(s.query);
-    total.cache.Add(s.cache);
+    total.Add(s);
     std::fprintf(stderr, "shade: %llu receivers\n", static_cast<unsigned long long>(done));
   }
   PBGI_RETURN_IF_ERROR(out->Close());
-  PrintSummary("receivers", done, total, so.threads > 0 ? so.threads : DefaultThreads(), cache);
+  PrintSummary("receivers", done, total, so.threads > 0 ? so.threads : DefaultShadeThreads(),
+               cache);
   std::printf("  wrote %s\n", a.out.c_str());
   return absl::OkStatus();
 }
 
-absl::Status ShadeCamera(const ShadeArgs& a, Database& db, const ShadeJobOptions& so, Mode mode,
+absl::Status ShadeCamera(const ShadeArgs& a, Database& db, const ShadeOptions& so, Mode mode,
                          uint64_t cache) {
   PBGI_ASSIGN_OR_RETURN(std::shared_ptr<const Scene> scene, LoadScene(a.scene, a.seed, 0));
   PBGI_ASSIGN_OR_RETURN(std::unique_ptr<Tracer> tracer, Tracer::Create(*scene));
@@ -222,8 +222,8 @@ absl::Status ShadeCamera(const ShadeArgs& a, Database& db, const ShadeJobOptions
   PBGI_RETURN_IF_ERROR(WriteExr(exr, *image));
   PBGI_RETURN_IF_ERROR(WritePng(png, *image, 1.0f, mode != Mode::kOcclusion));
   std::printf("traced %dx%d primary rays in %.2f s\n", a.width, a.height, view.trace_seconds);
-  PrintSummary("pixels", view.receivers, view.shade, so.threads > 0 ? so.threads : DefaultThreads(),
-               cache);
+  PrintSummary("pixels", view.receivers, view.shade,
+               so.threads > 0 ? so.threads : DefaultShadeThreads(), cache);
   std::printf("  wrote %s and %s\n", exr.c_str(), png.c_str());
   return absl::OkStatus();
 }
@@ -251,7 +251,7 @@ absl::Status RunShade(const ShadeArgs& a) {
         "%s stores occlusion only (built with --channels occlusion): --mode %s needs radiance",
         a.db, a.mode));
   }
-  ShadeJobOptions so;
+  ShadeOptions so;
   so.threads = a.threads;
   so.cut.max_solid_angle = a.max_solid_angle;
   so.cut.max_distance = a.max_distance;

@@ -28,8 +28,6 @@ absl::StatusOr<uint64_t> ParseBytes(const std::string& text);
 CLI::Validator BytesValidator();
 // "1.5 GiB"
 std::string FormatBytes(uint64_t bytes);
-// Peak resident set size of this process (VmHWM), in bytes; 0 if unknown.
-uint64_t PeakRssBytes();
 // Prints to stderr what a build that did not finish left in the store directory `db` (or that a
 // build is writing it now), if anything: `pbgi info` and `pbgi verify` mention it.
 void NoteStoreLeftovers(const char* command, const std::string& db);

@@ -4,7 +4,6 @@
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
-#include <fstream>
 #include <map>
 #include <memory>
 #include <string>
@@ -89,18 +88,6 @@ std::string FormatBytes(uint64_t bytes) {
     ++u;
   }
   return u == 0 ? absl::StrFormat("%d B", bytes) : absl::StrFormat("%.1f %s", v, units[u]);
-}
-
-uint64_t PeakRssBytes() {
-  std::ifstream in("/proc/self/status");
-  std::string line;
-  while (std::getline(in, line)) {
-    if (line.rfind("VmHWM:", 0) == 0) {
-      uint64_t kb = std::strtoull(line.c_str() + 6, nullptr, 10);
-      return kb * 1024;
-    }
-  }
-  return 0;
 }
 
 void NoteStoreLeftovers(const char* command, const std::string& db) {

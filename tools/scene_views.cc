@@ -80,8 +80,16 @@ absl::StatusOr<glm::vec3> ParseVec3(const std::string& text) {
   return v;
 }
 
+std::vector<ShadeReceiver> ShadeReceiversOf(absl::Span<const Receiver> receivers) {
+  std::vector<ShadeReceiver> out(receivers.size());
+  for (size_t i = 0; i < receivers.size(); ++i) {
+    out[i] = {receivers[i].position, receivers[i].normal, receivers[i].normal};
+  }
+  return out;
+}
+
 absl::StatusOr<ViewImages> RenderView(const Tracer& tracer, Database& db, const Camera& camera,
-                                      const ShadeJobOptions& options) {
+                                      const ShadeOptions& options) {
   using Clock = std::chrono::steady_clock;
   const Scene& scene = tracer.scene();
   ViewImages out;
@@ -111,8 +119,12 @@ absl::StatusOr<ViewImages> RenderView(const Tracer& tracer, Database& db, const 
   out.trace_seconds = std::chrono::duration<double>(Clock::now() - t0).count();
   out.receivers = receivers.size();
 
-  std::vector<ShadeResult> results;
-  PBGI_RETURN_IF_ERROR(ShadeReceivers(db, receivers, reflections, options, &results, &out.shade));
+  std::vector<ShadeReceiver> shade(receivers.size());
+  for (size_t i = 0; i < receivers.size(); ++i) {
+    shade[i] = {receivers[i].position, receivers[i].normal, reflections[i]};
+  }
+  std::vector<ShadeResult> results(receivers.size());
+  PBGI_RETURN_IF_ERROR(ShadeBatch(db, shade, options, absl::MakeSpan(results), &out.shade));
 
   const bool radiance = HasRadiance(db.meta().channels);
   const glm::vec3 sky = scene.lights.sky;

@@ -5,12 +5,14 @@
 
 #include <memory>
 #include <string>
+#include <vector>
 
 #include "absl/status/statusor.h"
+#include "absl/types/span.h"
 #include "pbgi/query.h"
 #include "pbgi/scene.h"
+#include "pbgi/shade.h"
 #include "tools/image_io.h"
-#include "tools/shading.h"
 
 namespace pbgi::tools {
 
@@ -22,6 +24,9 @@ absl::StatusOr<std::shared_ptr<const Scene>> LoadScene(const std::string& spec, 
 // for anything else.
 Camera DefaultCamera(const Scene& scene, int width, int height);
 
+// Receivers to shade: each one's glossy lobe centred on its normal.
+std::vector<ShadeReceiver> ShadeReceiversOf(absl::Span<const Receiver> receivers);
+
 // "X,Y,Z" -> vector.
 absl::StatusOr<glm::vec3> ParseVec3(const std::string& text);
 
@@ -32,14 +37,14 @@ struct ViewImages {
   Image composite;  // direct + indirect, sky where nothing was hit
   uint64_t receivers = 0;
   double trace_seconds = 0;
-  ShadeJobStats shade;
+  ShadeStats shade;
 };
 
 // Traces the camera's primary rays with Embree, shades the hit points from `db` and composes the
 // images. With an occlusion-only database, `indirect` is black and `composite` is direct * (1 -
 // occlusion) plus the sky's ambient term.
 absl::StatusOr<ViewImages> RenderView(const Tracer& tracer, Database& db, const Camera& camera,
-                                      const ShadeJobOptions& options);
+                                      const ShadeOptions& options);
 
 }  // namespace pbgi::tools
 

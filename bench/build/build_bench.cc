@@ -20,6 +20,7 @@
 #include <string>
 #include <vector>
 
+#include "base/proc.h"
 #include "benchmark/benchmark.h"
 #include "build/builder.h"
 #include "build/external_sort.h"
@@ -30,8 +31,9 @@
 #include "pbgi/ply.h"
 #include "pbgi/sh.h"
 #include "pbgi/store.h"
-#include "store/morton.h"
-#include "store/page_format.h"
+#include "store/page_io.h"
+#include "tree/format.h"
+#include "tree/morton.h"
 
 namespace pbgi {
 namespace {
@@ -91,15 +93,6 @@ class GeneratedSource final : public SurfelSource {
   uint64_t i_ = 0;
 };
 
-uint64_t CurrentRss() {
-  std::ifstream in("/proc/self/status");
-  std::string line;
-  while (std::getline(in, line)) {
-    if (line.rfind("VmRSS:", 0) == 0) return std::strtoull(line.c_str() + 6, nullptr, 10) * 1024;
-  }
-  return 0;
-}
-
 // Returns freed heap to the system (earlier benchmarks in this process) and restarts VmHWM at
 // the current RSS, which it returns.
 uint64_t ResetPeakRss() {
@@ -107,7 +100,7 @@ uint64_t ResetPeakRss() {
   std::ofstream f("/proc/self/clear_refs");
   f << "5";
   f.close();
-  return CurrentRss();
+  return internal::CurrentRssBytes();
 }
 
 std::string TmpDir() {
@@ -204,19 +197,6 @@ struct InMemoryBuilder {
   }
 };
 
-class WriterSink final : public internal::PageSink {
- public:
-  explicit WriterSink(PageWriter* w) : w_(w) {}
-  uint32_t page_size() const override { return w_->page_size(); }
-  absl::Status Append(Section s, uint64_t no, PageKind k, uint32_t count,
-                      absl::Span<const uint8_t> payload) override {
-    return w_->Append(s, no, k, count, payload);
-  }
-
- private:
-  PageWriter* w_;
-};
-
 void BM_BuildInMemory(benchmark::State& state) {
   const uint64_t n = static_cast<uint64_t>(state.range(0));
   const std::string dir = TmpDir();
@@ -247,7 +227,7 @@ void BM_BuildInMemory(benchmark::State& state) {
       state.SkipWithError("PageWriter::Create failed");
       break;
     }
-    WriterSink sink(w->get());
+    internal::StoreWriterSink sink(w->get());
     internal::NodePacker packer(Layout::kCoherent, Channels::kRadiance, &sink, 1);
     internal::PointPageWriter points(Channels::kRadiance, &sink);
     for (const auto& r : recs) (void)points.Add(r);
@@ -275,7 +255,7 @@ void BM_BuildInMemory(benchmark::State& state) {
     auto t2 = std::chrono::steady_clock::now();
     t_sort = std::chrono::duration<double>(t1 - t0).count();
     t_tree = std::chrono::duration<double>(t2 - t1).count();
-    peak = internal::PeakRss();
+    peak = internal::PeakRssBytes();
   }
   state.counters["points_per_s"] =
       benchmark::Counter(double(n) * state.iterations(), benchmark::Counter::kIsRate);

@@ -1,4 +1,4 @@
-// I/O-pattern study of Gather (DESIGN.md, "Query"; Kontkanen et al. 2011, section 5): time per
+// I/O-pattern study of Gather (docs/design.md, "Query"; Kontkanen et al. 2011, section 5): time per
 // gather, nodes visited, hit rates per cache level, pages read per 1000 receivers, for
 // receivers in Z-order vs shuffled, node layouts, cache budgets from 1% to 100% of the
 // database, and 1 or 2 threads. Every Gather/ run is cold: a fresh Database (empty caches)

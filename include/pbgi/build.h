@@ -1,4 +1,4 @@
-// pbgi::BuildDatabase: the out-of-core octree builder (DESIGN.md, "Build"; Kontkanen, Tabellion,
+// pbgi::BuildDatabase: the out-of-core octree builder (docs/design.md, "Build"; Kontkanen, Tabellion,
 // Overbeck, EGSR 2011; Salmon & Warren 1997).
 //
 // The builder pulls surfels from any SurfelSource, computes 63-bit Morton keys inside the cubed,
@@ -36,7 +36,7 @@
 namespace pbgi {
 
 // How node records are ordered in node pages. All layouts keep sibling groups contiguous in one
-// page (store/page_format.h); only kCoherent is meant for production.
+// page (tree/format.h); only kCoherent is meant for production.
 enum class Layout {
   kCoherent,      // treelets: a sibling group and as many levels below it as fit in a page
   kPostOrder,     // sibling groups in the order their parents close, packed sequentially

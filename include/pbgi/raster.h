@@ -1,7 +1,7 @@
 // The micro-buffer rasterizer: turns the elements that Gather() returns for one receiver
 // (clusters and surfels, see surfel.h) into ambient occlusion, irradiance and glossy radiance.
 // It depends on nothing but the gathered elements, so it is tested and benchmarked without a
-// database (DESIGN.md, "Raster"; Christensen 2008; Ritschel et al. 2009).
+// database (docs/design.md, "Raster"; Christensen 2008; Ritschel et al. 2009).
 //
 // The micro-buffer is a cube of six res x res faces around the receiver, in the receiver's local
 // frame (+z = the receiver's normal), with a coverage, a depth and a radiance per pixel.

@@ -1,4 +1,4 @@
-// Scenes: the inputs of Coherent PBGI (DESIGN.md, "Scenes").
+// Scenes: the inputs of Coherent PBGI (docs/design.md, "Scenes").
 //
 // A Scene is triangles (meshes placed by instances), materials (albedo, emission) and lights (a
 // sun, a uniform sky, and area lights, which are simply the emissive triangles). The same scene

@@ -9,7 +9,7 @@
 //                                      Y8 = 0.546274 (x^2 - y^2)
 // A clamped cosine lobe max(0, n.w) has zonal coefficients pi, 2pi/3, pi/4 for bands 0, 1, 2,
 // so a disk of area A and normal n projects to c_i = A * zonal(band(i)) * Y_i(n); projection is
-// linear, so a node's coefficients are the sum of its children's (DESIGN.md, "Build" step 4).
+// linear, so a node's coefficients are the sum of its children's (docs/design.md, "Build").
 #ifndef PBGI_SH_H_
 #define PBGI_SH_H_
 
@@ -20,19 +20,25 @@
 namespace pbgi::sh {
 
 inline constexpr int kCoeffs = 9;
+// The one home of pi and of the basis constants (everything else derives from these).
 inline constexpr double kPi = 3.14159265358979323846;
+inline constexpr double kY0 = 0.282094791773878;  // 1 / (2 sqrt(pi))
+inline constexpr double kY1 = 0.488602511902920;  // sqrt(3 / (4 pi)): Y1, Y2, Y3
+inline constexpr double kY2 = 1.092548430592079;  // sqrt(15 / (4 pi)): Y4, Y5, Y7
+inline constexpr double kY6 = 0.315391565252520;  // sqrt(5 / (16 pi))
+inline constexpr double kY8 = 0.546274215296040;  // sqrt(15 / (16 pi))
 
 template <typename T>
 inline std::array<T, 9> Basis(T x, T y, T z) {
-  return {T(0.282094791773878),
-          T(0.488602511902920) * y,
-          T(0.488602511902920) * z,
-          T(0.488602511902920) * x,
-          T(1.092548430592079) * x * y,
-          T(1.092548430592079) * y * z,
-          T(0.315391565252520) * (T(3) * z * z - T(1)),
-          T(1.092548430592079) * x * z,
-          T(0.546274215296040) * (x * x - y * y)};
+  return {T(kY0),
+          T(kY1) * y,
+          T(kY1) * z,
+          T(kY1) * x,
+          T(kY2) * x * y,
+          T(kY2) * y * z,
+          T(kY6) * (T(3) * z * z - T(1)),
+          T(kY2) * x * z,
+          T(kY8) * (x * x - y * y)};
 }
 
 // Coefficients of area * max(0, n.w) for a unit normal n.

@@ -1,4 +1,4 @@
-// pbgi::PageStore: fixed-size pages in one LMDB environment (DESIGN.md, "Store").
+// pbgi::PageStore: fixed-size pages in one LMDB environment (docs/design.md, "Store").
 //
 // A store has three named sections: `meta` (one meta record, committed last), `nodes` and
 // `points` (key: page number, value: one fixed-size page). A PageWriter appends pages in
@@ -90,19 +90,12 @@ struct StoreMeta {
   uint64_t node_count = 0;
   uint64_t node_pages = 0;
   uint64_t point_pages = 0;
-  uint64_t root = 0;  // NodeRef of the root node (see store/page_format.h)
+  uint64_t root = 0;  // NodeRef of the root node (see tree/format.h)
   uint32_t max_depth = 0;
   std::string layout = "coherent";
   // Free-form build statistics (name -> value as text): timings, peak memory, ...
   std::map<std::string, std::string> stats;
 };
-
-// OK when `meta` describes a pbgi database as a build writes it: points and nodes, page counts
-// that fit them, finite bounds that are not empty, the root inside the node pages, SH order 2.
-// Else DataLoss naming `name` and what is wrong. PageStore::Open refuses only what no store can
-// hold (pbgi verify and Database::Open check this too): a bare store of pages need not be a
-// database.
-absl::Status CheckDatabaseMeta(const StoreMeta& meta, const std::string& name);
 
 struct StoreOptions {
   uint32_t page_size = kDefaultPageSize;  // bytes per page, header included; a multiple of 8

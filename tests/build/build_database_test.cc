@@ -11,13 +11,13 @@
 
 #include "build/builder.h"
 #include "build/external_sort.h"
-#include "build/page_sink.h"
 #include "gtest/gtest.h"
 #include "pbgi/build.h"
 #include "pbgi/store.h"
-#include "store/page_format.h"
+#include "store/mem_page_store.h"
 #include "tests/build/test_clouds.h"
 #include "tests/common/child_process.h"
+#include "tree/format.h"
 
 namespace pbgi {
 namespace {
@@ -58,7 +58,7 @@ TEST(BuildDatabaseTest, BuildsAVerifiableStoreEqualToTheInMemoryPipeline) {
         EXPECT_TRUE(VerifyTree(**store).ok()) << VerifyTree(**store);
 
         // The same pages as the pipeline over memory.
-        internal::MemoryPageSink mem(o.page_size);
+        internal::MemPageStore mem(o.page_size);
         StoreMeta mm;
         VectorSurfelSource src2(cloud);
         ASSERT_TRUE(internal::BuildToSink(src2, mem, o, o.tmp_dir, &mm).ok());

@@ -1,4 +1,4 @@
-// The builder over an in-memory page sink: tree invariants checked by VerifyTreePages and by an
+// The builder over the in-memory store: tree invariants checked by VerifyTreePages and by an
 // independent brute-force octree (std::stable_sort + recursion), for every layout and both
 // channel sets, spilled and not; edge cases; SH of one disk against numerical integration.
 #include <algorithm>
@@ -13,13 +13,14 @@
 #include <vector>
 
 #include "build/builder.h"
-#include "build/page_sink.h"
 #include "gtest/gtest.h"
 #include "pbgi/build.h"
 #include "pbgi/sh.h"
-#include "store/morton.h"
-#include "store/page_format.h"
+#include "store/mem_page_store.h"
 #include "tests/build/test_clouds.h"
+#include "tree/format.h"
+#include "tree/morton.h"
+#include "tree/verify.h"
 
 namespace pbgi::internal {
 namespace {
@@ -31,7 +32,7 @@ using testing_build::SurfaceCloud;
 using testing_build::UniformCloud;
 
 struct Built {
-  std::unique_ptr<MemoryPageSink> sink;
+  std::unique_ptr<MemPageStore> sink;
   StoreMeta meta;
   BuildStats stats;
 };
@@ -39,7 +40,7 @@ struct Built {
 absl::StatusOr<Built> BuildMem(const std::vector<Surfel>& cloud, const BuildOptions& o,
                                const std::string& tmp) {
   Built b;
-  b.sink = std::make_unique<MemoryPageSink>(o.page_size);
+  b.sink = std::make_unique<MemPageStore>(o.page_size);
   VectorSurfelSource src(cloud);
   auto stats = BuildToSink(src, *b.sink, o, tmp, &b.meta);
   if (!stats.ok()) return stats.status();
@@ -52,7 +53,7 @@ NodeRecordRadiance ReadNode(const Built& b, NodeRef ref) {
   EXPECT_TRUE(page.ok()) << page.status();
   NodeRecordRadiance r{};
   const uint32_t size = NodeRecordSize(b.meta.channels);
-  EXPECT_LT(RefSlot(ref), page->record_count) << "ref page " << RefPage(ref);
+  EXPECT_LT(RefSlot(ref), page->header->record_count) << "ref page " << RefPage(ref);
   std::memcpy(&r, page->payload.data() + size_t{RefSlot(ref)} * size, size);
   return r;
 }
@@ -165,7 +166,7 @@ void CompareNode(const Built& b, const Reference& ref, const RefNode& want, Node
   // Siblings are contiguous in one page.
   auto page = b.sink->Get(Section::kNodes, RefPage(c.children));
   ASSERT_TRUE(page.ok());
-  ASSERT_LE(RefSlot(c.children) + c.child_count, page->record_count);
+  ASSERT_LE(RefSlot(c.children) + c.child_count, page->header->record_count);
   for (uint32_t i = 0; i < c.child_count; ++i) {
     CompareNode(b, ref, want.kids[i], MakeNodeRef(RefPage(c.children), RefSlot(c.children) + i),
                 seen);
@@ -395,7 +396,7 @@ TEST(BuildEdgeTest, VerifyCatchesACorruptedAggregate) {
   auto b = BuildMem(cloud, BuildOptions{}, dir.path());
   ASSERT_TRUE(b.ok());
   // Rebuild the sink with one SH coefficient of the root changed.
-  MemoryPageSink bad(b->meta.page_size);
+  MemPageStore bad(b->meta.page_size);
   for (Section s : {Section::kNodes, Section::kPoints}) {
     for (auto& [no, bytes] : b->sink->pages(s)) {
       std::vector<uint8_t> payload(bytes.begin() + sizeof(PageHeader), bytes.end());

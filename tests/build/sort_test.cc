@@ -7,8 +7,8 @@
 
 #include "build/external_sort.h"
 #include "gtest/gtest.h"
-#include "store/morton.h"
 #include "tests/build/test_clouds.h"
+#include "tree/morton.h"
 
 namespace pbgi::internal {
 namespace {

@@ -16,6 +16,7 @@
 
 #include "glm/geometric.hpp"
 #include "pbgi/surfel.h"
+#include "tests/common/scratch_dir.h"
 
 namespace pbgi::testing_build {
 
@@ -82,27 +83,7 @@ inline std::vector<Surfel> SurfaceCloud(size_t n, uint64_t seed) {
   return out;
 }
 
-// A fresh scratch directory under PBGI_TEST_TMPDIR (or the system temp dir), removed on
-// destruction.
-class ScratchDir {
- public:
-  explicit ScratchDir(const std::string& name) {
-    const char* base = std::getenv("PBGI_TEST_TMPDIR");
-    std::filesystem::path root = base != nullptr ? base : std::filesystem::temp_directory_path();
-    path_ = root / ("build_" + name + "_" + std::to_string(::getpid()));
-    std::filesystem::remove_all(path_);
-    std::filesystem::create_directories(path_);
-  }
-  ~ScratchDir() {
-    std::error_code ec;
-    std::filesystem::remove_all(path_, ec);
-  }
-  std::string path() const { return path_.string(); }
-  std::string Sub(const std::string& name) const { return (path_ / name).string(); }
-
- private:
-  std::filesystem::path path_;
-};
+using ::pbgi::testing_common::ScratchDir;
 
 }  // namespace pbgi::testing_build
 

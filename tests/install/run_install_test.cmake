@@ -1,6 +1,6 @@
 # cmake -P script behind the install_consumer test. Inputs: PBGI_BUILD_DIR, CONSUMER_SOURCE_DIR,
-# WORK_DIR, GENERATOR, CXX_COMPILER, and SAN_FLAGS (empty unless a sanitizer build).
-foreach(var PBGI_BUILD_DIR CONSUMER_SOURCE_DIR WORK_DIR GENERATOR CXX_COMPILER)
+# COMPONENTS_SOURCE_DIR, WORK_DIR, GENERATOR, CXX_COMPILER, and SAN_FLAGS (empty unless a sanitizer build).
+foreach(var PBGI_BUILD_DIR CONSUMER_SOURCE_DIR COMPONENTS_SOURCE_DIR WORK_DIR GENERATOR CXX_COMPILER)
   if(NOT DEFINED ${var})
     message(FATAL_ERROR "run_install_test.cmake: ${var} is not set")
   endif()
@@ -21,17 +21,50 @@ step("cmake --install" ${CMAKE_COMMAND} --install "${PBGI_BUILD_DIR}" --prefix "
 if(NOT EXISTS "${WORK_DIR}/prefix/include/pbgi/store.h")
   message(FATAL_ERROR "install_consumer: the public headers were not installed")
 endif()
+# The core's package files must not look for what only the scene component and the command
+# need: pbgiTargets.cmake as a whole, pbgiConfig.cmake up to its components (comments aside).
+foreach(f pbgiConfig.cmake pbgiTargets.cmake)
+  file(GLOB found "${WORK_DIR}/prefix/lib*/cmake/pbgi/${f}")
+  if(NOT found)
+    message(FATAL_ERROR "install_consumer: ${f} was not installed")
+  endif()
+  file(STRINGS "${found}" lines)
+  set(text "")
+  foreach(line IN LISTS lines)
+    if(line MATCHES "^foreach\\(_pbgi_component")
+      break()
+    endif()
+    if(NOT line MATCHES "^#")
+      string(APPEND text "${line}\n")
+    endif()
+  endforeach()
+  string(TOLOWER "${text}" text)
+  foreach(dep embree assimp openexr stb)
+    string(FIND "${text}" "${dep}" at)
+    if(NOT at EQUAL -1)
+      message(FATAL_ERROR "install_consumer: the core's ${f} mentions ${dep}")
+    endif()
+  endforeach()
+endforeach()
 set(san_args "")
 if(SAN_FLAGS)
   set(san_args "-DCMAKE_CXX_FLAGS=${SAN_FLAGS}" "-DCMAKE_EXE_LINKER_FLAGS=${SAN_FLAGS}")
 endif()
+# Configured as on a machine without Embree, Assimp or OpenEXR: find_package of them fails.
 step("configure consumer" ${CMAKE_COMMAND} -S "${CONSUMER_SOURCE_DIR}" -B "${WORK_DIR}/build"
      -G "${GENERATOR}" -DCMAKE_BUILD_TYPE=Release "-DCMAKE_CXX_COMPILER=${CXX_COMPILER}"
-     "-DCMAKE_PREFIX_PATH=${WORK_DIR}/prefix" ${san_args})
+     "-DCMAKE_PREFIX_PATH=${WORK_DIR}/prefix" -DCMAKE_DISABLE_FIND_PACKAGE_embree=TRUE
+     -DCMAKE_DISABLE_FIND_PACKAGE_assimp=TRUE -DCMAKE_DISABLE_FIND_PACKAGE_OpenEXR=TRUE
+     ${san_args})
 step("build consumer" ${CMAKE_COMMAND} --build "${WORK_DIR}/build")
-step("run consumer" "${WORK_DIR}/build/pbgi_consumer" "${WORK_DIR}/db")
+file(MAKE_DIRECTORY "${WORK_DIR}/run")
+step("run consumer" "${WORK_DIR}/build/pbgi_consumer" "${WORK_DIR}/run")
 if(NOT step_output MATCHES "consumer: ok")
   message(FATAL_ERROR "install_consumer: unexpected output: ${step_output}")
 endif()
 message(STATUS "${step_output}")
+# The optional components resolve too (configure only).
+step("configure components" ${CMAKE_COMMAND} -S "${COMPONENTS_SOURCE_DIR}"
+     -B "${WORK_DIR}/components" -G "${GENERATOR}" "-DCMAKE_CXX_COMPILER=${CXX_COMPILER}"
+     "-DCMAKE_PREFIX_PATH=${WORK_DIR}/prefix")
 file(REMOVE_RECURSE "${WORK_DIR}")

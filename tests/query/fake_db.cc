@@ -2,11 +2,12 @@
 
 #include <algorithm>
 #include <array>
+#include <cstdlib>
 #include <cstring>
 #include <numeric>
 
 #include "pbgi/sh.h"
-#include "store/page_format.h"
+#include "tree/format.h"
 
 namespace pbgi::internal {
 namespace {
@@ -151,7 +152,8 @@ FakeDb BuildFakeDb(const std::vector<Surfel>& input, const FakeDbOptions& option
   meta.layout = "fake";
   const uint32_t ppp = PointsPerPage(options.page_size, options.channels);
   meta.point_pages = (db.surfels.size() + ppp - 1) / ppp;
-  db.source = std::make_unique<MemPageSource>(meta, "fake-db");
+  db.source = std::make_unique<MemPageStore>(meta, "fake-db");
+  db.source->AllowOversizePages();
 
   const uint32_t nrec = NodeRecordSize(options.channels);
   for (size_t pg = 0; pg < pages.size(); ++pg) {
@@ -174,8 +176,9 @@ FakeDb BuildFakeDb(const std::vector<Surfel>& input, const FakeDbOptions& option
       }
       std::memcpy(payload.data() + k * nrec, &r, nrec);
     }
-    db.source->PutPage(Section::kNodes, pg, PageKind::kNode,
-                       static_cast<uint32_t>(pages[pg].size()), payload);
+    const absl::Status s = db.source->Append(Section::kNodes, pg, PageKind::kNode,
+                                             static_cast<uint32_t>(pages[pg].size()), payload);
+    if (!s.ok()) std::abort();  // pages in order, oversize allowed: cannot fail
   }
   const uint32_t prec = PointRecordSize(options.channels);
   for (uint64_t pg = 0; pg < meta.point_pages; ++pg) {
@@ -193,7 +196,9 @@ FakeDb BuildFakeDb(const std::vector<Surfel>& input, const FakeDbOptions& option
       r.radius = s.radius;
       std::memcpy(payload.data() + k * prec, &r, prec);
     }
-    db.source->PutPage(Section::kPoints, pg, PageKind::kPoint, static_cast<uint32_t>(n), payload);
+    const absl::Status s = db.source->Append(Section::kPoints, pg, PageKind::kPoint,
+                                             static_cast<uint32_t>(n), payload);
+    if (!s.ok()) std::abort();
   }
   return db;
 }

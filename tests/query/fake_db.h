@@ -1,6 +1,6 @@
 // An in-memory database for query tests that need no builder: a small octree built in memory
-// from a vector of surfels and written as node and point pages (store/page_format.h) into a
-// MemPageSource. Sibling groups are packed into node pages in depth-first order.
+// from a vector of surfels and written as node and point pages (tree/format.h) into a
+// MemPageStore. Sibling groups are packed into node pages in depth-first order.
 #ifndef PBGI_TESTS_QUERY_FAKE_DB_H_
 #define PBGI_TESTS_QUERY_FAKE_DB_H_
 
@@ -9,7 +9,7 @@
 #include <vector>
 
 #include "pbgi/surfel.h"
-#include "query/page_source.h"
+#include "store/mem_page_store.h"
 
 namespace pbgi::internal {
 
@@ -20,7 +20,7 @@ struct FakeDbOptions {
 };
 
 struct FakeDb {
-  std::unique_ptr<MemPageSource> source;
+  std::unique_ptr<MemPageStore> source;
   std::vector<Surfel> surfels;  // in database (Morton) order: index = global point index
 };
 

@@ -8,10 +8,10 @@ namespace {
 
 PageCache::Handle Load(PageCache& cache, uint64_t key, uint32_t count) {
   auto load = [&]() -> absl::StatusOr<PageCache::Loaded> {
-    auto p = std::make_unique<DecodedPage>();
-    p->section = Section::kPoints;
-    p->page_no = key;
-    p->count = count;
+    auto p = std::make_unique<CachedPage>();
+    p->page.section = Section::kPoints;
+    p->page.page_no = key;
+    p->page.count = count;
     PageCache::Loaded l;
     l.charge = 100;
     l.value = std::move(p);

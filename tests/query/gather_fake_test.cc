@@ -16,9 +16,10 @@
 #include "gtest/gtest.h"
 #include "pbgi/query.h"
 #include "pbgi/testing.h"
-#include "query/page_source.h"
-#include "store/page_format.h"
+#include "query/database_internal.h"
 #include "tests/query/fake_db.h"
+#include "tree/cut.h"
+#include "tree/format.h"
 
 // Counts allocations, to check that a warm gather makes none. (GCC pairs the inlined malloc
 // and free of these replacements with the callers' new and delete and warns; they do match.)
@@ -50,14 +51,15 @@ namespace {
 using internal::BuildFakeDb;
 using internal::FakeDb;
 using internal::FakeDbOptions;
-using internal::MemPageSource;
+using internal::MemPageStore;
+using internal::NodeCutCosine;
 
 std::unique_ptr<Database> Open(FakeDb& fake, uint64_t cache_bytes = 64 << 20,
                                uint64_t reader_bytes = 0) {
   DatabaseOptions o;
   o.cache_bytes = cache_bytes;
   o.reader_cache_bytes = reader_bytes;
-  auto db = Database::OpenSource(std::move(fake.source), o);
+  auto db = internal::OpenDatabase(std::move(fake.source), o);
   EXPECT_TRUE(db.ok()) << db.status();
   return std::move(*db);
 }
@@ -358,7 +360,7 @@ TEST(GatherFake, EightThreadsMatchOneThread) {
 TEST(GatherFake, ConcurrentColdGathersReadEachPageOnce) {
   std::vector<Surfel> input = testing::RandomSceneSurfels(2000, 5);
   FakeDb fake = BuildFakeDb(input, {8, 4096 - 16, Channels::kRadiance});
-  MemPageSource* src = fake.source.get();
+  MemPageStore* src = fake.source.get();
   src->set_read_delay_us(2000);
   auto db = Open(fake, 64 << 20);
   std::vector<std::thread> threads;
@@ -472,7 +474,7 @@ TEST(GatherFake, WarmGatherDoesNotAllocate) {
 TEST(GatherFake, WarmGatherMakesNoSharedCacheCalls) {
   std::vector<Surfel> input = testing::RandomSceneSurfels(3000, 9);
   FakeDb fake = BuildFakeDb(input, {8, 1024, Channels::kRadiance});
-  MemPageSource* src = fake.source.get();
+  MemPageStore* src = fake.source.get();
   std::vector<Receiver> receivers = Receivers(fake.surfels, 40, 11);
   auto db = Open(fake);
   auto a = db->NewReader();
@@ -566,7 +568,7 @@ class CorruptPageTest : public ::testing::Test {
         bytes->data() + sizeof(PageHeader) + slot * sizeof(internal::NodeRecordRadiance));
   }
   FakeDb fake_;
-  MemPageSource* src_ = nullptr;
+  MemPageStore* src_ = nullptr;
 };
 
 TEST_F(CorruptPageTest, StoreErrorIsPassedOnWithThePage) {

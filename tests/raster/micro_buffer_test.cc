@@ -4,12 +4,13 @@
 
 #include "gtest/gtest.h"
 #include "pbgi/raster.h"
+#include "pbgi/sh.h"
 #include "raster/cube.h"
 
 namespace pbgi {
 namespace {
 
-constexpr double kPi = 3.14159265358979323846;
+constexpr double kPi = sh::kPi;
 
 TEST(MicroBufferTest, PixelSolidAnglesSumTo4PiAndWeightsToPi) {
   for (int res : {4, 5, 7, 12, 13, 16, 32, 64}) {

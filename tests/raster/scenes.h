@@ -19,7 +19,7 @@
 
 namespace pbgi::testing_raster {
 
-constexpr double kPi = 3.14159265358979323846;
+constexpr double kPi = sh::kPi;
 
 // An orthonormal basis (t, b) perpendicular to unit n.
 inline void Basis(const glm::vec3& n, glm::vec3* t, glm::vec3* b) {

@@ -11,6 +11,7 @@
 #include "absl/strings/str_cat.h"
 #include "gtest/gtest.h"
 #include "pbgi/scene.h"
+#include "tests/common/scratch_dir.h"
 
 namespace pbgi {
 namespace {
@@ -19,23 +20,13 @@ namespace fs = std::filesystem;
 
 class ImportTest : public ::testing::Test {
  protected:
-  void SetUp() override {
-    const char* base = std::getenv("PBGI_TEST_TMPDIR");
-    fs::path root = base ? fs::path(base) : fs::temp_directory_path();
-    dir_ = root / absl::StrCat("scene_import_",
-                               ::testing::UnitTest::GetInstance()->current_test_info()->name(), "_",
-                               getpid());
-    fs::create_directories(dir_);
-  }
-  void TearDown() override {
-    std::error_code ec;
-    fs::remove_all(dir_, ec);
-  }
+  void SetUp() override { dir_ = scratch_.path(); }
   std::string Write(const std::string& name, const std::string& text) {
     std::string path = (dir_ / name).string();
     std::ofstream(path, std::ios::binary) << text;
     return path;
   }
+  testing_common::ScratchDir scratch_;
   fs::path dir_;
 };
 

@@ -4,11 +4,12 @@
 
 #include "gtest/gtest.h"
 #include "pbgi/scene.h"
+#include "pbgi/sh.h"
 
 namespace pbgi {
 namespace {
 
-constexpr float kPi = 3.14159265358979f;
+constexpr float kPi = static_cast<float>(sh::kPi);
 
 TEST(ReferenceTest, DiskOcclusionIsTheFormFactor) {
   const float r = 1.0f;

@@ -12,34 +12,11 @@
 
 #include "gtest/gtest.h"
 #include "pbgi/store.h"
+#include "tests/common/scratch_dir.h"
 
 namespace pbgi::testing_store {
 
-// A fresh directory under $PBGI_TEST_TMPDIR (or /tmp), removed when the test ends.
-class ScratchDir {
- public:
-  ScratchDir() {
-    const char* base = std::getenv("PBGI_TEST_TMPDIR");
-    const ::testing::TestInfo* info = ::testing::UnitTest::GetInstance()->current_test_info();
-    std::string name = std::string("store_") + (info ? info->test_suite_name() : "x") + "_" +
-                       (info ? info->name() : "y") + "_" + std::to_string(getpid());
-    for (char& c : name) {
-      if (c == '/') c = '_';
-    }
-    path_ = std::filesystem::path(base ? base : "/tmp") / name;
-    std::filesystem::remove_all(path_);
-    std::filesystem::create_directories(path_);
-  }
-  ~ScratchDir() {
-    std::error_code ec;
-    std::filesystem::remove_all(path_, ec);
-  }
-  std::string Sub(const std::string& name) const { return (path_ / name).string(); }
-  const std::filesystem::path& path() const { return path_; }
-
- private:
-  std::filesystem::path path_;
-};
+using ::pbgi::testing_common::ScratchDir;
 
 inline uint64_t SplitMix(uint64_t x) {
   x += 0x9E3779B97F4A7C15ull;

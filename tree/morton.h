@@ -1,13 +1,15 @@
 // Morton (Z-order) keys: 21 bits per axis interleaved into 63 bits (Morton 1966). Z-order is the
 // depth-first order of the octree whose cell at depth d is the key prefix of 3*d bits. The point
-// order on disk is this order (store/page_format.h); the builder sorts by it and the query layer
+// order on disk is this order (tree/format.h); the builder sorts by it and the query layer
 // orders receivers by it.
-#ifndef PBGI_STORE_MORTON_H_
-#define PBGI_STORE_MORTON_H_
+#ifndef PBGI_TREE_MORTON_H_
+#define PBGI_TREE_MORTON_H_
 
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <utility>
+#include <vector>
 
 #include "glm/vec3.hpp"
 #include "pbgi/surfel.h"
@@ -72,6 +74,24 @@ class MortonQuantizer {
   double scale_;
 };
 
+// The order that visits `count` points in Z-order inside their own bounds: indices sorted by
+// the Morton key of position(i) (ties by index). Receivers are visited in this order (ZOrder in
+// pbgi/query.h, the shading driver) so that consecutive ones walk neighbouring subtrees.
+template <typename PositionFn>
+std::vector<uint32_t> MortonOrder(size_t count, PositionFn&& position) {
+  Bounds b;
+  for (size_t i = 0; i < count; ++i) b.Extend(position(i));
+  const MortonQuantizer quantizer(b);
+  std::vector<std::pair<uint64_t, uint32_t>> keyed(count);
+  for (size_t i = 0; i < count; ++i) {
+    keyed[i] = {quantizer.Key(position(i)), static_cast<uint32_t>(i)};
+  }
+  std::sort(keyed.begin(), keyed.end());
+  std::vector<uint32_t> order(count);
+  for (size_t i = 0; i < keyed.size(); ++i) order[i] = keyed[i].second;
+  return order;
+}
+
 }  // namespace pbgi::internal
 
-#endif  // PBGI_STORE_MORTON_H_
+#endif  // PBGI_TREE_MORTON_H_

@@ -1,13 +1,14 @@
-// CheckDatabaseMeta: what a meta record must say to describe a pbgi database (pbgi/store.h).
+// CheckDatabaseMeta: what a meta record must say to describe a pbgi database (tree/verify.h).
 #include <cmath>
 #include <string>
 
 #include "absl/strings/str_format.h"
 #include "pbgi/store.h"
 #include "store/meta_codec.h"
-#include "store/page_format.h"
+#include "tree/format.h"
+#include "tree/verify.h"
 
-namespace pbgi {
+namespace pbgi::internal {
 
 absl::Status CheckDatabaseMeta(const StoreMeta& m, const std::string& name) {
   auto bad = [&](const std::string& what) {
@@ -15,7 +16,7 @@ absl::Status CheckDatabaseMeta(const StoreMeta& m, const std::string& name) {
         absl::StrFormat("%s: the meta record does not describe a pbgi database: %s", name, what));
   };
   if (m.sh_order != 2) return bad(absl::StrFormat("SH order %d (only 2 exists)", m.sh_order));
-  if (m.page_size <= sizeof(PageHeader) + internal::NodeRecordSize(m.channels) ||
+  if (m.page_size <= sizeof(PageHeader) + NodeRecordSize(m.channels) ||
       m.page_size % alignof(PageHeader) != 0) {
     return bad(absl::StrFormat("page size %d cannot hold a node record", m.page_size));
   }
@@ -34,7 +35,7 @@ absl::Status CheckDatabaseMeta(const StoreMeta& m, const std::string& name) {
                                  m.bounds.hi.y, m.bounds.hi.z));
     }
   }
-  const uint64_t ppp = internal::PointsPerPage(m.page_size, m.channels);
+  const uint64_t ppp = PointsPerPage(m.page_size, m.channels);
   if (m.point_pages != (m.point_count + ppp - 1) / ppp) {
     return bad(absl::StrFormat("%d points need %d point pages of %d, it says %d", m.point_count,
                                (m.point_count + ppp - 1) / ppp, ppp, m.point_pages));
@@ -42,15 +43,15 @@ absl::Status CheckDatabaseMeta(const StoreMeta& m, const std::string& name) {
   if (m.node_pages > m.node_count) {
     return bad(absl::StrFormat("%d nodes cannot fill %d node pages", m.node_count, m.node_pages));
   }
-  if (internal::RefPage(m.root) >= m.node_pages) {
+  if (RefPage(m.root) >= m.node_pages) {
     return bad(absl::StrFormat("the root is in node page %d, outside the %d node pages",
-                               internal::RefPage(m.root), m.node_pages));
+                               RefPage(m.root), m.node_pages));
   }
-  if (m.max_depth >= internal::kMaxStoredDepth) {
+  if (m.max_depth >= kMaxStoredDepth) {
     return bad(absl::StrFormat("depth %d (at most %d)", m.max_depth,
-                               internal::kMaxStoredDepth - 1));
+                               kMaxStoredDepth - 1));
   }
   return absl::OkStatus();
 }
 
-}  // namespace pbgi
+}  // namespace pbgi::internal

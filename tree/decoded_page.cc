@@ -1,10 +1,12 @@
-#include "query/decoded_page.h"
+#include "tree/decoded_page.h"
 
 #include <cmath>
 #include <cstring>
 
 #include "absl/strings/str_format.h"
 #include "pbgi/query.h"
+#include "pbgi/sh.h"
+#include "tree/cut.h"
 
 namespace pbgi::internal {
 namespace {
@@ -25,24 +27,23 @@ bool Finite3(const float* v) {
 
 float ProjectedAreaBound(const float* c) {
   auto sq = [&](int i) { return double{c[i]} * double{c[i]}; };
-  const double band0 = std::abs(double{c[0]}) * 0.282094791773878;
+  const double band0 = std::abs(double{c[0]}) * sh::kY0;
   const double band1 = std::sqrt(sq(1) + sq(2) + sq(3)) * std::sqrt(3.0 / (4.0 * sh::kPi));
   const double band2 =
       std::sqrt(sq(4) + sq(5) + sq(6) + sq(7) + sq(8)) * std::sqrt(5.0 / (4.0 * sh::kPi));
   return static_cast<float>((band0 + band1 + band2) * (1.0 + 1e-5) + 1e-30);
 }
 
-uint64_t DecodedPage::Charge() const {
-  uint64_t bytes = sizeof(DecodedPage);
+uint64_t DecodedPage::ArrayBytes() const {
+  uint64_t bytes = 0;
   if (nodes) bytes += uint64_t{count} * (sizeof(NodeHot) + sizeof(float));
   if (power) bytes += uint64_t{count} * sizeof(std::array<Sh9, 3>);
   if (points) bytes += uint64_t{count} * sizeof(Surfel);
   return bytes;
 }
 
-absl::StatusOr<std::unique_ptr<DecodedPage>> DecodePage(const PageView& view, Section section,
-                                                        uint64_t page_no, const StoreMeta& meta,
-                                                        const std::string& store) {
+absl::Status DecodePage(const PageView& view, Section section, uint64_t page_no,
+                        const StoreMeta& meta, const std::string& store, DecodedPage* page) {
   if (view.header == nullptr) return Corrupt(store, section, page_no, "no header");
   const PageHeader& h = *view.header;
   const PageKind want = section == Section::kNodes ? PageKind::kNode : PageKind::kPoint;
@@ -52,7 +53,6 @@ absl::StatusOr<std::unique_ptr<DecodedPage>> DecodePage(const PageView& view, Se
   if (h.page_no != page_no) {
     return Corrupt(store, section, page_no, "header says page %d", h.page_no);
   }
-  auto page = std::make_unique<DecodedPage>();
   page->section = section;
   page->page_no = page_no;
   page->count = h.record_count;
@@ -130,7 +130,7 @@ absl::StatusOr<std::unique_ptr<DecodedPage>> DecodePage(const PageView& view, Se
       page->points[i] = DecodePoint(data, i, meta.channels);
     }
   }
-  return page;
+  return absl::OkStatus();
 }
 
 }  // namespace pbgi::internal

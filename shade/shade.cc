@@ -1,27 +1,28 @@
-#include "tools/shading.h"
+// ShadeBatch (include/pbgi/shade.h): gather + rasterize on a TBB arena of `threads` threads.
+#include "pbgi/shade.h"
 
 #include <algorithm>
 #include <atomic>
-#include <chrono>
 #include <cmath>
 #include <memory>
 #include <mutex>
 #include <thread>
+#include <utility>
+#include <vector>
 
 #include "absl/strings/str_format.h"
+#include "base/stopwatch.h"
+#include "oneapi/tbb/blocked_range.h"
 #include "oneapi/tbb/enumerable_thread_specific.h"
 #include "oneapi/tbb/parallel_for.h"
 #include "oneapi/tbb/task_arena.h"
 #include "pbgi/status.h"
+#include "tree/morton.h"
 
-namespace pbgi::tools {
+namespace pbgi {
 namespace {
 
-using Clock = std::chrono::steady_clock;
-
-double Seconds(Clock::time_point a, Clock::time_point b) {
-  return std::chrono::duration<double>(b - a).count();
-}
+using internal::Stopwatch;
 
 // Everything one thread needs, made on first use in that thread.
 struct Worker {
@@ -34,23 +35,18 @@ struct Worker {
   absl::Status init;
 };
 
-}  // namespace
-
-int DefaultThreads() { return std::max(1u, std::thread::hardware_concurrency()); }
-
-absl::Status ShadeReceivers(Database& db, absl::Span<const Receiver> receivers,
-                            absl::Span<const glm::vec3> reflections, const ShadeJobOptions& options,
-                            std::vector<ShadeResult>* results, ShadeJobStats* stats) {
-  if (!reflections.empty() && reflections.size() != receivers.size()) {
-    return absl::InvalidArgumentError(absl::StrFormat("%d reflection directions for %d receivers",
-                                                      reflections.size(), receivers.size()));
+absl::Status Validate(absl::Span<const ShadeReceiver> receivers, const ShadeOptions& options,
+                      absl::Span<ShadeResult> out) {
+  if (out.size() != receivers.size()) {
+    return absl::InvalidArgumentError(
+        absl::StrFormat("ShadeBatch: %d results for %d receivers", out.size(), receivers.size()));
   }
   if (!(options.cut.max_solid_angle >= 0.0f)) {
     return absl::InvalidArgumentError("max_solid_angle must be >= 0");
   }
   PBGI_RETURN_IF_ERROR(ValidateRasterOptions(options.raster));
   for (size_t i = 0; i < receivers.size(); ++i) {
-    const Receiver& r = receivers[i];
+    const ShadeReceiver& r = receivers[i];
     const bool finite = std::isfinite(r.position.x) && std::isfinite(r.position.y) &&
                         std::isfinite(r.position.z) && std::isfinite(r.normal.x) &&
                         std::isfinite(r.normal.y) && std::isfinite(r.normal.z);
@@ -59,36 +55,59 @@ absl::Status ShadeReceivers(Database& db, absl::Span<const Receiver> receivers,
           "receiver %d has a %s", i, finite ? "zero normal" : "NaN or infinite coordinate"));
     }
   }
+  return absl::OkStatus();
+}
 
-  results->assign(receivers.size(), ShadeResult{});
+}  // namespace
+
+void ShadeStats::Add(const ShadeStats& o) {
+  receivers += o.receivers;
+  seconds += o.seconds;
+  query.Add(o.query);
+  cache.Add(o.cache);
+  gather_seconds += o.gather_seconds;
+  raster_seconds += o.raster_seconds;
+}
+
+int DefaultShadeThreads() { return std::max(1u, std::thread::hardware_concurrency()); }
+
+absl::Status ShadeBatch(Database& db, absl::Span<const ShadeReceiver> receivers,
+                        const ShadeOptions& options, absl::Span<ShadeResult> out,
+                        ShadeStats* stats) {
+  PBGI_RETURN_IF_ERROR(Validate(receivers, options, out));
+  const Stopwatch clock;
+  std::fill(out.begin(), out.end(), ShadeResult{});
   std::vector<uint32_t> order;
   if (options.z_order) {
-    order = ZOrder(receivers);
+    order =
+        internal::MortonOrder(receivers.size(), [&](size_t i) { return receivers[i].position; });
   } else {
     order.resize(receivers.size());
     for (size_t i = 0; i < order.size(); ++i) order[i] = static_cast<uint32_t>(i);
   }
 
-  const int threads = options.threads > 0 ? options.threads : DefaultThreads();
+  const int threads = options.threads > 0 ? options.threads : DefaultShadeThreads();
+  const uint64_t total = receivers.size();
   tbb::enumerable_thread_specific<Worker> workers;
   std::atomic<bool> failed{false};
   std::mutex error_mu;
   absl::Status first_error;
   std::atomic<uint64_t> done{0};
-  const auto start = Clock::now();
-  auto last_progress = start;
   std::mutex progress_mu;
+  Stopwatch since_progress;
 
   auto fail = [&](absl::Status s) {
     std::lock_guard<std::mutex> lock(error_mu);
     if (first_error.ok()) first_error = std::move(s);
     failed.store(true, std::memory_order_relaxed);
   };
+  auto cancelled = [&] {
+    return options.cancel != nullptr && options.cancel->load(std::memory_order_relaxed);
+  };
 
   // Blocks of consecutive Z-ordered receivers keep each thread's pages coherent; at most 64,
-  // and small enough that every thread gets about 16 of them, so that a small job does not
-  // wait for one thread's last block (300 receivers in blocks of 64 left one of 2 threads idle
-  // for up to a fifth of the run).
+  // and small enough that every thread gets about 16 of them, so that a small batch does not
+  // wait for one thread's last block (docs/query.md).
   const size_t grain = std::clamp<size_t>(order.size() / (16 * size_t(threads)), 1, 64);
   tbb::task_arena arena(threads);
   arena.execute([&] {
@@ -96,6 +115,10 @@ absl::Status ShadeReceivers(Database& db, absl::Span<const Receiver> receivers,
         tbb::blocked_range<size_t>(0, order.size(), grain),
         [&](const tbb::blocked_range<size_t>& range) {
           if (failed.load(std::memory_order_relaxed)) return;
+          if (cancelled()) {
+            return fail(absl::CancelledError(absl::StrFormat(
+                "shading was cancelled after %d of %d receivers", done.load(), total)));
+          }
           bool exists = false;
           Worker& w = workers.local(exists);
           if (!exists) {
@@ -109,33 +132,28 @@ absl::Status ShadeReceivers(Database& db, absl::Span<const Receiver> receivers,
           }
           if (!w.init.ok()) return fail(w.init);
           for (size_t k = range.begin(); k != range.end(); ++k) {
+            if (failed.load(std::memory_order_relaxed)) return;
             const uint32_t i = order[k];
-            const auto t0 = Clock::now();
-            absl::Status s = w.reader->Gather(receivers[i], options.cut, &w.gathered, &w.query);
-            const auto t1 = Clock::now();
+            const ShadeReceiver& sr = receivers[i];
+            const Stopwatch t;
+            absl::Status s =
+                w.reader->Gather({sr.position, sr.normal}, options.cut, &w.gathered, &w.query);
+            const double gather = t.Seconds();
             if (!s.ok()) return fail(std::move(s));
-            ShadeReceiver sr;
-            sr.position = receivers[i].position;
-            sr.normal = receivers[i].normal;
-            sr.reflection = reflections.empty() ? receivers[i].normal : reflections[i];
-            s = Shade(w.gathered, sr, options.raster, &w.buffer, &(*results)[i]);
-            const auto t2 = Clock::now();
+            s = Shade(w.gathered, sr, options.raster, &w.buffer, &out[i]);
             if (!s.ok()) {
               return fail(
                   absl::Status(s.code(), absl::StrFormat("receiver %d: %s", i, s.message())));
             }
-            w.gather_seconds += Seconds(t0, t1);
-            w.raster_seconds += Seconds(t1, t2);
+            w.gather_seconds += gather;
+            w.raster_seconds += t.Seconds() - gather;
           }
           const uint64_t now_done = done.fetch_add(range.size()) + range.size();
           if (options.progress) {
             std::unique_lock<std::mutex> lock(progress_mu, std::try_to_lock);
-            if (lock.owns_lock()) {
-              const auto now = Clock::now();
-              if (Seconds(last_progress, now) >= 1.0) {
-                last_progress = now;
-                options.progress(now_done);
-              }
+            if (lock.owns_lock() && since_progress.Seconds() >= options.progress_interval_seconds) {
+              since_progress.Restart();
+              options.progress(ShadeProgress{now_done, total});
             }
           }
         });
@@ -143,9 +161,9 @@ absl::Status ShadeReceivers(Database& db, absl::Span<const Receiver> receivers,
   if (failed.load()) return first_error;
 
   if (stats != nullptr) {
-    *stats = ShadeJobStats{};
-    stats->receivers = receivers.size();
-    stats->seconds = Seconds(start, Clock::now());
+    *stats = ShadeStats{};
+    stats->receivers = total;
+    stats->seconds = clock.Seconds();
     for (Worker& w : workers) {
       stats->query.Add(w.query);
       if (w.reader) stats->cache.Add(w.reader->stats());
@@ -153,8 +171,8 @@ absl::Status ShadeReceivers(Database& db, absl::Span<const Receiver> receivers,
       stats->raster_seconds += w.raster_seconds;
     }
   }
-  if (options.progress) options.progress(receivers.size());
+  if (options.progress) options.progress(ShadeProgress{total, total});
   return absl::OkStatus();
 }
 
-}  // namespace pbgi::tools
+}  // namespace pbgi

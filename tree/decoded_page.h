@@ -5,8 +5,8 @@
 // Node pages split hot from cold: NodeHot (bounds, links, point range, area SH: what every
 // visit reads) in one aligned array, the power SH (read only when a node becomes a cluster) in
 // another. Point pages decode into Surfels.
-#ifndef PBGI_QUERY_DECODED_PAGE_H_
-#define PBGI_QUERY_DECODED_PAGE_H_
+#ifndef PBGI_TREE_DECODED_PAGE_H_
+#define PBGI_TREE_DECODED_PAGE_H_
 
 #include <array>
 #include <cstddef>
@@ -18,21 +18,20 @@
 #include "glm/vec3.hpp"
 #include "pbgi/store.h"
 #include "pbgi/surfel.h"
-#include "query/page_cache.h"
-#include "store/page_format.h"
+#include "tree/format.h"
 
 namespace pbgi::internal {
 
 // What every visit of a node reads, with the per-node terms of the cut precomputed at decode
-// time (the traversal then evaluates exactly the bits of the public inline tests in
-// pbgi/query.h, minus their per-node setup). 128 bytes: two cache lines, never three.
+// time (the traversal then evaluates exactly the bits of the plain tests of tree/cut.h, minus
+// their per-node setup). 128 bytes: two cache lines, never three.
 struct alignas(64) NodeHot {
   glm::vec3 lo;
   float abs_max;  // AbsMax(lo, hi): the node's part of NodeMargin
   glm::vec3 hi;
-  float reach;  // NodeReach(area)
-  glm::vec3 centre;  // 0.5f * (lo + hi): the solid angle is measured from here
-  float area_bound;  // ProjectedAreaBound(sh_area): no direction sees more projected area
+  float reach;            // NodeReach(area)
+  glm::vec3 centre;       // 0.5f * (lo + hi): the solid angle is measured from here
+  float area_bound;       // ProjectedAreaBound(sh_area): no direction sees more projected area
   glm::vec3 near_centre;  // NodeNearSphere(lo, hi, reach)
   float near_radius2;
   Sh9 sh_area;
@@ -57,8 +56,7 @@ inline uint64_t PageKey(Section section, uint64_t page_no) {
   return (page_no << 1) | (section == Section::kPoints ? 1u : 0u);
 }
 
-class DecodedPage final : public CacheValue {
- public:
+struct DecodedPage {
   Section section;
   uint64_t page_no = 0;
   uint32_t count = 0;                           // records
@@ -67,24 +65,24 @@ class DecodedPage final : public CacheValue {
   std::unique_ptr<std::array<Sh9, 3>[]> power;  // node pages of radiance databases
   std::unique_ptr<Surfel[]> points;             // point pages
 
-  uint64_t Charge() const;
+  // Bytes of the decoded arrays (what a cache charges for the page, besides the page itself).
+  uint64_t ArrayBytes() const;
 };
 
 // An upper bound, over all unit directions w, of ProjectedAreaToward(c, w) as computed in
-// float (pbgi/query.h): per SH band, |c_band| * max |Y_band(w)| (Cauchy-Schwarz; the addition
+// float (tree/cut.h): per SH band, |c_band| * max |Y_band(w)| (Cauchy-Schwarz; the addition
 // theorem gives sum_m Y_lm(w)^2 = (2l + 1) / (4 pi)), summed in double and grown by 1e-5 to
 // cover float rounding. Infinity or NaN when a coefficient is not finite (the traversal then
 // evaluates the exact value). A node whose bound over its squared distance is clearly below
 // max_solid_angle is a cluster whichever way it is seen, without the SH evaluation.
 float ProjectedAreaBound(const float* c);
 
-// Checks and decodes one page. DataLoss naming `store_name`, the section and the page when the
-// header or a record is inconsistent (wrong kind or number, too many records, a child link out
-// of its page, a point range outside the database, a non-finite bound).
-absl::StatusOr<std::unique_ptr<DecodedPage>> DecodePage(const PageView& view, Section section,
-                                                        uint64_t page_no, const StoreMeta& meta,
-                                                        const std::string& store_name);
+// Checks and decodes one page into `out`. DataLoss naming `store_name`, the section and the
+// page when the header or a record is inconsistent (wrong kind or number, too many records, a
+// child link out of its page, a point range outside the database, a non-finite bound).
+absl::Status DecodePage(const PageView& view, Section section, uint64_t page_no,
+                        const StoreMeta& meta, const std::string& store_name, DecodedPage* out);
 
 }  // namespace pbgi::internal
 
-#endif  // PBGI_QUERY_DECODED_PAGE_H_
+#endif  // PBGI_TREE_DECODED_PAGE_H_

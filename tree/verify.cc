@@ -1,16 +1,19 @@
-// VerifyTree: the octree's invariants, checked over any page source.
+// VerifyTree: the octree's invariants, checked over any page source (tree/verify.h).
+#include "tree/verify.h"
+
 #include <algorithm>
 #include <array>
 #include <cmath>
 #include <cstring>
+#include <memory>
 #include <vector>
 
 #include "absl/strings/str_format.h"
-#include "build/builder.h"
 #include "pbgi/sh.h"
 #include "pbgi/status.h"
-#include "store/morton.h"
-#include "store/page_format.h"
+#include "store/page_io.h"
+#include "tree/format.h"
+#include "tree/morton.h"
 
 namespace pbgi::internal {
 namespace {
@@ -27,9 +30,12 @@ struct Sums {
 
 class Verifier {
  public:
-  Verifier(const StoreMeta& meta, PageGetter& pages)
+  // Node pages and point pages through readers of their own, so that a point page stays valid
+  // while node pages are read (a view lives until its reader's next read).
+  Verifier(const StoreMeta& meta, PageReader& nodes, PageReader& points)
       : meta_(meta),
-        pages_(pages),
+        nodes_reader_(nodes),
+        points_reader_(points),
         radiance_(HasRadiance(meta.channels)),
         record_size_(NodeRecordSize(meta.channels)),
         per_point_page_(PointsPerPage(meta.page_size, meta.channels)) {}
@@ -58,8 +64,8 @@ class Verifier {
   absl::Status CheckPageCounts() {
     uint64_t records = 0;
     for (uint64_t p = 0; p < meta_.node_pages; ++p) {
-      PBGI_ASSIGN_OR_RETURN(PageRead r, pages_.Get(Section::kNodes, p));
-      records += r.record_count;
+      PBGI_ASSIGN_OR_RETURN(PageView r, nodes_reader_.Read(Section::kNodes, p));
+      records += r.header->record_count;
     }
     if (records != meta_.node_count) {
       return absl::DataLossError(
@@ -72,12 +78,12 @@ class Verifier {
                                                  meta_.point_count, want_pages, meta_.point_pages));
     }
     for (uint64_t p = 0; p < meta_.point_pages; ++p) {
-      PBGI_ASSIGN_OR_RETURN(PageRead r, pages_.Get(Section::kPoints, p));
+      PBGI_ASSIGN_OR_RETURN(PageView r, points_reader_.Read(Section::kPoints, p));
       const uint64_t want =
           p + 1 < meta_.point_pages ? per_point_page_ : meta_.point_count - p * per_point_page_;
-      if (r.record_count != want) {
-        return absl::DataLossError(
-            absl::StrFormat("point page %d holds %d points, expected %d", p, r.record_count, want));
+      if (r.header->record_count != want) {
+        return absl::DataLossError(absl::StrFormat("point page %d holds %d points, expected %d", p,
+                                                   r.header->record_count, want));
       }
     }
     return absl::OkStatus();
@@ -85,12 +91,12 @@ class Verifier {
 
   // Reads `count` consecutive records starting at `ref` (a sibling group must share a page).
   absl::Status ReadNode(NodeRef ref, NodeRecordRadiance* out, uint32_t count) {
-    PBGI_ASSIGN_OR_RETURN(PageRead r, pages_.Get(Section::kNodes, RefPage(ref)));
-    if (uint64_t{RefSlot(ref)} + count > r.record_count ||
+    PBGI_ASSIGN_OR_RETURN(PageView r, nodes_reader_.Read(Section::kNodes, RefPage(ref)));
+    if (uint64_t{RefSlot(ref)} + count > r.header->record_count ||
         (uint64_t{RefSlot(ref)} + count) * record_size_ > r.payload.size()) {
-      return absl::DataLossError(
-          absl::StrFormat("node page %d: records [%d, %d) requested but the page holds %d",
-                          RefPage(ref), RefSlot(ref), RefSlot(ref) + count, r.record_count));
+      return absl::DataLossError(absl::StrFormat(
+          "node page %d: records [%d, %d) requested but the page holds %d", RefPage(ref),
+          RefSlot(ref), RefSlot(ref) + count, r.header->record_count));
     }
     for (uint32_t i = 0; i < count; ++i) {
       out[i] = NodeRecordRadiance{};
@@ -103,12 +109,12 @@ class Verifier {
   absl::StatusOr<Surfel> ReadPoint(uint64_t index) {
     const uint64_t page = index / per_point_page_;
     if (!have_point_page_ || page != point_page_no_) {
-      PBGI_ASSIGN_OR_RETURN(point_page_, pages_.Get(Section::kPoints, page));
+      PBGI_ASSIGN_OR_RETURN(point_page_, points_reader_.Read(Section::kPoints, page));
       point_page_no_ = page;
       have_point_page_ = true;
     }
     const uint32_t slot = static_cast<uint32_t>(index % per_point_page_);
-    if (slot >= point_page_.record_count) {
+    if (slot >= point_page_.header->record_count) {
       return absl::DataLossError(
           absl::StrFormat("point %d: slot %d missing from point page %d", index, slot, page));
     }
@@ -245,7 +251,8 @@ class Verifier {
   }
 
   const StoreMeta& meta_;
-  PageGetter& pages_;
+  PageReader& nodes_reader_;
+  PageReader& points_reader_;
   bool radiance_;
   uint32_t record_size_;
   uint32_t per_point_page_;
@@ -254,14 +261,16 @@ class Verifier {
   uint32_t max_depth_ = 0;
   bool have_point_page_ = false;
   uint64_t point_page_no_ = 0;
-  PageRead point_page_;
+  PageView point_page_;
 };
 
 }  // namespace
 
-absl::Status VerifyTreePages(const StoreMeta& meta, PageGetter& pages) {
+absl::Status VerifyTreePages(const StoreMeta& meta, const PageSource& pages) {
   if (meta.point_count == 0) return absl::DataLossError("the store holds no points");
-  Verifier v(meta, pages);
+  PBGI_ASSIGN_OR_RETURN(std::unique_ptr<PageReader> nodes, pages.NewReader());
+  PBGI_ASSIGN_OR_RETURN(std::unique_ptr<PageReader> points, pages.NewReader());
+  Verifier v(meta, *nodes, *points);
   return v.Run();
 }
 

@@ -10,8 +10,8 @@
 // of one node) are always stored contiguously in one page, so an interior node refers to its
 // children with one NodeRef and a count. In the coherent layout a page holds a treelet: a group
 // of siblings and as many levels of their descendants as fit, in depth-first order.
-#ifndef PBGI_STORE_PAGE_FORMAT_H_
-#define PBGI_STORE_PAGE_FORMAT_H_
+#ifndef PBGI_TREE_FORMAT_H_
+#define PBGI_TREE_FORMAT_H_
 
 #include <cstdint>
 #include <cstring>
@@ -109,4 +109,4 @@ inline Surfel DecodePoint(const uint8_t* payload, uint32_t slot, Channels c) {
 
 }  // namespace pbgi::internal
 
-#endif  // PBGI_STORE_PAGE_FORMAT_H_
+#endif  // PBGI_TREE_FORMAT_H_

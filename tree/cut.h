@@ -1,0 +1,170 @@
+// The traversal math of the cut (the contract is in include/pbgi/query.h; docs/design.md, "The
+// cut"): the tests that Gather applies to nodes and surfels, and that the test harness
+// (pbgi/testing.h) re-evaluates by brute force. Both call exactly this code, so they agree to
+// the last bit. Several tests come in a plain form and a form with the per-node terms
+// precomputed (the traversal keeps them in its decoded pages, tree/decoded_page.h); each pair
+// gives the same bits. Internal.
+#ifndef PBGI_TREE_CUT_H_
+#define PBGI_TREE_CUT_H_
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+#include "glm/geometric.hpp"
+#include "glm/vec3.hpp"
+#include "pbgi/query.h"
+#include "pbgi/sh.h"
+#include "pbgi/surfel.h"
+
+namespace pbgi::internal {
+
+// Whether a surfel's disk lies wholly behind the receiver's tangent plane: the highest point of
+// the disk above the plane, n.(c - p) + r * sqrt(1 - (n.m)^2), is <= 0. A surfel lying in the
+// plane (a flat neighbour) counts as behind.
+inline bool SurfelWhollyBehindUnit(const Surfel& s, const glm::vec3& p, const glm::vec3& unit_n) {
+  const float h = glm::dot(unit_n, s.position - p);
+  const float c = glm::dot(unit_n, s.normal);
+  return h + s.radius * std::sqrt(std::max(0.0f, 1.0f - c * c)) <= 0.0f;
+}
+
+// Whether a surfel's disk lies wholly beyond max_distance: |c - p| - r > max_distance.
+inline bool SurfelBeyondPoint(const Surfel& s, const glm::vec3& p, float max_distance) {
+  return glm::length(s.position - p) - s.radius > max_distance;
+}
+
+// The solid angle a node subtends from the receiver, as the cut criterion measures it.
+// NodeSolidAngleFrom takes the centre 0.5f * (lo + hi) precomputed (the traversal keeps it in
+// its decoded pages); both forms give the same bits.
+// ProjectedAreaToward(c, w) is sh::Eval<float>(c, w) written out: the same operations in the
+// same order (so the same bits), kept in registers instead of a basis array in memory.
+inline float ProjectedAreaToward(const float* c, const glm::vec3& w) {
+  const float x = w.x, y = w.y, z = w.z;
+  float v = 0.0f;
+  v += c[0] * float(sh::kY0);
+  v += c[1] * (float(sh::kY1) * y);
+  v += c[2] * (float(sh::kY1) * z);
+  v += c[3] * (float(sh::kY1) * x);
+  v += c[4] * (float(sh::kY2) * x * y);
+  v += c[5] * (float(sh::kY2) * y * z);
+  v += c[6] * (float(sh::kY6) * (3.0f * z * z - 1.0f));
+  v += c[7] * (float(sh::kY2) * x * z);
+  v += c[8] * (float(sh::kY8) * (x * x - y * y));
+  return v;
+}
+inline float NodeSolidAngleFrom(const glm::vec3& centre, const float* sh_area, const glm::vec3& p) {
+  const glm::vec3 v = p - centre;
+  const float d2 = glm::dot(v, v);
+  if (!(d2 > 0.0f)) return std::numeric_limits<float>::infinity();
+  const glm::vec3 w = v / std::sqrt(d2);
+  return std::max(0.0f, ProjectedAreaToward(sh_area, w)) / d2;
+}
+inline float NodeSolidAngle(const glm::vec3& lo, const glm::vec3& hi, const float* sh_area,
+                            const glm::vec3& p) {
+  return NodeSolidAngleFrom(0.5f * (lo + hi), sh_area, p);
+}
+
+// The cosine-weighted cut's weight (Cut::cosine_weighted): the largest cosine between the
+// receiver's unit normal and a direction from p into the sphere (centre, radius^2 radius2) that
+// does not contain p, clamped to [kMinCutCosine, 1]. With theta the angle of the centre's
+// direction and alpha = asin(radius / distance) the sphere's half angle, it is 1 when
+// theta <= alpha, else cos(theta - alpha). The traversal passes the node's near sphere
+// (NodeNearSphere), the test harness the same sphere, so both get the same bits.
+inline float NodeCutCosine(const glm::vec3& centre, float radius2, const glm::vec3& p,
+                           const glm::vec3& unit_n) {
+  const glm::vec3 v = centre - p;
+  const float d2 = glm::dot(v, v);
+  if (!(d2 > radius2)) return 1.0f;
+  const float inv_d = 1.0f / std::sqrt(d2);
+  const float sin_a = std::sqrt(radius2) * inv_d;
+  const float cos_a = std::sqrt(std::max(0.0f, 1.0f - sin_a * sin_a));
+  const float cos_t = glm::dot(v, unit_n) * inv_d;
+  if (cos_t >= cos_a) return 1.0f;
+  const float sin_t = std::sqrt(std::max(0.0f, 1.0f - cos_t * cos_t));
+  return std::clamp(cos_t * cos_a + sin_t * sin_a, kMinCutCosine, 1.0f);
+}
+
+// Whether a node whose solid angle from the receiver is `solid_angle` passes the cut's
+// criterion; `cosine` is NodeCutCosine() of its near sphere, read only when cosine_weighted.
+template <typename CosineFn>
+inline bool BelowCut(float solid_angle, const Cut& cut, CosineFn&& cosine) {
+  if (solid_angle < cut.max_solid_angle) return true;
+  return cut.cosine_weighted && solid_angle * cosine() < cut.max_solid_angle;
+}
+
+// A conservative bound of how far a disk of a node reaches beyond its bounds: sqrt(area / pi).
+inline float NodeReach(float area) {
+  return std::sqrt(std::max(0.0f, area) * float(1.0 / sh::kPi));
+}
+
+// The near-field rule: a receiver within the bounding sphere of a node's bounds, grown by its
+// disk reach, always descends into the node rather than taking it as one cluster. (A flat patch
+// seen edge-on from a receiver just off its plane subtends a tiny solid angle from its centre,
+// yet covers half the receiver's view: testing the box alone splatted it as a speck.)
+// NearSphere gives that sphere's centre and squared radius once per node; NodeNearFieldSphere
+// tests it (the same bits as NodeNearField).
+struct NearSphere {
+  glm::vec3 centre;
+  float radius2;
+};
+inline NearSphere NodeNearSphere(const glm::vec3& lo, const glm::vec3& hi, float reach) {
+  const glm::vec3 half = 0.5f * (hi - lo);
+  const float r = glm::length(half) + reach;
+  return {lo + half, r * r};
+}
+inline bool NodeNearFieldSphere(const glm::vec3& centre, float radius2, const glm::vec3& p) {
+  const glm::vec3 d = p - centre;
+  return glm::dot(d, d) <= radius2;
+}
+inline bool NodeNearField(const glm::vec3& lo, const glm::vec3& hi, float reach,
+                          const glm::vec3& p) {
+  const NearSphere s = NodeNearSphere(lo, hi, reach);
+  return NodeNearFieldSphere(s.centre, s.radius2, p);
+}
+
+// Whether a node (bounds of surfel centres, disk reach) lies wholly behind the tangent plane
+// (unit normal) or wholly beyond max_distance: the traversal skips it. Both keep a small
+// margin so that rounding never makes them drop a surfel that the exact surfel tests keep.
+// The margin grows with the largest coordinate magnitude of the node and the receiver:
+// NodeMarginOf(AbsMax(lo, hi), AbsMax(p)) == NodeMargin(lo, hi, p), so the traversal computes
+// the node's part once per page and the receiver's once per gather.
+inline float AbsMax(const glm::vec3& v) {
+  return std::max(std::abs(v.x), std::max(std::abs(v.y), std::abs(v.z)));
+}
+inline float AbsMax(const glm::vec3& lo, const glm::vec3& hi) {
+  return std::max(AbsMax(lo), AbsMax(hi));
+}
+inline float NodeMarginOf(float node_abs_max, float p_abs_max) {
+  return 1e-5f * (1.0f + std::max(node_abs_max, p_abs_max));
+}
+inline float NodeMargin(const glm::vec3& lo, const glm::vec3& hi, const glm::vec3& p) {
+  return NodeMarginOf(AbsMax(lo, hi), AbsMax(p));
+}
+// `far` is the corner of the bounds farthest along unit_n (hi where unit_n > 0, else lo).
+inline bool NodeWhollyBehindFar(const glm::vec3& far, float reach, const glm::vec3& p,
+                                const glm::vec3& unit_n, float margin) {
+  return glm::dot(unit_n, far - p) + reach < -margin;
+}
+inline bool NodeWhollyBehindMargin(const glm::vec3& lo, const glm::vec3& hi, float reach,
+                                   const glm::vec3& p, const glm::vec3& unit_n, float margin) {
+  const glm::vec3 far{unit_n.x > 0 ? hi.x : lo.x, unit_n.y > 0 ? hi.y : lo.y,
+                      unit_n.z > 0 ? hi.z : lo.z};
+  return NodeWhollyBehindFar(far, reach, p, unit_n, margin);
+}
+inline bool NodeWhollyBehind(const glm::vec3& lo, const glm::vec3& hi, float reach,
+                             const glm::vec3& p, const glm::vec3& unit_n) {
+  return NodeWhollyBehindMargin(lo, hi, reach, p, unit_n, NodeMargin(lo, hi, p));
+}
+inline bool NodeBeyondMargin(const glm::vec3& lo, const glm::vec3& hi, float reach,
+                             const glm::vec3& p, float max_distance, float margin) {
+  const glm::vec3 d = glm::max(glm::max(lo - p, p - hi), glm::vec3(0.0f));
+  return glm::length(d) - reach > max_distance + margin;
+}
+inline bool NodeBeyond(const glm::vec3& lo, const glm::vec3& hi, float reach, const glm::vec3& p,
+                       float max_distance) {
+  return NodeBeyondMargin(lo, hi, reach, p, max_distance, NodeMargin(lo, hi, p));
+}
+
+}  // namespace pbgi::internal
+
+#endif  // PBGI_TREE_CUT_H_
