@@ -437,11 +437,18 @@ absl::Status PageWriter::Finish(const StoreMeta& meta) {
   }
   w.finished = true;
   RemoveFile(w.tmp_path + internal::kLockSuffix);
-  // Make the rename itself durable.
-  const int dir = sync ? open(w.path.c_str(), O_RDONLY | O_DIRECTORY) : -1;
-  if (dir >= 0) {
-    fsync(dir);
-    close(dir);
+  // Make the rename itself durable. The new store is in place whatever happens here; a failure
+  // is still an error, because the rename may not survive a power cut.
+  if (sync) {
+    const int dir = open(w.path.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
+    const int rc = dir < 0 || fsync(dir) != 0 ? errno : 0;
+    if (dir >= 0) close(dir);
+    if (rc != 0) {
+      return LmdbStatus(rc, absl::StrFormat("%s: the new store is in place, but syncing its "
+                                            "directory failed, so the replacement may not "
+                                            "survive a power cut",
+                                            w.Where()));
+    }
   }
   return absl::OkStatus();
 }

@@ -87,9 +87,20 @@ absl::StatusOr<WriterLock> WriterLock::Acquire(const std::string& dir) {
       close(fd);
       continue;
     }
+    // The pid is for the loser's message only, but a disk that cannot take these few bytes
+    // will not take a store either: say so now.
     const std::string pid = absl::StrCat(getpid(), "\n");
-    if (ftruncate(fd, 0) != 0 || pwrite(fd, pid.data(), pid.size(), 0) < 0) {
-      // Only the loser's message needs the pid; the lock itself holds.
+    int err = 0;
+    if (ftruncate(fd, 0) != 0) {
+      err = errno;
+    } else if (const ssize_t n = pwrite(fd, pid.data(), pid.size(), 0);
+               n != static_cast<ssize_t>(pid.size())) {
+      err = n < 0 ? errno : EIO;  // a short write sets no errno
+    }
+    if (err != 0) {
+      unlink(path.c_str());
+      close(fd);
+      return LmdbStatus(err, absl::StrFormat("store %s: writing the writer lock %s", dir, path));
     }
     return WriterLock(path, fd);
   }
