@@ -8,6 +8,7 @@
 #include "absl/strings/str_format.h"
 #include "base/stopwatch.h"
 #include "build/external_sort.h"
+#include "build/input_range.h"
 #include "build/node_packer.h"
 #include "build/octree_builder.h"
 #include "build/sort_record.h"
@@ -142,7 +143,7 @@ absl::StatusOr<BuildStats> BuildToSink(SurfelSource& source, PageSink& sink,
   BuildStats stats;
   std::vector<Surfel> batch(kBatch);
 
-  // Reads the whole source once, calling f(index, surfel) for every valid surfel.
+  // Reads the whole source once, calling f(surfel, index) for every valid surfel.
   auto for_each_valid = [&](const char* pass, auto&& f) -> absl::Status {
     PBGI_RETURN_IF_ERROR(source.Rewind());
     uint64_t index = 0, skipped = 0, next_report = kProgressEvery;
@@ -162,7 +163,7 @@ absl::StatusOr<BuildStats> BuildToSink(SurfelSource& source, PageSink& sink,
           ++skipped;
           continue;
         }
-        PBGI_RETURN_IF_ERROR(f(s));
+        PBGI_RETURN_IF_ERROR(f(s, index));
       }
       if (index >= next_report) {
         Report(options, pass, index, known);
@@ -177,7 +178,7 @@ absl::StatusOr<BuildStats> BuildToSink(SurfelSource& source, PageSink& sink,
   Bounds bounds = source.KnownBounds();
   Stopwatch t;
   if (bounds.Empty()) {
-    PBGI_RETURN_IF_ERROR(for_each_valid("bounds", [&](const Surfel& s) {
+    PBGI_RETURN_IF_ERROR(for_each_valid("bounds", [&](const Surfel& s, uint64_t) {
       bounds.Extend(s.position);
       return absl::OkStatus();
     }));
@@ -195,7 +196,9 @@ absl::StatusOr<BuildStats> BuildToSink(SurfelSource& source, PageSink& sink,
   // Records are made in place in the sorter's run buffer.
   absl::Span<SortRecord> slots;
   size_t used = 0;
-  PBGI_RETURN_IF_ERROR(for_each_valid("sort", [&](const Surfel& in) -> absl::Status {
+  InputRangeCheck range;
+  PBGI_RETURN_IF_ERROR(for_each_valid("sort", [&](const Surfel& in, uint64_t index) -> absl::Status {
+    PBGI_RETURN_IF_ERROR(range.Add(in, index, radiance));
     if (used == slots.size()) {
       sorter.Commit(used);
       used = 0;

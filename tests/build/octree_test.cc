@@ -358,7 +358,11 @@ TEST(BuildEdgeTest, PlaneHugeTinyAndFarClouds) {
   clouds.push_back(plane);
   clouds.push_back(UniformCloud(3000, 32, 1e7f));
   clouds.push_back(UniformCloud(3000, 33, 1e-6f));
-  clouds.push_back(UniformCloud(3000, 34, 10.0f, glm::vec3(1e6f, -2e6f, 5e5f)));
+  // Far from the origin: floats there are 0.125 apart, so the disks must span 64 such steps to
+  // be placed at all (build/input_range.h); the cloud's extent is still only 160 steps.
+  auto far = UniformCloud(3000, 34, 10.0f, glm::vec3(1e6f, -2e6f, 5e5f));
+  for (auto& s : far) s.radius = 8.0f + s.radius;
+  clouds.push_back(far);
   for (size_t i = 0; i < clouds.size(); ++i) {
     SCOPED_TRACE(i);
     BuildOptions o;
