@@ -182,7 +182,7 @@ class Verifier {
       if (c.child_count != 0) {
         return absl::DataLossError(absl::StrFormat("%s: a leaf with children", where()));
       }
-      if (c.point_count > meta_.leaf_size && depth < kMaxOctreeDepth) {
+      if (c.point_count > meta_.leaf_size && depth < kMaxSplitDepth) {
         return absl::DataLossError(
             absl::StrFormat("%s: a leaf of %d points above the maximum depth (leaf size %d)",
                             where(), c.point_count, meta_.leaf_size));
@@ -217,7 +217,7 @@ class Verifier {
       return absl::DataLossError(
           absl::StrFormat("%s: interior node with %d children", where(), c.child_count));
     }
-    if (depth >= kMaxOctreeDepth) {
+    if (depth >= kMaxSplitDepth) {
       return absl::DataLossError(
           absl::StrFormat("%s: interior node at the maximum depth", where()));
     }
