@@ -121,6 +121,17 @@ MemoryPlan PlanFor(const BuildOptions& o, int64_t known_count, int threads) {
 
 }  // namespace
 
+}  // namespace internal
+
+uint64_t MinimumBuildMemory(const BuildOptions& o) {
+  // PlanFor's fixed part and smallest write batch, the smallest upper share and the smallest
+  // sorted run, on one thread (the plan drops to one under a small budget).
+  return internal::kMiB + 24 * internal::kMiB + 4 * uint64_t{o.page_size} + (256 << 10) +
+         internal::kMinRunRecords * internal::kSortBytesPerRecord;
+}
+
+namespace internal {
+
 MemoryPlan PlanMemory(const BuildOptions& o, int64_t known_count) {
   const int threads = ThreadCount(o);
   const MemoryPlan one = PlanFor(o, known_count, 1);

@@ -24,6 +24,7 @@
 #include "pbgi/status.h"
 #include "pbgi/store.h"
 #include "tools/chart.h"
+#include "tools/budget.h"
 #include "tools/command.h"
 #include "tools/report.h"
 #include "tools/scene_views.h"
@@ -43,8 +44,8 @@ struct EvalArgs {
   std::vector<int> resolutions = {8, 12, 16};
   // Cut criteria to sweep: "cosine" (Cut::cosine_weighted, the default) and/or "plain".
   std::vector<std::string> cuts = {"cosine"};
-  std::string memory = "512M";
-  std::string cache = "256M";
+  std::string memory = "auto";
+  std::string cache = "auto";
   int threads = 0;
   uint64_t seed = 1;
   bool keep_hidden = false;  // database surfels inside solid geometry too (the old sampler)
@@ -501,8 +502,13 @@ absl::Status RunEval(const EvalArgs& a) {
   PBGI_RETURN_IF_ERROR(CheckOutsideStores(a.out_dir));
   EvalSetup e;
   e.occlusion = a.mode == "occlusion";
-  PBGI_ASSIGN_OR_RETURN(uint64_t memory, ParseBytes(a.memory));
-  PBGI_ASSIGN_OR_RETURN(uint64_t cache, ParseBytes(a.cache));
+  PBGI_ASSIGN_OR_RETURN(uint64_t memory,
+                        ResolveBudget("eval", "--memory", a.memory, uint64_t{512} << 20,
+                                      MinimumBuildMemory(BuildOptions{}),
+                                      "fixed buffers, one write batch and the smallest sort run"));
+  PBGI_ASSIGN_OR_RETURN(uint64_t cache, ResolveBudget("eval", "--cache", a.cache,
+                                                      uint64_t{256} << 20, kMinCacheBytes,
+                                                      "a few pages per thread"));
   std::error_code ec;
   std::filesystem::create_directories(a.out_dir, ec);
   if (ec) return absl::UnavailableError(absl::StrFormat("cannot create %s", a.out_dir));

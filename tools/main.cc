@@ -67,12 +67,18 @@ absl::StatusOr<uint64_t> ParseBytes(const std::string& text) {
     return absl::InvalidArgumentError(
         absl::StrFormat("'%s' is not a size (examples: 4096, 512M, 1G)", text));
   }
+  // 2^64 and more do not fit (the conversion would be undefined, and came out as 0).
+  if (v * mult >= 18446744073709551616.0) {
+    return absl::InvalidArgumentError(
+        absl::StrFormat("'%s' is too large a size (at most 16 EiB)", text));
+  }
   return static_cast<uint64_t>(v * mult);
 }
 
 CLI::Validator BytesValidator() {
   return CLI::Validator(
       [](std::string& s) -> std::string {
+        if (s == "auto") return std::string();  // budgets: see tools/budget.h
         auto r = ParseBytes(s);
         return r.ok() ? std::string() : std::string(r.status().message());
       },

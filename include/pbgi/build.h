@@ -107,6 +107,11 @@ struct BuildStats {
   uint64_t early_upper_writes = 0;
 };
 
+// The smallest memory_bytes within which a build's peak stays: its fixed buffers, the smallest
+// write batch and the smallest sorted run. Smaller budgets are accepted (tests use them to force
+// spilling) but exceeded; `pbgi build` refuses them.
+uint64_t MinimumBuildMemory(const BuildOptions& options);
+
 // Builds a database at `db_path` (a directory, created or replaced) from all surfels of `source`.
 // Errors name the surfel (record number) or page concerned. An empty input is an error.
 absl::StatusOr<BuildStats> BuildDatabase(SurfelSource& source, const std::string& db_path,

@@ -94,5 +94,39 @@ refuse empty_build "no surfels" "$pbgi" build "$dir/empty.ply" -o "$dir/new/db"
 refuse shade_mislabelled "not binary_little_endian" \
   "$pbgi" shade "$dir/db" --receivers "$dir/mislabelled.ply" -o "$dir/m.ply" --mode occlusion
 
+# --- memory budgets that fit the machine (the defaults were OOM-killed in a 128 MiB container) ---
+echo 134217728 > "$dir/memory.max"   # a 128 MiB cgroup, 16 MiB of it in use
+echo 16777216 > "$dir/memory.current"
+export PBGI_CGROUP_MEMORY_LIMIT_FILE="$dir/memory.max" PBGI_CGROUP_MEMORY_USAGE_FILE="$dir/memory.current"
+run build_auto "$pbgi" build "$dir/c.ply" -o "$dir/db3" --channels occlusion --stats-json "$dir/auto.json"
+mem=$(grep -o '"memory_bytes": [0-9]*' "$dir/auto.json" | grep -o '[0-9]*$')
+[ "$mem" -le 58720256 ] && [ "$mem" -ge 28000000 ] && ok ||
+  fail "the default --memory in a 128 MiB cgroup is $mem bytes, not half of the 112 MiB left"
+grep -q warning "$dir/build_auto.err" && fail "the default budget warned: $(cat "$dir/build_auto.err")" || ok
+run build_big "$pbgi" build "$dir/c.ply" -o "$dir/db3" --channels occlusion --memory 1G
+grep -q "warning: --memory 1.0 GiB is more than this process can use (the memory cgroup allows 128.0 MiB" \
+  "$dir/build_big.err" && ok || fail "no warning for --memory 1G in 128 MiB: $(cat "$dir/build_big.err")"
+grep -q "try --memory 56M" "$dir/build_big.err" && ok || fail "the warning suggests no budget"
+run shade_auto "$pbgi" shade "$dir/db" --receivers "$dir/r.ply" -o "$dir/o2.ply" --mode occlusion
+grep -qE "cache (5[0-9]|4[0-9])\.[0-9] MiB" "$dir/shade_auto.out" && ok ||
+  fail "the default --cache in 128 MiB: $(grep cache "$dir/shade_auto.out")"
+unset PBGI_CGROUP_MEMORY_LIMIT_FILE PBGI_CGROUP_MEMORY_USAGE_FILE
+refuse build_tiny "is below the 2[0-9]\.[0-9] MiB this job needs .*give at least --memory [0-9]+K" \
+  "$pbgi" build "$dir/c.ply" -o "$dir/db4" --memory 8M
+refuse size_overflow "too large a size" "$pbgi" build "$dir/c.ply" -o "$dir/db4" --memory 99999999T
+refuse shade_tiny "below the .* this job needs" \
+  "$pbgi" shade "$dir/db" --receivers "$dir/r.ply" -o "$dir/o3.ply" --mode occlusion --cache 100K
+refuse shade_few_pages "less than the .* threads need" \
+  "$pbgi" shade "$dir/db" --receivers "$dir/r.ply" -o "$dir/o3.ply" --mode occlusion --cache 1200K --threads 8
+# The receivers in flight come out of the budget: 2 MiB shades 20,000 receivers in chunks.
+run many "$pbgi" generate cornell -n 20000 -o "$dir/r20k.ply" --seed 6
+run shade_chunks "$pbgi" shade "$dir/db" --receivers "$dir/r20k.ply" -o "$dir/o4.ply" \
+  --mode occlusion --cache 2M --threads 1
+chunks=$(grep -c "^shade: " "$dir/shade_chunks.err")
+[ "$chunks" -ge 5 ] && ok || fail "20,000 receivers in a 2 MiB budget went in $chunks chunks"
+count=$(grep -a -m1 '^element vertex' "$dir/o4.ply" | awk '{print $3 + 0}')
+[ "$count" = "$(grep -a -m1 '^element vertex' "$dir/r20k.ply" | awk '{print $3 + 0}')" ] && ok ||
+  fail "chunked shade wrote $count vertices"
+
 echo "reliability_cli_test: $passes passed, $failures failed"
 [ "$failures" -eq 0 ]
