@@ -21,12 +21,16 @@
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <limits>
 #include <map>
 #include <string>
+#include <utility>
 #include <vector>
 
+#include "absl/strings/escaping.h"
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
+#include "absl/strings/str_join.h"
 #include "gmock/gmock.h"
 #include "gtest/gtest.h"
 #include "pbgi/build.h"
@@ -253,8 +257,8 @@ TEST_F(LmdbDamageTest, KeysOutOfOrderAreCorrupt) {
 
 TEST_F(LmdbDamageTest, MetaPagePointingIntoAnOverflowRunIsCorrupt) {
   // The main tree's root (meta page 0 and 1, offset 16 + 24 + 48 + 40) set to a data page.
-  for (const uint64_t root : {uint64_t{1}, uint64_t{good_.size() / kLmdbPage - 1},
-                              uint64_t{1} << 40}) {
+  for (const uint64_t root :
+       {uint64_t{1}, uint64_t{good_.size() / kLmdbPage - 1}, uint64_t{1} << 40}) {
     std::vector<uint8_t> bad = good_;
     for (int m = 0; m < 2; ++m) std::memcpy(bad.data() + m * kLmdbPage + 128, &root, 8);
     WriteBytes(file_, bad);
@@ -339,8 +343,8 @@ TEST(CraftedMetaTest, RecordsWithAValidChecksumThatNoDatabaseHoldsAreRefusedAtOp
        [](StoreMeta* m) { m->bounds.hi.z = std::numeric_limits<float>::infinity(); }, true,
        "not finite"},
       {"SH order 3", [](StoreMeta* m) { m->sh_order = 3; }, true, "SH order 3"},
-      {"root past the node pages", [](StoreMeta* m) { m->root = (m->node_pages + 3) << 16; },
-       false, "root"},
+      {"root past the node pages", [](StoreMeta* m) { m->root = (m->node_pages + 3) << 16; }, false,
+       "root"},
       {"point pages", [](StoreMeta* m) { m->point_pages += 1; }, false, "point pages"},
       {"depth 40", [](StoreMeta* m) { m->max_depth = 40; }, true, "deep"},
   };
@@ -378,54 +382,97 @@ uint64_t EnvOr(const char* name, uint64_t fallback) {
 
 struct FlipCounts {
   uint64_t flips = 0;
-  uint64_t detected = 0;   // some tool reported the damage, every other one was exact
-  uint64_t harmless = 0;   // every tool exact (bytes nothing reads: padding, free space, ...)
+  uint64_t detected = 0;       // some tool reported the damage, every other one was exact
+  uint64_t harmless = 0;       // every tool exact (bytes nothing reads: padding, free space, ...)
   uint64_t verify_missed = 0;  // verify passed but another tool reported damage
   uint64_t crashed = 0, wrong = 0;
+  // Per kind of LMDB page the flipped byte lies in: flips, detected.
+  std::map<std::string, std::pair<uint64_t, uint64_t>> regions;
   std::vector<std::string> failures;
 };
+
+// What each 4 KiB page of a store file is, by LMDB's header: "LMDB meta", "LMDB branch",
+// "LMDB leaf" (which also holds our pages when they fit inline), "overflow run" (our pages, one
+// run each, its first 16 bytes LMDB's header) or "free" (pages no tree uses).
+std::vector<std::string> PageRegions(const std::vector<uint8_t>& file) {
+  std::vector<std::string> kind(file.size() / kLmdbPage + 1, "free");
+  for (uint64_t p = 0; p < kind.size(); ++p) {
+    if (p < 2) {
+      kind[p] = "LMDB meta";
+      continue;
+    }
+    if ((p + 1) * kLmdbPage > file.size() || kind[p] != "free") continue;
+    const uint8_t* b = file.data() + p * kLmdbPage;
+    uint64_t own;
+    uint16_t flags;
+    uint32_t count;
+    std::memcpy(&own, b, 8);
+    std::memcpy(&flags, b + 10, 2);
+    std::memcpy(&count, b + 12, 4);
+    if (own != p) continue;
+    if (flags == 0x01) kind[p] = "LMDB branch";
+    if (flags == 0x02) kind[p] = "LMDB leaf";
+    if (flags == 0x04) {
+      for (uint64_t q = p; q < p + count && q < kind.size(); ++q) kind[q] = "overflow run";
+    }
+  }
+  return kind;
+}
+
+// Sorts one damaged store's tool report into `c` against the undamaged `reference`.
+void Classify(const std::string& where, const testing_common::ChildResult& r,
+              const std::map<std::string, std::string>& reference, FlipCounts* c) {
+  const auto got = Lines(r.report);
+  if (!r.exited || got.size() != 3) {
+    ++c->crashed;
+    c->failures.push_back(absl::StrFormat("%s: signal %d after\n%s", where, r.signal, r.report));
+    return;
+  }
+  bool any_error = false, wrong = false;
+  for (const auto& [tool, line] : got) {
+    if (line.rfind(tool + " error", 0) == 0) {
+      any_error = true;
+    } else if (line != reference.at(tool)) {
+      wrong = true;
+    }
+  }
+  if (wrong) {
+    ++c->wrong;
+    c->failures.push_back(
+        absl::StrFormat("%s: a different answer with success:\n%s", where, r.report));
+  } else if (any_error) {
+    ++c->detected;
+    if (got.at("verify") == "verify ok") {
+      ++c->verify_missed;
+      c->failures.push_back(
+          absl::StrFormat("%s: verify passed, another tool did not:\n%s", where, r.report));
+    }
+  } else {
+    ++c->harmless;
+  }
+}
 
 FlipCounts FlipBytes(const std::string& path, uint64_t stride, uint64_t masks, uint64_t phase) {
   const std::string file = path + "/data.mdb";
   const std::vector<uint8_t> good = ReadBytes(file);
   const auto reference = Lines(RunTools(path));
+  const std::vector<std::string> regions = PageRegions(good);
   FlipCounts c;
   const int fd = open(file.c_str(), O_WRONLY);
   if (fd < 0) return c;
   for (uint64_t at = phase % stride; at < good.size(); at += stride) {
     for (uint64_t k = 0; k < masks; ++k) {
-      const uint8_t mask =
-          k == 0 ? static_cast<uint8_t>(testing_store::SplitMix(at) % 255 + 1)
-                 : (k == 1 ? uint8_t{0x01} : uint8_t{0x80});
+      const uint8_t mask = k == 0 ? static_cast<uint8_t>(testing_store::SplitMix(at) % 255 + 1)
+                                  : (k == 1 ? uint8_t{0x01} : uint8_t{0x80});
       const uint8_t flipped = good[at] ^ mask;
       if (pwrite(fd, &flipped, 1, static_cast<off_t>(at)) != 1) break;
       ++c.flips;
       const testing_common::ChildResult r = RunInChild([&] { return RunTools(path); }, 0, 30);
-      const auto got = Lines(r.report);
-      const std::string where = absl::StrFormat("byte %d ^ 0x%02x", at, mask);
-      if (!r.exited || got.size() != 3) {
-        ++c.crashed;
-        c.failures.push_back(absl::StrFormat("%s: signal %d after\n%s", where, r.signal, r.report));
-      } else {
-        bool any_error = false, wrong = false;
-        for (const auto& [tool, line] : got) {
-          if (line.rfind(tool + " error", 0) == 0) {
-            any_error = true;
-          } else if (line != reference.at(tool)) {
-            wrong = true;
-          }
-        }
-        if (wrong) {
-          ++c.wrong;
-          c.failures.push_back(absl::StrFormat("%s: a different answer with success:\n%s", where,
-                                               r.report));
-        } else if (any_error) {
-          ++c.detected;
-          if (got.at("verify") == "verify ok") ++c.verify_missed;
-        } else {
-          ++c.harmless;
-        }
-      }
+      const uint64_t detected_before = c.detected;
+      Classify(absl::StrFormat("byte %d ^ 0x%02x", at, mask), r, reference, &c);
+      auto& region = c.regions[regions[at / kLmdbPage]];
+      ++region.first;
+      region.second += c.detected - detected_before;
       if (pwrite(fd, &good[at], 1, static_cast<off_t>(at)) != 1) break;
     }
   }
@@ -450,15 +497,184 @@ void FlipTest(uint32_t page_size, size_t points, uint64_t default_stride) {
       static_cast<unsigned long long>(c.detected), static_cast<unsigned long long>(c.verify_missed),
       static_cast<unsigned long long>(c.harmless), static_cast<unsigned long long>(c.crashed),
       static_cast<unsigned long long>(c.wrong));
+  for (const auto& [region, n] : c.regions) {
+    std::printf("  %s pages: %llu flips, %llu detected\n", region.c_str(),
+                static_cast<unsigned long long>(n.first),
+                static_cast<unsigned long long>(n.second));
+  }
   EXPECT_GT(c.flips, 100u);
   EXPECT_EQ(c.crashed, 0u);
   EXPECT_EQ(c.wrong, 0u);
   EXPECT_EQ(c.verify_missed, 0u) << "verify passed a store that another tool found damaged";
-  for (size_t i = 0; i < std::min<size_t>(c.failures.size(), 5); ++i) ADD_FAILURE() << c.failures[i];
+  for (size_t i = 0; i < std::min<size_t>(c.failures.size(), 5); ++i)
+    ADD_FAILURE() << c.failures[i];
 }
 
 TEST(ByteFlipTest, InlinePagesNeverCrashOrLie) { FlipTest(1024, 1500, 229); }
 TEST(ByteFlipTest, OverflowPagesNeverCrashOrLie) { FlipTest(4080, 600, 199); }
+
+// ---------------------------------------------------------------------------------------------
+// The crafted-meta sweep: every field of the meta record set to hostile values, each record
+// written with a valid checksum. `info` prints whatever the record says (so it is only required
+// not to crash); verify and shade either refuse the record or give exactly the undamaged
+// answer, and verify never passes a record that shade refuses or shades differently.
+
+struct MetaCase {
+  std::string name;
+  StoreMeta meta;
+};
+
+std::vector<MetaCase> HostileMetas(const StoreMeta& m) {
+  std::vector<MetaCase> out;
+  auto add = [&](const std::string& name, auto edit) {
+    MetaCase c{name, m};
+    edit(c.meta);
+    out.push_back(std::move(c));
+  };
+  auto u64s = [](uint64_t v) {
+    return std::vector<uint64_t>{0,
+                                 1,
+                                 v - 1,
+                                 v + 1,
+                                 v * 2,
+                                 v / 2,
+                                 uint64_t{1} << 32,
+                                 (uint64_t{1} << 32) + v,
+                                 uint64_t{1} << 63,
+                                 ~uint64_t{0}};
+  };
+  auto u32s = [](uint32_t v) {
+    return std::vector<uint32_t>{0, 1, v - 1, v + 1, v * 2, v / 2, 1u << 31, ~0u};
+  };
+  const struct {
+    const char* name;
+    uint64_t StoreMeta::*field;
+  } u64_fields[] = {{"point_count", &StoreMeta::point_count},
+                    {"node_count", &StoreMeta::node_count},
+                    {"node_pages", &StoreMeta::node_pages},
+                    {"point_pages", &StoreMeta::point_pages},
+                    {"root", &StoreMeta::root}};
+  for (const auto& f : u64_fields) {
+    for (uint64_t v : u64s(m.*f.field)) {
+      add(absl::StrFormat("%s=%d", f.name, v), [&](StoreMeta& x) { x.*f.field = v; });
+    }
+  }
+  const struct {
+    const char* name;
+    uint32_t StoreMeta::*field;
+  } u32_fields[] = {{"version", &StoreMeta::version},  // (the magic is the encoder's own)
+                    {"page_size", &StoreMeta::page_size},
+                    {"sh_order", &StoreMeta::sh_order},
+                    {"leaf_size", &StoreMeta::leaf_size},
+                    {"max_depth", &StoreMeta::max_depth}};
+  for (const auto& f : u32_fields) {
+    for (uint32_t v : u32s(m.*f.field)) {
+      add(absl::StrFormat("%s=%d", f.name, v), [&](StoreMeta& x) { x.*f.field = v; });
+    }
+  }
+  add("channels=occlusion", [](StoreMeta& x) { x.channels = Channels::kOcclusion; });
+  const float floats[] = {std::nanf(""),
+                          std::numeric_limits<float>::infinity(),
+                          -std::numeric_limits<float>::infinity(),
+                          0.0f,
+                          -0.0f,
+                          1e-40f,
+                          1e30f,
+                          -1e30f};
+  for (int axis = 0; axis < 3; ++axis) {
+    for (int side = 0; side < 2; ++side) {
+      const float orig = side == 0 ? m.bounds.lo[axis] : m.bounds.hi[axis];
+      std::vector<float> vs(std::begin(floats), std::end(floats));
+      vs.push_back(orig * 2.0f);
+      vs.push_back(orig - 1.0f);
+      vs.push_back(std::nextafter(orig, side == 0 ? 1e30f : -1e30f));  // a hair inside
+      for (float v : vs) {
+        add(absl::StrFormat("bounds.%s[%d]=%g", side == 0 ? "lo" : "hi", axis, v),
+            [&](StoreMeta& x) { (side == 0 ? x.bounds.lo : x.bounds.hi)[axis] = v; });
+      }
+    }
+    add(absl::StrFormat("bounds swapped on axis %d", axis),
+        [&](StoreMeta& x) { std::swap(x.bounds.lo[axis], x.bounds.hi[axis]); });
+  }
+  add("empty bounds", [](StoreMeta& x) { x.bounds = Bounds{}; });
+  for (const std::string& layout :
+       {std::string(), std::string("zorder"), std::string("no-such-layout"),
+        std::string(70000, 'x'), std::string("coherent\0", 9)}) {
+    add(absl::StrFormat("layout of %d bytes '%s'", layout.size(),
+                        absl::CHexEscape(layout.substr(0, 16))),
+        [&](StoreMeta& x) { x.layout = layout; });
+  }
+  add("no stats", [](StoreMeta& x) { x.stats.clear(); });
+  add("a 1 MiB stat", [](StoreMeta& x) { x.stats["huge"] = std::string(1 << 20, 'y'); });
+  add("10,000 stats", [](StoreMeta& x) {
+    for (int i = 0; i < 10000; ++i) x.stats[absl::StrCat("k", i)] = "v";
+  });
+  return out;
+}
+
+void CraftedMetaSweep(uint32_t page_size, size_t points) {
+  ScratchDir dir;
+  const std::string path = dir.Sub("db");
+  BuildSmall(path, page_size, points);
+  const std::vector<uint8_t> good = ReadBytes(path + "/data.mdb");
+  StoreMeta original;
+  {
+    auto store = PageStore::Open(path);
+    ASSERT_TRUE(store.ok());
+    original = (*store)->meta();
+  }
+  const auto reference = Lines(RunTools(path));
+  FlipCounts c;
+  std::vector<std::string> accepted;
+  for (const MetaCase& mc : HostileMetas(original)) {
+    WriteBytes(path + "/data.mdb", good);
+    RewriteMeta(path, mc.meta);
+    ++c.flips;
+    const testing_common::ChildResult r = RunInChild([&] { return RunTools(path); }, 0, 30);
+    const auto got = Lines(r.report);
+    if (!r.exited || got.size() != 3) {
+      ++c.crashed;
+      c.failures.push_back(absl::StrFormat("%s: signal %d after\n%s", mc.name, r.signal, r.report));
+      continue;
+    }
+    const bool verify_ok = got.at("verify") == "verify ok";
+    const bool shade_ok = got.at("shade").rfind("shade ok", 0) == 0;
+    if (shade_ok && got.at("shade") != reference.at("shade")) {
+      ++c.wrong;
+      c.failures.push_back(absl::StrFormat("%s: shaded differently:\n%s", mc.name, r.report));
+    } else if (verify_ok && !shade_ok) {
+      ++c.verify_missed;
+      c.failures.push_back(
+          absl::StrFormat("%s: verify passed, shade did not:\n%s", mc.name, r.report));
+    } else if (!verify_ok || !shade_ok || got.at("info").rfind("info error", 0) == 0) {
+      ++c.detected;
+    } else {
+      ++c.harmless;
+      accepted.push_back(mc.name);
+    }
+  }
+  std::printf(
+      "crafted meta records, page size %u: %llu records, %llu refused, %llu accepted "
+      "(verify and shade exact), %llu crashed or hung, %llu wrong, %llu passed by verify "
+      "only\n",
+      page_size, static_cast<unsigned long long>(c.flips),
+      static_cast<unsigned long long>(c.detected), static_cast<unsigned long long>(c.harmless),
+      static_cast<unsigned long long>(c.crashed), static_cast<unsigned long long>(c.wrong),
+      static_cast<unsigned long long>(c.verify_missed));
+  std::printf("  accepted: %s\n", absl::StrJoin(accepted, "; ").c_str());
+  EXPECT_EQ(c.crashed, 0u);
+  EXPECT_EQ(c.wrong, 0u);
+  EXPECT_EQ(c.verify_missed, 0u);
+  for (size_t i = 0; i < std::min<size_t>(c.failures.size(), 5); ++i)
+    ADD_FAILURE() << c.failures[i];
+}
+
+TEST(CraftedMetaTest, HostileValuesOfEveryFieldNeverCrashOrLieInline) {
+  CraftedMetaSweep(1024, 1500);
+}
+TEST(CraftedMetaTest, HostileValuesOfEveryFieldNeverCrashOrLieOverflow) {
+  CraftedMetaSweep(4080, 600);
+}
 
 }  // namespace
 }  // namespace pbgi
