@@ -45,6 +45,8 @@ refuse generate_into_db "database directory" "$pbgi" generate cornell -n 100 -o 
 refuse stats_into_db "database directory" \
   "$pbgi" build "$dir/c.ply" -o "$dir/db2" --stats-json "$dir/db/data.mdb"
 refuse demo_into_db "database directory" "$pbgi" demo -o "$dir/db" --scene cornell --points 1000
+refuse eval_view_into_db "database directory" \
+  "$pbgi" eval --view cornell -o "$dir/db/view" --mode occlusion --points 1000 --width 16 --height 16
 [ "$(md5sum < "$dir/db/data.mdb")" = "$sum_before" ] && ok || fail "a refused output changed data.mdb"
 [ "$(ls "$dir/db")" = "data.mdb" ] && ok || fail "the database directory holds $(ls "$dir/db")"
 run verify_after "$pbgi" verify "$dir/db"
