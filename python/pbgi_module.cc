@@ -564,23 +564,26 @@ class PyReader {
     cut.max_distance = max_distance;
     cut.cosine_weighted = cosine_weighted;
     absl::Status s;
+    Gathered g;
     {
       // A Reader belongs to one thread at a time: the lock makes sharing one between Python
-      // threads safe (they wait), never a data race.
+      // threads safe (they wait), never a data race. The GIL is released before the lock is
+      // taken and never waited for under it. The result is copied out under the lock, as the
+      // next thread's gather reuses the Reader's Gathered.
       py::gil_scoped_release release;
       std::lock_guard<std::mutex> lock(mu_);
       s = reader_->Gather(r, cut, &gathered_);
+      if (s.ok()) g = gathered_;
     }
     Check(s);
     static const py::dtype* cluster_dtype = new py::dtype(ClusterDtype());
     static const py::dtype* surfel_dtype = new py::dtype(SurfelDtype());
-    py::array ids = py::array_t<uint64_t>({static_cast<py::ssize_t>(gathered_.surfel_ids.size())});
-    if (!gathered_.surfel_ids.empty()) {
-      std::memcpy(ids.mutable_data(), gathered_.surfel_ids.data(),
-                  gathered_.surfel_ids.size() * sizeof(uint64_t));
+    py::array ids = py::array_t<uint64_t>({static_cast<py::ssize_t>(g.surfel_ids.size())});
+    if (!g.surfel_ids.empty()) {
+      std::memcpy(ids.mutable_data(), g.surfel_ids.data(), g.surfel_ids.size() * sizeof(uint64_t));
     }
-    return py::make_tuple(StructArray(gathered_.clusters, *cluster_dtype),
-                          StructArray(gathered_.surfels, *surfel_dtype), ids);
+    return py::make_tuple(StructArray(g.clusters, *cluster_dtype),
+                          StructArray(g.surfels, *surfel_dtype), ids);
   }
 
   py::array ReadPoints(uint64_t first, uint64_t count) {
