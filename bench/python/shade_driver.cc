@@ -1,0 +1,63 @@
+// The C++ side of bench/python/shade_overhead.py: ShadeBatch called directly, with the options
+// that pbgi.Database.shade() passes by default, on receivers read from a raw float32 file
+// (n x 6: position, normal). Prints one line per timed run, "seconds checksum", after one
+// warm-up run; the checksum (sum of occlusion and irradiance) shows both sides did the same work.
+//   pbgi_shade_driver DB RECEIVERS.f32 RUNS THREADS occlusion|irradiance
+#include <cstdio>
+#include <cstdlib>
+#include <fstream>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "base/stopwatch.h"
+#include "pbgi/shade.h"
+
+int main(int argc, char** argv) {
+  if (argc != 6) {
+    std::fprintf(stderr, "usage: %s DB RECEIVERS.f32 RUNS THREADS occlusion|irradiance\n",
+                 argv[0]);
+    return 2;
+  }
+  const std::string mode = argv[5];
+  std::ifstream in(argv[2], std::ios::binary | std::ios::ate);
+  if (!in) {
+    std::fprintf(stderr, "cannot read %s\n", argv[2]);
+    return 1;
+  }
+  std::vector<float> raw(static_cast<size_t>(in.tellg()) / sizeof(float));
+  in.seekg(0);
+  in.read(reinterpret_cast<char*>(raw.data()), static_cast<std::streamsize>(raw.size() * 4));
+  std::vector<pbgi::ShadeReceiver> receivers(raw.size() / 6);
+  for (size_t i = 0; i < receivers.size(); ++i) {
+    const float* r = &raw[6 * i];
+    receivers[i].position = glm::vec3(r[0], r[1], r[2]);
+    receivers[i].normal = glm::vec3(r[3], r[4], r[5]);
+    receivers[i].reflection = receivers[i].normal;
+  }
+  auto db = pbgi::Database::Open(argv[1]);
+  if (!db.ok()) {
+    std::fprintf(stderr, "%s\n", db.status().ToString().c_str());
+    return 1;
+  }
+  pbgi::ShadeOptions o;  // what pbgi.Database.shade() passes by default (python/pbgi/__init__.py)
+  o.threads = std::atoi(argv[4]);
+  o.cut.cosine_weighted = true;
+  o.raster.compute_radiance = mode != "occlusion";
+  std::vector<pbgi::ShadeResult> out(receivers.size());
+  const int runs = std::atoi(argv[3]);
+  for (int run = -1; run < runs; ++run) {
+    const pbgi::internal::Stopwatch clock;
+    absl::Status s = pbgi::ShadeBatch(**db, receivers, o, absl::MakeSpan(out));
+    const double seconds = clock.Seconds();
+    if (!s.ok()) {
+      std::fprintf(stderr, "%s\n", s.ToString().c_str());
+      return 1;
+    }
+    double sum = 0;
+    for (const pbgi::ShadeResult& r : out) sum += r.occlusion + r.irradiance.x;
+    if (run >= 0) std::printf("%.6f %.6f\n", seconds, sum);
+    std::fflush(stdout);
+  }
+  return 0;
+}
