@@ -157,7 +157,9 @@ def visible_surfels(project, positions, normals, radii, width, height):
     ok = (z > 1e-3) & (x >= -8) & (x < width + 8) & (y >= -8) & (y < height + 8)
     idx = np.nonzero(ok)[0]
     x, y, z = x[idx], y[idx], z[idx]
-    reach = np.maximum(0.5, radii[idx] * scale / z * 1.3)  # projected radius in pixels, padded
+    # Projected radius in pixels, padded: randomly placed disks of the surface's own area leave
+    # gaps, which would show what lies behind.
+    reach = np.maximum(1.0, 1.6 * radii[idx] * scale / z)
     depth = np.full(width * height, np.inf)
     owner = np.full(width * height, -1, dtype=np.int64)
     span = int(np.ceil(reach.max()))
