@@ -127,15 +127,20 @@ def test_an_exception_in_the_callback_cancels(disk_db):
 def test_ctrl_c_cancels_a_shade(disk_db):
     db = pbgi.open(disk_db[0])
     p, n = receivers(100000, 6)
-    timer = threading.Timer(0.2, _thread.interrupt_main)
+    # SIGINT as Ctrl-C sends it, from the first progress call (on the calling thread, while the
+    # batch runs): the next poll sees the signal, cancels the batch and raises.
+    interrupted = []
+
+    def interrupt(done, total):
+        if not interrupted:
+            interrupted.append(done)
+            _thread.interrupt_main()
+
     start = time.monotonic()
-    timer.start()
-    try:
-        with pytest.raises(KeyboardInterrupt):
-            db.shade(p, n, mode="occlusion", threads=1)
-    finally:
-        timer.cancel()
+    with pytest.raises(KeyboardInterrupt):
+        db.shade(p, n, mode="occlusion", threads=1, progress=interrupt, progress_interval=0.02)
     assert time.monotonic() - start < 1.5
+    assert interrupted and interrupted[0] < len(p)
     # The database is still usable.
     q, m, _ = axis_receivers(4)
     assert db.shade(q, m, mode="occlusion").occlusion.shape == (4,)
