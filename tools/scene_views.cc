@@ -88,6 +88,26 @@ std::vector<ShadeReceiver> ShadeReceiversOf(absl::Span<const Receiver> receivers
   return out;
 }
 
+CameraReceivers MakeCameraReceivers(const Tracer& tracer, const Camera& camera) {
+  CameraReceivers out;
+  out.hits = tracer.TraceCamera(camera);
+  out.receivers.reserve(out.hits.size());
+  for (size_t p = 0; p < out.hits.size(); ++p) {
+    if (!out.hits[p].hit) continue;
+    const int x = static_cast<int>(p % size_t(camera.width));
+    const int y = static_cast<int>(p / size_t(camera.width));
+    const glm::vec3 d = camera.Direction(float(x) + 0.5f, float(y) + 0.5f);
+    glm::vec3 n = out.hits[p].normal;
+    if (glm::dot(n, d) > 0.0f) n = -n;  // shade the side the camera sees
+    // A hair above the surface, so that the receiver's own surfels are behind its plane.
+    const glm::vec3 p_lifted = out.hits[p].position + tracer.epsilon() * n;
+    out.receivers.push_back({p_lifted, n});
+    out.shade.push_back({p_lifted, n, glm::reflect(d, n)});
+    out.pixel_of.push_back(static_cast<uint32_t>(p));
+  }
+  return out;
+}
+
 absl::StatusOr<ViewImages> RenderView(const Tracer& tracer, Database& db, const Camera& camera,
                                       const ShadeOptions& options) {
   using Clock = std::chrono::steady_clock;
@@ -99,32 +119,15 @@ absl::StatusOr<ViewImages> RenderView(const Tracer& tracer, Database& db, const 
   out.composite = Image(camera.width, camera.height);
 
   const auto t0 = Clock::now();
-  std::vector<CameraHit> hits = tracer.TraceCamera(camera);
-  // Receivers sit a hair above the surface so that their own surfels are behind their plane.
-  std::vector<Receiver> receivers;
-  std::vector<glm::vec3> reflections;
-  std::vector<uint32_t> pixel_of;
-  receivers.reserve(hits.size());
-  for (size_t p = 0; p < hits.size(); ++p) {
-    if (!hits[p].hit) continue;
-    const int x = static_cast<int>(p % size_t(camera.width));
-    const int y = static_cast<int>(p / size_t(camera.width));
-    const glm::vec3 d = camera.Direction(float(x) + 0.5f, float(y) + 0.5f);
-    glm::vec3 n = hits[p].normal;
-    if (glm::dot(n, d) > 0.0f) n = -n;  // shade the side the camera sees
-    receivers.push_back({hits[p].position + tracer.epsilon() * n, n});
-    reflections.push_back(glm::reflect(d, n));
-    pixel_of.push_back(static_cast<uint32_t>(p));
-  }
+  const CameraReceivers cr = MakeCameraReceivers(tracer, camera);
+  const std::vector<CameraHit>& hits = cr.hits;
+  const std::vector<Receiver>& receivers = cr.receivers;
+  const std::vector<uint32_t>& pixel_of = cr.pixel_of;
   out.trace_seconds = std::chrono::duration<double>(Clock::now() - t0).count();
   out.receivers = receivers.size();
 
-  std::vector<ShadeReceiver> shade(receivers.size());
-  for (size_t i = 0; i < receivers.size(); ++i) {
-    shade[i] = {receivers[i].position, receivers[i].normal, reflections[i]};
-  }
   std::vector<ShadeResult> results(receivers.size());
-  PBGI_RETURN_IF_ERROR(ShadeBatch(db, shade, options, absl::MakeSpan(results), &out.shade));
+  PBGI_RETURN_IF_ERROR(ShadeBatch(db, cr.shade, options, absl::MakeSpan(results), &out.shade));
 
   const bool radiance = HasRadiance(db.meta().channels);
   const glm::vec3 sky = scene.lights.sky;

@@ -30,6 +30,17 @@ std::vector<ShadeReceiver> ShadeReceiversOf(absl::Span<const Receiver> receivers
 // "X,Y,Z" -> vector.
 absl::StatusOr<glm::vec3> ParseVec3(const std::string& text);
 
+// The receivers of a camera view: one per pixel whose primary ray hits, lifted off the surface
+// by the tracer's epsilon, its normal turned to the side the camera sees; the glossy lobe's
+// centre is the mirrored view direction. pixel_of[i] is receiver i's pixel (row-major).
+struct CameraReceivers {
+  std::vector<CameraHit> hits;  // every pixel's primary hit
+  std::vector<Receiver> receivers;
+  std::vector<ShadeReceiver> shade;  // the same, with the glossy lobe's centre
+  std::vector<uint32_t> pixel_of;
+};
+CameraReceivers MakeCameraReceivers(const Tracer& tracer, const Camera& camera);
+
 struct ViewImages {
   Image occlusion;  // 1 - occlusion (white = open), grey
   Image indirect;   // diffuse indirect light: albedo / pi * irradiance

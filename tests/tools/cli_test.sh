@@ -60,6 +60,17 @@ plain=$(awk '$1 == "pbgi" && $6 == "plain" {print $11}' "$dir/eval_cuts.out")
 cosine=$(awk '$1 == "pbgi" && $6 == "cos" {print $11}' "$dir/eval_cuts.out")
 awk -v p="$plain" -v c="$cosine" 'BEGIN {exit !(p > 0 && c > 0 && c < p)}' && ok ||
   fail "eval --cuts: cosine clusters '$cosine' not fewer than plain '$plain'"
+# eval --view: the reference, PBGI and error images and the figures, for a small view.
+run eval_view "$pbgi" eval --view cornell -o "$dir/eval_view" --points 30000 --width 48 \
+  --height 32 --rays 256
+for f in reference.png pbgi_msa0.03_res12_cos.png error_msa0.03_res12_cos.png view.json; do
+  [ -s "$dir/eval_view/$f" ] && ok || fail "eval --view wrote no $f"
+done
+grep -q '"worst_tile"' "$dir/eval_view/view.json" && grep -q '"p99"' "$dir/eval_view/view.json" &&
+  ok || fail "view.json lacks the tile and tail figures"
+# The figures are a real comparison: PBGI's MAE against the reference is small but not zero.
+mae=$(awk '/^msa/ {for (i = 1; i < NF; ++i) if ($i == "MAE") {print $(i + 1); exit}}' "$dir/eval_view.out")
+awk -v m="$mae" 'BEGIN {exit !(m > 0 && m < 0.1)}' && ok || fail "eval --view MAE '$mae' not in (0, 0.1)"
 run shade_plain "$pbgi" shade "$dir/c.pbgi" --receivers "$dir/c.ply" -o "$dir/shaded_plain.ply" \
   --mode occlusion --raster-res 8 --cut plain
 refuse bad_cut "cut" "$pbgi" shade "$dir/c.pbgi" --receivers "$dir/c.ply" -o "$dir/x.ply" --cut sideways

@@ -1,0 +1,68 @@
+// `pbgi eval --view`: the error of a camera view, pixel by pixel. Shades the primary hits of a
+// view with PBGI and with the Embree reference (the same receivers), and writes both images and
+// a signed error heat map with the figures that a person sees as defects: the mean and the tail
+// of |error|, and the worst 8x8 tile (a block or a streak shows there even when the mean is
+// small). The image metrics are a plain function so that tests can check them.
+#ifndef PBGI_TOOLS_VIEW_EVAL_H_
+#define PBGI_TOOLS_VIEW_EVAL_H_
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "absl/status/status.h"
+#include "glm/vec3.hpp"
+#include "tools/image_io.h"
+
+namespace pbgi::tools {
+
+// Errors of an image against a reference over its covered pixels.
+struct ImageErrors {
+  uint64_t pixels = 0;  // covered pixels compared
+  double mae = 0, rmse = 0, bias = 0;  // bias: mean signed error (got - reference)
+  double p99 = 0;                      // 99th percentile of |error|
+  double max = 0;
+  // The largest mean |error| over the tiles x tiles blocks of the image (tiles with at least a
+  // quarter of their pixels covered), and where it lies (pixel of its top-left corner).
+  double worst_tile = 0;
+  int worst_tile_x = -1, worst_tile_y = -1;
+  // The mean of the reference over the covered pixels (to state errors relative to it).
+  double reference_mean = 0;
+};
+
+// `got` and `reference` are width * height scalars, row-major; `covered[p]` marks the pixels
+// to compare.
+ImageErrors CompareImages(int width, int height, const std::vector<double>& got,
+                          const std::vector<double>& reference, const std::vector<uint8_t>& covered,
+                          int tile = 8);
+
+// A signed error map: white at 0, red where got > reference, blue where below, saturated at
+// |error| = scale; uncovered pixels grey.
+Image ErrorHeatMap(int width, int height, const std::vector<double>& got,
+                   const std::vector<double>& reference, const std::vector<uint8_t>& covered,
+                   double scale);
+
+struct ViewEvalArgs {
+  std::string scene = "city";
+  std::string out_dir = "out/eval-view";
+  std::string mode = "occlusion";  // occlusion | irradiance
+  int64_t points = 4'000'000;
+  int width = 960, height = 540;
+  int rays = 4096;  // reference rays per pixel (two independent halves estimate its own error)
+  std::vector<float> solid_angles = {0.03f};
+  std::vector<int> resolutions = {12};
+  std::vector<std::string> cuts = {"cosine"};
+  std::string hitsides = "front";
+  uint64_t memory_bytes = uint64_t{512} << 20;  // the build's cap
+  uint64_t cache_bytes = uint64_t{256} << 20;   // the shading cache
+  int threads = 0;
+  uint64_t seed = 1;
+  int size = 0;
+  double error_scale = 0.1;  // the heat map saturates at this |error| (occlusion units)
+};
+
+absl::Status RunViewEval(const ViewEvalArgs& args);
+
+}  // namespace pbgi::tools
+
+#endif  // PBGI_TOOLS_VIEW_EVAL_H_
