@@ -92,7 +92,8 @@ typedef enum pbgi_status {
 const char* pbgi_status_name(pbgi_status status);
 
 /* The message of the calling thread's last failed call, "" if none since the thread started or
- * since pbgi_clear_error(). Valid until the calling thread's next failing call. */
+ * since pbgi_clear_error(). Lifetime: valid until the calling thread's next failing call or
+ * pbgi_clear_error(). Threads: each thread sees its own. */
 const char* pbgi_last_error(void);
 /* The code of that call, PBGI_OK if none. */
 pbgi_status pbgi_last_error_code(void);
@@ -206,16 +207,21 @@ typedef struct pbgi_build_stats {
  * `options` NULL: the defaults; `stats` may be NULL. Errors: PBGI_INVALID_ARGUMENT for an
  * invalid surfel (naming its index in the stream, unless skip_invalid) or option, or an empty
  * stream; PBGI_ABORTED when a callback failed; PBGI_CANCELLED; PBGI_RESOURCE_EXHAUSTED.
- * Blocks until the build is done; the callbacks run during the call only. */
+ * Blocks until the build is done; the callbacks run during the call only, from one thread at a
+ * time. Threads: any thread; builds to different paths may run at once. Lifetime: `source`,
+ * `options` and the strings they point to need to live only for the call. */
 pbgi_status pbgi_build(const pbgi_surfel_source* source, const char* path,
                        const pbgi_build_options* options, pbgi_build_stats* stats);
 
-/* The same from a PLY point file (pbgi/ply.h: x y z nx ny nz radius [r g b]). */
+/* The same from a PLY point file (pbgi/ply.h: x y z nx ny nz radius [r g b]), streamed.
+ * PBGI_NOT_FOUND or PBGI_UNAVAILABLE for a file that cannot be read, PBGI_INVALID_ARGUMENT or
+ * PBGI_DATA_LOSS (naming the record) for a malformed one. Threads: as pbgi_build(). */
 pbgi_status pbgi_build_ply(const char* ply_path, const char* path,
                            const pbgi_build_options* options, pbgi_build_stats* stats);
 
 /* Reads every page of the database at `path` (checksums, kinds, numbers, counts) and checks the
- * tree's invariants (pbgi::VerifyTree). PBGI_DATA_LOSS names the first problem found. */
+ * tree's invariants (pbgi::VerifyTree). PBGI_DATA_LOSS names the first problem found.
+ * Threads: any thread, also while the database is open elsewhere (it is read-only). */
 pbgi_status pbgi_verify(const char* path);
 
 /* ---- databases ---------------------------------------------------------------------------- */
@@ -234,7 +240,8 @@ void pbgi_database_options_init(pbgi_database_options* options);
 /* Opens the finished database at `path` read-only. `options` NULL: the defaults. On success *db
  * is a new handle; on failure it is set to NULL: PBGI_NOT_FOUND for no database, PBGI_DATA_LOSS
  * for a garbage, truncated or incomplete one, PBGI_FAILED_PRECONDITION for another format
- * version. */
+ * version. Threads: any thread; a database may be opened by several handles and processes at
+ * once. Lifetime: until pbgi_database_close(); `path` and `options` only for the call. */
 pbgi_status pbgi_database_open(const char* path, const pbgi_database_options* options,
                                pbgi_database** db);
 /* REQUIRES: no other call on it is running and its readers are destroyed. NULL is ignored. */
@@ -257,6 +264,7 @@ typedef struct pbgi_info {
   char layout[32]; /* "coherent", ... (NUL-terminated) */
 } pbgi_info;
 
+/* Threads: any thread, concurrently with every call but pbgi_database_close(). */
 pbgi_status pbgi_database_info(const pbgi_database* db, pbgi_info* info);
 
 /* Copies the message of the last failed call made on `db` (by any thread) into buf (at most
@@ -299,7 +307,9 @@ typedef struct pbgi_gathered {
 /* One thread's access to a database: its own cache of pins and one read snapshot. */
 typedef struct pbgi_reader pbgi_reader;
 
-/* Any thread. REQUIRES: db outlives the reader. Make no more readers than threads. */
+/* Threads: any thread, concurrently on one database; the reader then belongs to one thread at
+ * a time. Lifetime: until pbgi_reader_destroy(), which must come before the database's close.
+ * Make no more readers than threads (each holds an LMDB reader slot, 126 by default). */
 pbgi_status pbgi_reader_create(pbgi_database* db, pbgi_reader** reader);
 /* NULL is ignored. */
 void pbgi_reader_destroy(pbgi_reader* reader);
@@ -307,11 +317,14 @@ void pbgi_reader_destroy(pbgi_reader* reader);
 /* Gathers the cut for the receiver at `position` with `normal` (need not be unit length): every
  * surfel in front of its tangent plane is in `out` once, by itself or by one cluster.
  * `cut` NULL: the defaults. PBGI_INVALID_ARGUMENT for a non-finite position or a zero or
- * non-finite normal; PBGI_DATA_LOSS for a damaged page (out is then empty). */
+ * non-finite normal; PBGI_DATA_LOSS for a damaged page (out is then empty).
+ * Threads: the reader's one thread at a time. Lifetime: out's arrays until the reader's next
+ * gather or its destruction (copy what you keep). */
 pbgi_status pbgi_gather(pbgi_reader* reader, const float position[3], const float normal[3],
                         const pbgi_cut* cut, pbgi_gathered* out);
 
-/* The message of the reader's last failed call, "" if none. Valid until its next call. */
+/* The message of the reader's last failed call, "" if none. Lifetime: until the reader's next
+ * failing call or its destruction. Threads: the reader's thread. */
 const char* pbgi_reader_error(const pbgi_reader* reader);
 
 /* ---- shading a batch ---------------------------------------------------------------------- */
@@ -387,7 +400,9 @@ typedef struct pbgi_shade_stats {
  * naming the receiver (non-finite position, zero or non-finite normal) or the option, before
  * anything is shaded; PBGI_FAILED_PRECONDITION for radiance from an occlusion-only database;
  * PBGI_CANCELLED; PBGI_DATA_LOSS for a damaged page. On error the results are incomplete.
- * Any number of threads may shade from one database at once. */
+ * Threads: any number of threads may shade from one database at once (each call makes its own
+ * readers and threads: mind the cache budget of pbgi_database_options). Lifetime: receivers,
+ * results and options need to live only for the call; the callbacks run during it only. */
 pbgi_status pbgi_shade(pbgi_database* db, const pbgi_shade_receiver* receivers, size_t count,
                        const pbgi_shade_options* options, pbgi_shade_result* results,
                        pbgi_shade_stats* stats);
