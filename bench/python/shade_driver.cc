@@ -2,10 +2,13 @@
 // that pbgi.Database.shade() passes by default, on receivers read from a raw float32 file
 // (n x 6: position, normal). Prints one line per timed run, "seconds checksum", after one
 // warm-up run; the checksum (sum of occlusion and irradiance) shows both sides did the same work.
+// With RUNS = 0 it runs once per line read from stdin (after the warm-up, which prints "ready"),
+// so that the script can alternate single runs of both sides.
 //   pbgi_shade_driver DB RECEIVERS.f32 RUNS THREADS occlusion|irradiance
 #include <cstdio>
 #include <cstdlib>
 #include <fstream>
+#include <iostream>
 #include <memory>
 #include <string>
 #include <vector>
@@ -15,8 +18,7 @@
 
 int main(int argc, char** argv) {
   if (argc != 6) {
-    std::fprintf(stderr, "usage: %s DB RECEIVERS.f32 RUNS THREADS occlusion|irradiance\n",
-                 argv[0]);
+    std::fprintf(stderr, "usage: %s DB RECEIVERS.f32 RUNS THREADS occlusion|irradiance\n", argv[0]);
     return 2;
   }
   const std::string mode = argv[5];
@@ -45,19 +47,32 @@ int main(int argc, char** argv) {
   o.cut.cosine_weighted = true;
   o.raster.compute_radiance = mode != "occlusion";
   std::vector<pbgi::ShadeResult> out(receivers.size());
-  const int runs = std::atoi(argv[3]);
-  for (int run = -1; run < runs; ++run) {
+  auto run_once = [&](bool print) -> bool {
     const pbgi::internal::Stopwatch clock;
     absl::Status s = pbgi::ShadeBatch(**db, receivers, o, absl::MakeSpan(out));
     const double seconds = clock.Seconds();
     if (!s.ok()) {
       std::fprintf(stderr, "%s\n", s.ToString().c_str());
-      return 1;
+      return false;
     }
     double sum = 0;
     for (const pbgi::ShadeResult& r : out) sum += r.occlusion + r.irradiance.x;
-    if (run >= 0) std::printf("%.6f %.6f\n", seconds, sum);
+    if (print) std::printf("%.6f %.6f\n", seconds, sum);
     std::fflush(stdout);
+    return true;
+  };
+  if (!run_once(false)) return 1;  // warm-up: the cache
+  const int runs = std::atoi(argv[3]);
+  if (runs > 0) {
+    for (int run = 0; run < runs; ++run) {
+      if (!run_once(true)) return 1;
+    }
+    return 0;
+  }
+  std::printf("ready\n");
+  std::fflush(stdout);
+  for (std::string line; std::getline(std::cin, line);) {
+    if (!run_once(true)) return 1;
   }
   return 0;
 }

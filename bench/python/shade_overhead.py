@@ -3,10 +3,11 @@
 pbgi::ShadeBatch() (bench/python/shade_driver.cc), same database, receivers and options.
 
 Builds a room of surfels in numpy (five walls, two of them coloured, and spheres; radiance
-baked as a plain albedo * light), picks receivers on its surfaces, and times both sides in
-interleaved rounds (each side: one warm-up run, then --runs timed runs on a warm cache), so
-that the shared machine's noise falls on both. Reports the medians and their ratio; the
-checksums show that both sides computed the same results. docs/bindings.md has the figures.
+baked as a plain albedo * light), picks receivers on its surfaces, and times both sides on a
+warm cache (one warm-up run each) in alternating single runs, the driver a process that runs
+once per line it reads, so that the shared machine's load drifts over both sides alike.
+Reports the medians and the median of the pairs' ratios; the checksums show that both sides
+computed the same results. docs/bindings.md has the figures.
 
     /usr/bin/python3 bench/python/shade_overhead.py --build out/release
 """
@@ -75,8 +76,7 @@ def main():
     ap.add_argument("--receivers", type=int, default=100_000)
     ap.add_argument("--mode", choices=("occlusion", "irradiance"), default="irradiance")
     ap.add_argument("--threads", type=int, default=2)
-    ap.add_argument("--runs", type=int, default=3, help="timed runs per side and round")
-    ap.add_argument("--rounds", type=int, default=3)
+    ap.add_argument("--pairs", type=int, default=9, help="timed runs per side, alternating")
     ap.add_argument("--json", type=pathlib.Path, help="also write the figures here")
     args = ap.parse_args()
     build = args.build or find_build(root)
@@ -97,41 +97,58 @@ def main():
     np.concatenate([rp, rn], axis=1).astype("<f4").tofile(receivers_file)
 
     db = pbgi.open(db_path)
-    driver = build / "bench/python/pbgi_shade_driver"
-    cxx, py, cxx_sums, py_sums = [], [], set(), set()
-    for rnd in range(args.rounds):
-        out = subprocess.run([str(driver), str(db_path), str(receivers_file), str(args.runs),
-                              str(args.threads), args.mode],
-                             check=True, capture_output=True, text=True).stdout.split("\n")
-        times = [tuple(map(float, line.split())) for line in out if line.strip()]
-        cxx += [t for t, _ in times]
-        cxx_sums |= {round(s, 3) for _, s in times}
-        for run in range(-1, args.runs):
-            start = time.perf_counter()
-            res = db.shade(rp, rn, mode=args.mode, threads=args.threads)
-            seconds = time.perf_counter() - start
-            if run >= 0:
-                py.append(seconds)
-                irr = res.irradiance[:, 0] if res.irradiance is not None else 0.0
-                py_sums.add(round(float(np.sum(res.occlusion.astype(np.float64) + irr)), 3))
-        print(f"round {rnd + 1}: C++ {statistics.median(cxx[-args.runs:]):.4f} s, "
-              f"Python {statistics.median(py[-args.runs:]):.4f} s")
+    driver = subprocess.Popen(
+        [str(build / "bench/python/pbgi_shade_driver"), str(db_path), str(receivers_file), "0",
+         str(args.threads), args.mode], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    if driver.stdout.readline().strip() != "ready":
+        sys.exit("the driver did not start")
+
+    def cxx_run():
+        driver.stdin.write("run\n")
+        driver.stdin.flush()
+        seconds, checksum = map(float, driver.stdout.readline().split())
+        return seconds, round(checksum, 3)
+
+    def py_run():
+        start = time.perf_counter()
+        res = db.shade(rp, rn, mode=args.mode, threads=args.threads)
+        seconds = time.perf_counter() - start
+        irr = res.irradiance[:, 0] if res.irradiance is not None else 0.0
+        return seconds, round(float(np.sum(res.occlusion.astype(np.float64) + irr)), 3)
+
+    py_run()  # warm-up (the driver warmed up before "ready")
+    cxx, py, ratios, sums = [], [], [], set()
+    for pair in range(args.pairs):
+        # Single runs alternate, the order flipping every pair, so that the machine's load
+        # drifts over both sides alike; a pair's ratio compares neighbours in time.
+        first, second = (cxx_run, py_run) if pair % 2 == 0 else (py_run, cxx_run)
+        a, b = first(), second()
+        (c, s_c), (p_, s_p) = (a, b) if first is cxx_run else (b, a)
+        cxx.append(c)
+        py.append(p_)
+        ratios.append(p_ / c)
+        sums |= {s_c, s_p}
+        print(f"pair {pair + 1}: C++ {c:.4f} s, Python {p_:.4f} s, ratio {p_ / c:.4f}",
+              flush=True)
+    driver.stdin.close()
+    driver.wait()
     mc, mp = statistics.median(cxx), statistics.median(py)
-    ratio = mp / mc
-    print(f"{args.receivers} receivers, {args.mode}, {args.threads} threads, "
-          f"{len(cxx)} runs per side")
+    ratio = statistics.median(ratios)
+    print(f"{args.receivers} receivers, {args.mode}, {args.threads} threads, {args.pairs} pairs")
     print(f"median C++ ShadeBatch   {mc:.4f} s  ({mc / args.receivers * 1e6:.2f} us/receiver)")
     print(f"median pbgi shade()     {mp:.4f} s")
-    print(f"ratio Python / C++      {ratio:.4f}  ({(ratio - 1) * 100:+.2f}%)")
-    print(f"checksums: C++ {sorted(cxx_sums)}, Python {sorted(py_sums)}")
-    same = len(cxx_sums | py_sums) == 1
+    print(f"median ratio of pairs   {ratio:.4f}  ({(ratio - 1) * 100:+.2f}%); ratio of medians "
+          f"{mp / mc:.4f}")
+    print(f"checksums: {sorted(sums)}")
+    same = len(sums) == 1
     if not same:
         print("warning: the two sides' results differ", file=sys.stderr)
     if args.json:
         args.json.write_text(json.dumps(dict(
             receivers=args.receivers, surfels=int(stats["points"]), mode=args.mode,
-            threads=args.threads, cxx_seconds=cxx, python_seconds=py, median_cxx=mc,
-            median_python=mp, ratio=ratio, same_results=same), indent=2) + "\n")
+            threads=args.threads, cxx_seconds=cxx, python_seconds=py, pair_ratios=ratios,
+            median_cxx=mc, median_python=mp, median_pair_ratio=ratio, same_results=same),
+            indent=2) + "\n")
     subprocess.run(["rm", "-rf", str(work)], check=False)
     return 0 if same else 1
 
