@@ -6,8 +6,9 @@ Builds a room of surfels in numpy (five walls, two of them coloured, and spheres
 baked as a plain albedo * light), picks receivers on its surfaces, and times both sides on a
 warm cache (one warm-up run each) in alternating single runs, the driver a process that runs
 once per line it reads, so that the shared machine's load drifts over both sides alike.
-Reports the medians and the median of the pairs' ratios; the checksums show that both sides
-computed the same results. docs/bindings.md has the figures.
+Reports the medians and the median of the pairs' ratios, and, free of the load's drift between
+runs, the time each Python call spends outside ShadeBatch (Shading.stats["seconds"] is
+ShadeBatch's own wall time); the checksums show that both sides computed the same results. docs/bindings.md has the figures.
 
     /usr/bin/python3 bench/python/shade_overhead.py --build out/release
 """
@@ -109,10 +110,13 @@ def main():
         seconds, checksum = map(float, driver.stdout.readline().split())
         return seconds, round(checksum, 3)
 
+    inner = []  # ShadeBatch's own wall time inside each Python call (Shading.stats["seconds"])
+
     def py_run():
         start = time.perf_counter()
         res = db.shade(rp, rn, mode=args.mode, threads=args.threads)
         seconds = time.perf_counter() - start
+        inner.append((seconds, res.stats["seconds"]))
         irr = res.irradiance[:, 0] if res.irradiance is not None else 0.0
         return seconds, round(float(np.sum(res.occlusion.astype(np.float64) + irr)), 3)
 
@@ -139,6 +143,13 @@ def main():
     print(f"median pbgi shade()     {mp:.4f} s")
     print(f"median ratio of pairs   {ratio:.4f}  ({(ratio - 1) * 100:+.2f}%); ratio of medians "
           f"{mp / mc:.4f}")
+    # The layer's own cost, free of the load's drift between runs: each call's time outside
+    # ShadeBatch (argument checks, conversions, the thread, the result arrays).
+    timed = inner[1:]
+    overhead = [t - i for t, i in timed]
+    layer = statistics.median(t / i for t, i in timed)
+    print(f"layer: median {statistics.median(overhead) * 1e3:.2f} ms outside ShadeBatch per call "
+          f"(max {max(overhead) * 1e3:.2f} ms); median call / ShadeBatch {layer:.5f}")
     print(f"checksums: {sorted(sums)}")
     same = len(sums) == 1
     if not same:
@@ -147,7 +158,9 @@ def main():
         args.json.write_text(json.dumps(dict(
             receivers=args.receivers, surfels=int(stats["points"]), mode=args.mode,
             threads=args.threads, cxx_seconds=cxx, python_seconds=py, pair_ratios=ratios,
-            median_cxx=mc, median_python=mp, median_pair_ratio=ratio, same_results=same),
+            median_cxx=mc, median_python=mp, median_pair_ratio=ratio,
+            python_outside_shadebatch_seconds=overhead, median_call_over_shadebatch=layer,
+            same_results=same),
             indent=2) + "\n")
     subprocess.run(["rm", "-rf", str(work)], check=False)
     return 0 if same else 1
