@@ -10,6 +10,7 @@
 //   calling thread waits; every poll interval the calling thread takes the GIL to check for
 //   signals (Ctrl-C raises KeyboardInterrupt, which cancels the call) and to call the progress
 //   callback, so Python code only ever runs on the calling thread.
+#include <algorithm>
 #include <atomic>
 #include <chrono>
 #include <cmath>
