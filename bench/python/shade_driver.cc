@@ -1,10 +1,13 @@
 // The C++ side of bench/python/shade_overhead.py: ShadeBatch called directly, with the options
 // that pbgi.Database.shade() passes by default, on receivers read from a raw float32 file
-// (n x 6: position, normal). Prints one line per timed run, "seconds checksum", after one
-// warm-up run; the checksum (sum of occlusion and irradiance) shows both sides did the same work.
-// With RUNS = 0 it runs once per line read from stdin (after the warm-up, which prints "ready"),
-// so that the script can alternate single runs of both sides.
+// (n x 6: position, normal). Prints one line per timed run, "seconds cpu_seconds checksum"
+// (wall time, and the process's user + system time, which a loaded machine disturbs less), after
+// one warm-up run; the checksum (sum of occlusion and irradiance) shows both sides did the same
+// work. With RUNS = 0 it runs once per line read from stdin (after the warm-up, which prints
+// "ready"), so that the script can alternate single runs of both sides.
 //   pbgi_shade_driver DB RECEIVERS.f32 RUNS THREADS occlusion|irradiance
+#include <sys/resource.h>
+
 #include <cstdio>
 #include <cstdlib>
 #include <fstream>
@@ -47,17 +50,25 @@ int main(int argc, char** argv) {
   o.cut.cosine_weighted = true;
   o.raster.compute_radiance = mode != "occlusion";
   std::vector<pbgi::ShadeResult> out(receivers.size());
+  auto cpu_seconds = [] {
+    rusage u;
+    getrusage(RUSAGE_SELF, &u);
+    return double(u.ru_utime.tv_sec + u.ru_stime.tv_sec) +
+           1e-6 * double(u.ru_utime.tv_usec + u.ru_stime.tv_usec);
+  };
   auto run_once = [&](bool print) -> bool {
+    const double cpu = cpu_seconds();
     const pbgi::internal::Stopwatch clock;
     absl::Status s = pbgi::ShadeBatch(**db, receivers, o, absl::MakeSpan(out));
     const double seconds = clock.Seconds();
+    const double cpu_used = cpu_seconds() - cpu;
     if (!s.ok()) {
       std::fprintf(stderr, "%s\n", s.ToString().c_str());
       return false;
     }
     double sum = 0;
     for (const pbgi::ShadeResult& r : out) sum += r.occlusion + r.irradiance.x;
-    if (print) std::printf("%.6f %.6f\n", seconds, sum);
+    if (print) std::printf("%.6f %.6f %.6f\n", seconds, cpu_used, sum);
     std::fflush(stdout);
     return true;
   };

@@ -107,33 +107,34 @@ def main():
     def cxx_run():
         driver.stdin.write("run\n")
         driver.stdin.flush()
-        seconds, checksum = map(float, driver.stdout.readline().split())
-        return seconds, round(checksum, 3)
+        seconds, cpu, checksum = map(float, driver.stdout.readline().split())
+        return seconds, cpu, round(checksum, 3)
 
     inner = []  # ShadeBatch's own wall time inside each Python call (Shading.stats["seconds"])
 
     def py_run():
-        start = time.perf_counter()
+        start, cpu = time.perf_counter(), time.process_time()
         res = db.shade(rp, rn, mode=args.mode, threads=args.threads)
-        seconds = time.perf_counter() - start
+        seconds, cpu = time.perf_counter() - start, time.process_time() - cpu
         inner.append((seconds, res.stats["seconds"]))
         irr = res.irradiance[:, 0] if res.irradiance is not None else 0.0
-        return seconds, round(float(np.sum(res.occlusion.astype(np.float64) + irr)), 3)
+        return seconds, cpu, round(float(np.sum(res.occlusion.astype(np.float64) + irr)), 3)
 
     py_run()  # warm-up (the driver warmed up before "ready")
-    cxx, py, ratios, sums = [], [], [], set()
+    cxx, py, ratios, cpu_ratios, sums = [], [], [], [], set()
     for pair in range(args.pairs):
         # Single runs alternate, the order flipping every pair, so that the machine's load
         # drifts over both sides alike; a pair's ratio compares neighbours in time.
         first, second = (cxx_run, py_run) if pair % 2 == 0 else (py_run, cxx_run)
         a, b = first(), second()
-        (c, s_c), (p_, s_p) = (a, b) if first is cxx_run else (b, a)
+        (c, c_cpu, s_c), (p_, p_cpu, s_p) = (a, b) if first is cxx_run else (b, a)
         cxx.append(c)
         py.append(p_)
         ratios.append(p_ / c)
+        cpu_ratios.append(p_cpu / c_cpu)
         sums |= {s_c, s_p}
-        print(f"pair {pair + 1}: C++ {c:.4f} s, Python {p_:.4f} s, ratio {p_ / c:.4f}",
-              flush=True)
+        print(f"pair {pair + 1}: C++ {c:.4f} s ({c_cpu:.3f} s CPU), Python {p_:.4f} s "
+              f"({p_cpu:.3f} s CPU), ratio {p_ / c:.4f} (CPU {p_cpu / c_cpu:.4f})", flush=True)
     driver.stdin.close()
     driver.wait()
     mc, mp = statistics.median(cxx), statistics.median(py)
@@ -143,6 +144,8 @@ def main():
     print(f"median pbgi shade()     {mp:.4f} s")
     print(f"median ratio of pairs   {ratio:.4f}  ({(ratio - 1) * 100:+.2f}%); ratio of medians "
           f"{mp / mc:.4f}")
+    cpu_ratio = statistics.median(cpu_ratios)
+    print(f"median CPU-time ratio   {cpu_ratio:.4f}  ({(cpu_ratio - 1) * 100:+.2f}%)")
     # The layer's own cost, free of the load's drift between runs: each call's time outside
     # ShadeBatch (argument checks, conversions, the thread, the result arrays).
     timed = inner[1:]
@@ -159,6 +162,7 @@ def main():
             receivers=args.receivers, surfels=int(stats["points"]), mode=args.mode,
             threads=args.threads, cxx_seconds=cxx, python_seconds=py, pair_ratios=ratios,
             median_cxx=mc, median_python=mp, median_pair_ratio=ratio,
+            cpu_ratios=cpu_ratios, median_cpu_ratio=cpu_ratio,
             python_outside_shadebatch_seconds=overhead, median_call_over_shadebatch=layer,
             same_results=same),
             indent=2) + "\n")
