@@ -11,6 +11,8 @@ PACKAGES=(
   libgtest-dev libgmock-dev libbenchmark-dev
   libembree-dev libassimp-dev libopenexr-dev libstb-dev libcli11-dev libtbb-dev
   nlohmann-json3-dev
+  # the Python module (python/) and its tests, example and progress bars
+  python3-dev pybind11-dev python3-numpy python3-pytest python3-matplotlib python3-tqdm
   # tools used by the test suite and the measurements
   time valgrind
 )

@@ -41,7 +41,7 @@ if [ -z "$san" ] && [ $# -eq 0 ] && [ "$fuzz_seconds" != 0 ]; then
   if [ ! -f "$fuzz_build/CMakeCache.txt" ]; then
     CC=clang CXX=clang++ cmake -S . -B "$fuzz_build" "${generator[@]}" \
       -DCMAKE_BUILD_TYPE=RelWithDebInfo -DPBGI_WERROR=ON -DPBGI_FUZZ=ON \
-      -DPBGI_BUILD_TESTS=OFF -DPBGI_BUILD_BENCH=OFF -DPBGI_BUILD_TOOLS=OFF \
+      -DPBGI_BUILD_TESTS=OFF -DPBGI_BUILD_BENCH=OFF -DPBGI_BUILD_TOOLS=OFF -DPBGI_BUILD_PYTHON=OFF \
       -DPBGI_FUZZ_SECONDS="$fuzz_seconds"
   else
     cmake -S . -B "$fuzz_build" -DPBGI_FUZZ_SECONDS="$fuzz_seconds" >/dev/null
