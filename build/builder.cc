@@ -8,6 +8,7 @@
 #include "absl/strings/str_format.h"
 #include "base/stopwatch.h"
 #include "build/external_sort.h"
+#include "build/input_range.h"
 #include "build/neighbour_estimate.h"
 #include "build/node_packer.h"
 #include "build/octree_builder.h"
@@ -122,6 +123,17 @@ MemoryPlan PlanFor(const BuildOptions& o, int64_t known_count, int threads) {
 
 }  // namespace
 
+}  // namespace internal
+
+uint64_t MinimumBuildMemory(const BuildOptions& o) {
+  // PlanFor's fixed part and smallest write batch, the smallest upper share and the smallest
+  // sorted run, on one thread (the plan drops to one under a small budget).
+  return internal::kMiB + 24 * internal::kMiB + 4 * uint64_t{o.page_size} + (256 << 10) +
+         internal::kMinRunRecords * internal::kSortBytesPerRecord;
+}
+
+namespace internal {
+
 MemoryPlan PlanMemory(const BuildOptions& o, int64_t known_count) {
   const int threads = ThreadCount(o);
   const MemoryPlan one = PlanFor(o, known_count, 1);
@@ -144,7 +156,7 @@ absl::StatusOr<BuildStats> BuildToSink(SurfelSource& source, PageSink& sink,
   BuildStats stats;
   std::vector<Surfel> batch(kBatch);
 
-  // Reads the whole source once, calling f(index, surfel) for every valid surfel.
+  // Reads the whole source once, calling f(surfel, index) for every valid surfel.
   auto for_each_valid = [&](const char* pass, auto&& f) -> absl::Status {
     PBGI_RETURN_IF_ERROR(source.Rewind());
     uint64_t index = 0, skipped = 0, next_report = kProgressEvery;
@@ -165,7 +177,7 @@ absl::StatusOr<BuildStats> BuildToSink(SurfelSource& source, PageSink& sink,
           ++skipped;
           continue;
         }
-        PBGI_RETURN_IF_ERROR(f(s));
+        PBGI_RETURN_IF_ERROR(f(s, index));
       }
       if (index >= next_report) {
         Report(options, pass, index, known);
@@ -180,7 +192,7 @@ absl::StatusOr<BuildStats> BuildToSink(SurfelSource& source, PageSink& sink,
   Bounds bounds = source.KnownBounds();
   Stopwatch t;
   if (bounds.Empty()) {
-    PBGI_RETURN_IF_ERROR(for_each_valid("bounds", [&](const Surfel& s) {
+    PBGI_RETURN_IF_ERROR(for_each_valid("bounds", [&](const Surfel& s, uint64_t) {
       bounds.Extend(s.position);
       return absl::OkStatus();
     }));
@@ -198,23 +210,27 @@ absl::StatusOr<BuildStats> BuildToSink(SurfelSource& source, PageSink& sink,
   // Records are made in place in the sorter's run buffer.
   absl::Span<SortRecord> slots;
   size_t used = 0;
-  PBGI_RETURN_IF_ERROR(for_each_valid("sort", [&](const Surfel& in) -> absl::Status {
-    if (used == slots.size()) {
-      sorter.Commit(used);
-      used = 0;
-      PBGI_ASSIGN_OR_RETURN(slots, sorter.Reserve(kBatch));
-    }
-    Surfel s = in;
-    if (options.estimate.normals) {
-      s.normal = glm::vec3(0.0f);
-    } else {
-      s.normal = glm::vec3(glm::normalize(glm::dvec3(s.normal)));
-    }
-    if (options.estimate.radius) s.radius = 0.0f;
-    if (!radiance) s.radiance = glm::vec3(0.0f);
-    slots[used++] = MakeSortRecord(quant.Key(s.position), s);
-    return absl::OkStatus();
-  }));
+  InputRangeCheck range;
+  PBGI_RETURN_IF_ERROR(
+      for_each_valid("sort", [&](const Surfel& in, uint64_t index) -> absl::Status {
+        PBGI_RETURN_IF_ERROR(options.estimate.radius ? range.AddPosition(in, index)
+                                                     : range.Add(in, index, radiance));
+        if (used == slots.size()) {
+          sorter.Commit(used);
+          used = 0;
+          PBGI_ASSIGN_OR_RETURN(slots, sorter.Reserve(kBatch));
+        }
+        Surfel s = in;
+        if (options.estimate.normals) {
+          s.normal = glm::vec3(0.0f);
+        } else {
+          s.normal = glm::vec3(glm::normalize(glm::dvec3(s.normal)));
+        }
+        if (options.estimate.radius) s.radius = 0.0f;
+        if (!radiance) s.radiance = glm::vec3(0.0f);
+        slots[used++] = MakeSortRecord(quant.Key(s.position), s);
+        return absl::OkStatus();
+      }));
   sorter.Commit(used);
   PBGI_RETURN_IF_ERROR(sorter.FinishInput());
   stats.seconds_sort = t.Seconds();
@@ -237,7 +253,17 @@ absl::StatusOr<BuildStats> BuildToSink(SurfelSource& source, PageSink& sink,
   OctreeBuilder octree(options.leaf_size, options.channels, &points, &packer);
   const bool estimate = options.estimate.radius || options.estimate.normals;
   NeighbourEstimator estimator(options.estimate, bounds);
-  auto to_octree = [&](const SortRecord& r) { return octree.Add(r); };
+  uint64_t estimated = 0;
+  auto to_octree = [&](const SortRecord& r) -> absl::Status {
+    if (options.estimate.radius) {
+      Surfel s;
+      s.position = glm::vec3(r.position[0], r.position[1], r.position[2]);
+      s.radius = r.radius;
+      s.radiance = glm::vec3(r.radiance[0], r.radiance[1], r.radiance[2]);
+      PBGI_RETURN_IF_ERROR(range.AddEstimated(s, estimated++, radiance));
+    }
+    return octree.Add(r);
+  };
   uint64_t done = 0, next_report = kProgressEvery;
   for (;;) {
     PBGI_ASSIGN_OR_RETURN(absl::Span<const SortRecord> recs, sorter.NextBlock());

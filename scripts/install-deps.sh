@@ -4,8 +4,8 @@
 set -euo pipefail
 
 PACKAGES=(
-  # toolchain
-  g++ make cmake ninja-build pkg-config ca-certificates
+  # toolchain (clang and its runtime libraries: the clang build and libFuzzer's fuzz targets)
+  g++ make cmake ninja-build pkg-config ca-certificates clang libclang-rt-14-dev
   # libraries
   liblmdb-dev lmdb-utils libabsl-dev libglm-dev
   libgtest-dev libgmock-dev libbenchmark-dev
@@ -15,6 +15,8 @@ PACKAGES=(
   libnanoflann-dev
   # tools: the charts of `pbgi eval` (PLplot and its cairo PNG driver)
   libplplot-dev plplot-driver-cairo
+  # the Python module (python/) and its tests, example and progress bars
+  python3-dev pybind11-dev python3-numpy python3-pytest python3-matplotlib python3-tqdm
   # tools used by the test suite and the measurements
   time valgrind
   # the CLI test: an independent PLY reader (stdlib only) and the PLY files of assimp-testmodels

@@ -14,7 +14,9 @@
 #include "pbgi/query.h"
 #include "pbgi/scene.h"
 #include "pbgi/status.h"
+#include "pbgi/store.h"
 #include "tools/args.h"
+#include "tools/budget.h"
 #include "tools/command.h"
 #include "tools/progress.h"
 #include "tools/scene_views.h"
@@ -26,8 +28,8 @@ struct DemoArgs {
   std::string out_dir = "out/demo";
   std::string scene = "city";
   std::string points = "4M";
-  std::string memory = "512M";
-  std::string cache = "256M";
+  std::string memory = "auto";
+  std::string cache = "auto";
   int width = 960;
   int height = 540;
   int threads = 0;
@@ -175,8 +177,14 @@ void PrintDemoSummary(const DemoArgs& a, const DemoRun& run, uint64_t memory, ui
 }
 
 absl::Status RunDemo(const DemoArgs& a) {
-  PBGI_ASSIGN_OR_RETURN(uint64_t memory, ParseBudget(a.memory, "--memory"));
-  PBGI_ASSIGN_OR_RETURN(uint64_t cache, ParseBudget(a.cache, "--cache"));
+  PBGI_RETURN_IF_ERROR(CheckOutsideStores(a.out_dir));
+  PBGI_ASSIGN_OR_RETURN(uint64_t memory,
+                        ResolveBudget("demo", "--memory", a.memory, uint64_t{512} << 20,
+                                      MinimumBuildMemory(BuildOptions{}),
+                                      "fixed buffers, one write batch and the smallest sort run"));
+  PBGI_ASSIGN_OR_RETURN(
+      uint64_t cache, ResolveBudget("demo", "--cache", a.cache, uint64_t{256} << 20, kMinCacheBytes,
+                                    "a few pages per thread"));
   std::error_code ec;
   std::filesystem::create_directories(a.out_dir, ec);
   if (ec) {
@@ -201,10 +209,14 @@ CommandSetup Setup() {
     app->add_option("--points", a->points, "Surfels to generate (e.g. 500k, 4M)")
         ->check(CountValidator(1, int64_t{1} << 40))
         ->capture_default_str();
-    app->add_option("--memory", a->memory, "Memory cap of the build, with a unit (512M, 1G)")
+    app->add_option("--memory", a->memory,
+                    "Memory cap of the build, with a unit (512M, 1G), or auto (512 MiB, less in a "
+                    "small machine)")
         ->check(BudgetValidator())
         ->capture_default_str();
-    app->add_option("--cache", a->cache, "Page cache of shading, with a unit (256M)")
+    app->add_option(
+           "--cache", a->cache,
+           "Page cache of shading, with a unit (256M), or auto (256 MiB, less in a small machine)")
         ->check(BudgetValidator())
         ->capture_default_str();
     app->add_option("--width", a->width, "Image width, pixels")

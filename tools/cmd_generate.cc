@@ -14,6 +14,7 @@
 #include "pbgi/ply.h"
 #include "pbgi/scene.h"
 #include "pbgi/status.h"
+#include "pbgi/store.h"
 #include "tools/args.h"
 #include "tools/command.h"
 #include "tools/outputs.h"
@@ -46,6 +47,7 @@ absl::Status Run(const Options& o) {
     return absl::InvalidArgumentError(
         absl::StrFormat("-o %s: the output is a PLY point file (-o NAME.ply)", o.out));
   }
+  PBGI_RETURN_IF_ERROR(CheckOutsideStores(o.out));
   PBGI_ASSIGN_OR_RETURN(int64_t count, ParseCount(o.points, "-n"));
   if (count <= 0) return absl::InvalidArgumentError("-n must be at least 1");
   SceneOptions so;

@@ -15,6 +15,7 @@
 #include "pbgi/ply.h"
 #include "pbgi/scene.h"
 #include "pbgi/status.h"
+#include "pbgi/store.h"
 #include "tools/args.h"
 #include "tools/command.h"
 #include "tools/outputs.h"
@@ -62,6 +63,7 @@ absl::Status Run(const Options& o) {
         absl::StrFormat("-o %s: the output is a PLY point file (-o NAME.ply)", o.out));
   }
   PBGI_RETURN_IF_ERROR(CheckOutputsAreNotInputs({o.mesh}, {o.out}));
+  PBGI_RETURN_IF_ERROR(CheckOutsideStores(o.out));
   int64_t points = 0;
   if (!o.points.empty()) {
     PBGI_ASSIGN_OR_RETURN(points, ParseCount(o.points, "-n"));

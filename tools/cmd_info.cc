@@ -18,6 +18,7 @@
 #include "tools/command.h"
 #include "tools/progress.h"
 #include "tools/report.h"
+#include "tree/verify.h"
 
 namespace pbgi::tools {
 namespace {
@@ -278,11 +279,18 @@ CommandSetup Setup() {
         PrintPly(s, *json);
         return absl::OkStatus();
       }
+      NoteStoreLeftovers("info", *db);
       PBGI_ASSIGN_OR_RETURN(std::unique_ptr<PageStore> store, PageStore::Open(*db));
       if (*json) {
         PrintJson(*store);
       } else {
         PrintTable(*store);
+      }
+      // info shows what the record holds, even when it is no database (a bare store of pages);
+      // verify and shade refuse such a record.
+      if (absl::Status s = internal::CheckDatabaseMeta(store->meta(), store->path()); !s.ok()) {
+        std::fflush(stdout);
+        std::fprintf(stderr, "pbgi info: warning: %s\n", std::string(s.message()).c_str());
       }
       return absl::OkStatus();
     };

@@ -15,6 +15,7 @@
 #include "pbgi/raster.h"
 #include "pbgi/status.h"
 #include "tools/args.h"
+#include "tools/budget.h"
 #include "tools/command.h"
 #include "tools/report.h"
 
@@ -43,7 +44,7 @@ struct Args {
   std::string normal;
   float max_solid_angle = 0.03f;
   float max_distance = std::numeric_limits<float>::infinity();
-  std::string cache = "256M";
+  std::string cache = "auto";
   std::string cut = "cosine";
   int raster_res = 12;
   bool json = false;
@@ -210,7 +211,9 @@ absl::Status Run(const Args& a) {
   if (!(a.max_solid_angle >= 0)) {
     return absl::InvalidArgumentError("--max-solid-angle must be >= 0");
   }
-  PBGI_ASSIGN_OR_RETURN(uint64_t cache, ParseBudget(a.cache, "--cache"));
+  PBGI_ASSIGN_OR_RETURN(uint64_t cache,
+                        ResolveBudget("query", "--cache", a.cache, uint64_t{256} << 20,
+                                      kMinCacheBytes, "a few pages"));
   DatabaseOptions options;
   options.cache_bytes = cache;
   PBGI_ASSIGN_OR_RETURN(std::unique_ptr<Database> db, Database::Open(a.db, options));
@@ -246,7 +249,7 @@ CommandSetup Setup() {
                     "Accept a node as a cluster below this solid angle (sr)")
         ->capture_default_str();
     app->add_option("--max-distance", args->max_distance, "Ignore what is farther than this");
-    app->add_option("--cache", args->cache, "Cache budget (both levels), e.g. 256M")
+    app->add_option("--cache", args->cache, "Cache budget (both levels), e.g. 256M, or auto")
         ->check(BudgetValidator())
         ->capture_default_str();
     app->add_option("--cut", args->cut,

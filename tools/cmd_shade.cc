@@ -1,5 +1,7 @@
 // `pbgi shade`: occlusion, colour bleeding or glossy light from a database, for a point file of
 // receivers (RenderMan's ptfilter workflow) or for the pixels of a camera view of a scene.
+#include <unistd.h>
+
 #include <algorithm>
 #include <cerrno>
 #include <cmath>
@@ -19,7 +21,9 @@
 #include "pbgi/raster.h"
 #include "pbgi/scene.h"
 #include "pbgi/status.h"
+#include "pbgi/store.h"
 #include "tools/args.h"
+#include "tools/budget.h"
 #include "tools/command.h"
 #include "tools/outputs.h"
 #include "tools/progress.h"
@@ -34,7 +38,7 @@ struct ShadeArgs {
   std::string scene;
   std::string out;
   std::string mode = "irradiance";
-  std::string cache = "256M";
+  std::string cache = "auto";
   int threads = 0;
   float max_solid_angle = 0.03f;
   std::string cut = "cosine";  // or "plain"; glossy always uses the plain cut
@@ -147,7 +151,7 @@ absl::Status ShadePoints(const ShadeArgs& a, Database& db, const ShadeOptions& b
   std::vector<float> extra;
   std::vector<uint8_t> rgb;
   ShadeStats total, s;
-  uint64_t done = 0, invalid = 0;
+  uint64_t done = 0, invalid = 0, chunks = 0;
   Progress progress("shade", "receivers", in->KnownCount());
   ShadeOptions so = base;
   so.progress = [&](const ShadeProgress& p) { progress.Update(done + p.done); };
@@ -206,6 +210,7 @@ absl::Status ShadePoints(const ShadeArgs& a, Database& db, const ShadeOptions& b
     }
     PBGI_RETURN_IF_ERROR(out->Write(kept, extra, rgb));
     done += n;
+    ++chunks;
     total.Add(s);
   }
   PBGI_RETURN_IF_ERROR(out->Close());
@@ -217,8 +222,10 @@ absl::Status ShadePoints(const ShadeArgs& a, Database& db, const ShadeOptions& b
     std::printf("  %llu invalid receivers %s\n", static_cast<unsigned long long>(invalid),
                 a.invalid == "skip" ? "skipped" : "written with zero results");
   }
-  std::printf("  wrote %s (%llu points)\n", a.out.c_str(),
-              static_cast<unsigned long long>(out->count()));
+  // The chunks show that the receivers in flight stay inside the --cache budget.
+  std::printf("  wrote %s (%llu points, shaded in %llu chunks of at most %zu)\n", a.out.c_str(),
+              static_cast<unsigned long long>(out->count()),
+              static_cast<unsigned long long>(chunks), chunk.size());
   return absl::OkStatus();
 }
 
@@ -268,6 +275,8 @@ absl::Status ShadeCamera(const ShadeArgs& a, Database& db, const ShadeOptions& b
                                                 : &view.composite;
   PBGI_ASSIGN_OR_RETURN(auto paths, ViewOutputs(a.out));
   const auto& [exr, png] = paths;
+  PBGI_RETURN_IF_ERROR(CheckOutsideStores(exr));
+  PBGI_RETURN_IF_ERROR(CheckOutsideStores(png));
   PBGI_RETURN_IF_ERROR(WriteExr(exr, *image));
   PBGI_RETURN_IF_ERROR(WritePng(png, *image, 1.0f, mode != Mode::kOcclusion));
   std::printf("traced %dx%d primary rays in %.2f s\n", a.width, a.height, view.trace_seconds);
@@ -300,6 +309,7 @@ absl::Status RunShade(const ShadeArgs& a) {
   if (a.receivers.empty() == a.scene.empty()) {
     return absl::InvalidArgumentError("give either --receivers IN.ply or --scene SCENE");
   }
+  PBGI_RETURN_IF_ERROR(CheckOutsideStores(a.out));
   PBGI_RETURN_IF_ERROR(CheckOutputs(a));
   Mode mode = Mode::kIrradiance;
   if (a.mode == "occlusion")
@@ -310,11 +320,40 @@ absl::Status RunShade(const ShadeArgs& a) {
     return absl::InvalidArgumentError(
         absl::StrFormat("--mode %s: use occlusion, irradiance or glossy", a.mode));
   }
-  PBGI_ASSIGN_OR_RETURN(uint64_t cache, ParseBudget(a.cache, "--cache"));
   PBGI_ASSIGN_OR_RETURN(int64_t chunk, ParseCount(a.chunk, "--chunk"));
+  // One budget, --cache, for the page cache and what the job holds besides: a chunk of
+  // receivers (at most a quarter of the budget, at least kMinChunk of them) or the view's pixels.
+  constexpr uint64_t kMinChunk = 1024;
+  constexpr uint64_t kViewBytesPerPixel = 256;  // receivers, results, traced hits, images
+  const uint64_t job_min =
+      a.scene.empty() ? std::min<uint64_t>(kMinChunk, uint64_t(chunk)) * kShadeBytesPerReceiver
+                      : uint64_t(a.width) * uint64_t(a.height) * kViewBytesPerPixel;
+  PBGI_ASSIGN_OR_RETURN(
+      const uint64_t budget,
+      ResolveBudget("shade", "--cache", a.cache, uint64_t{256} << 20, kMinCacheBytes + job_min,
+                    a.scene.empty() ? "a few pages and 1024 receivers"
+                                    : "a few pages and the view's pixels"));
+  uint64_t chunk_receivers = 0, job = job_min;
+  if (a.scene.empty()) {
+    chunk_receivers =
+        std::clamp<uint64_t>(budget / 4 / kShadeBytesPerReceiver,
+                             std::min<uint64_t>(kMinChunk, uint64_t(chunk)), uint64_t(chunk));
+    job = chunk_receivers * kShadeBytesPerReceiver;
+  }
+  const uint64_t cache = budget - job;
   DatabaseOptions dbo;
   dbo.cache_bytes = cache;
   PBGI_ASSIGN_OR_RETURN(std::unique_ptr<Database> db, Database::Open(a.db, dbo));
+  // Every Reader (one per thread) pins two pages at least; below that the cache cannot hold.
+  const int threads = ResolveThreads(a.threads);
+  const uint64_t min_cache = 4 * uint64_t(threads) * std::max<uint64_t>(db->meta().page_size, 4096);
+  if (cache < min_cache) {
+    return absl::InvalidArgumentError(absl::StrFormat(
+        "--cache %s leaves %s for pages after the job's %s, less than the %s that %d threads "
+        "need (4 pages of %d bytes each): give at least --cache %dK",
+        a.cache, FormatBytes(cache), FormatBytes(job), FormatBytes(min_cache), threads,
+        db->meta().page_size, (min_cache + job + 1023) / 1024));
+  }
   if (mode != Mode::kOcclusion && !HasRadiance(db->meta().channels)) {
     return absl::FailedPreconditionError(absl::StrFormat(
         "%s stores occlusion only (built with --channels occlusion): --mode %s needs radiance",
@@ -337,7 +376,7 @@ absl::Status RunShade(const ShadeArgs& a) {
     so.raster.lobe = GlossyLobe::kPhong;
     so.raster.phong_exponent = a.phong_exponent;
   }
-  return a.scene.empty() ? ShadePoints(a, *db, so, mode, cache, chunk)
+  return a.scene.empty() ? ShadePoints(a, *db, so, mode, cache, chunk_receivers)
                          : ShadeCamera(a, *db, so, mode, cache);
 }
 
@@ -356,7 +395,10 @@ CommandSetup Setup() {
     app->add_option("--mode", a->mode, "occlusion, irradiance or glossy")
         ->check(CLI::IsMember({"occlusion", "irradiance", "glossy"}))
         ->capture_default_str();
-    app->add_option("--cache", a->cache, "Page cache budget (e.g. 256M, 2G)")
+    app->add_option("--cache", a->cache,
+                    "Memory budget: the page cache and the receivers in flight; auto: 256 MiB, or "
+                    "half of what the machine or the memory cgroup leaves (a size needs a unit: "
+                    "256M, 2G)")
         ->check(BudgetValidator())
         ->capture_default_str();
     app->add_option("--threads", a->threads, "Shading threads (0: all cores)")
