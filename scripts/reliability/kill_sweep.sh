@@ -24,7 +24,7 @@ for i in $(seq 1 "$n"); do
   rm -rf "$dir/work"
   cp -a "$dir/base" "$dir/work"
   delay=$(awk -v s="$span" -v i="$i" -v n="$n" 'BEGIN { printf "%.4f", s * i / n }')
-  "$pbgi" build "$dir/new.ply" -o "$dir/work/db" >/dev/null 2>&1 &
+  "$pbgi" build "$dir/new.ply" -o "$dir/work/db" --force >/dev/null 2>&1 &
   pid=$!
   sleep "$delay"
   kill -9 "$pid" 2>/dev/null
@@ -39,7 +39,7 @@ for i in $(seq 1 "$n"); do
   if [ -e "$dir/work/db/data.mdb.tmp" ]; then
     left=$((left + 1))
     "$pbgi" info "$dir/work/db" 2>&1 >/dev/null | grep -q "left over" && named=$((named + 1))
-    "$pbgi" build "$dir/old.ply" -o "$dir/work/db" >/dev/null 2>&1
+    "$pbgi" build "$dir/old.ply" -o "$dir/work/db" --force >/dev/null 2>&1
     [ "$(ls "$dir/work/db")" = "data.mdb" ] || { bad=$((bad + 1)); echo "kill $i: the next build left $(ls "$dir/work/db")"; }
   fi
 done
