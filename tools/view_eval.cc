@@ -15,9 +15,10 @@
 #include "pbgi/build.h"
 #include "pbgi/query.h"
 #include "pbgi/scene.h"
-#include "pbgi/status.h"
-#include "tools/scene_views.h"
 #include "pbgi/shade.h"
+#include "pbgi/status.h"
+#include "pbgi/store.h"
+#include "tools/scene_views.h"
 
 namespace pbgi::tools {
 
@@ -79,7 +80,8 @@ Image ErrorHeatMap(int width, int height, const std::vector<double>& got,
     }
     const float t = static_cast<float>(std::clamp((got[p] - reference[p]) / scale, -1.0, 1.0));
     // White at 0; towards red (too high) or blue (too low).
-    img.pixels[p] = t >= 0 ? glm::vec3(1.0f, 1.0f - t, 1.0f - t) : glm::vec3(1.0f + t, 1.0f + t, 1.0f);
+    img.pixels[p] =
+        t >= 0 ? glm::vec3(1.0f, 1.0f - t, 1.0f - t) : glm::vec3(1.0f + t, 1.0f + t, 1.0f);
   }
   return img;
 }
@@ -98,7 +100,8 @@ Image GreyImage(int width, int height, const std::vector<double>& v,
                 const std::vector<uint8_t>& covered, double scale, float background) {
   Image img(width, height);
   for (size_t p = 0; p < v.size(); ++p) {
-    img.pixels[p] = covered[p] ? glm::vec3(static_cast<float>(v[p] * scale)) : glm::vec3(background);
+    img.pixels[p] =
+        covered[p] ? glm::vec3(static_cast<float>(v[p] * scale)) : glm::vec3(background);
   }
   return img;
 }
@@ -120,8 +123,8 @@ std::string ErrorsJson(const ImageErrors& e) {
       "{\"pixels\": %d, \"mae\": %.6g, \"rmse\": %.6g, \"bias\": %.6g, \"p99\": %.6g, "
       "\"max\": %.6g, \"worst_tile\": %.6g, \"worst_tile_x\": %d, \"worst_tile_y\": %d, "
       "\"reference_mean\": %.6g}",
-      e.pixels, e.mae, e.rmse, e.bias, e.p99, e.max, e.worst_tile, e.worst_tile_x,
-      e.worst_tile_y, e.reference_mean);
+      e.pixels, e.mae, e.rmse, e.bias, e.p99, e.max, e.worst_tile, e.worst_tile_x, e.worst_tile_y,
+      e.reference_mean);
 }
 
 }  // namespace
@@ -129,6 +132,7 @@ std::string ErrorsJson(const ImageErrors& e) {
 absl::Status RunViewEval(const ViewEvalArgs& a) {
   const bool occlusion = a.mode == "occlusion";
   const uint64_t memory = a.memory_bytes, cache = a.cache_bytes;
+  PBGI_RETURN_IF_ERROR(CheckOutsideStores(a.out_dir));
   std::error_code ec;
   std::filesystem::create_directories(a.out_dir, ec);
   if (ec) return absl::UnavailableError(absl::StrFormat("cannot create %s", a.out_dir));
@@ -200,8 +204,10 @@ absl::Status RunViewEval(const ViewEvalArgs& a) {
   if (!cached) {
     const std::string tmp = ref_cache + ".tmp";
     std::ofstream out(tmp, std::ios::binary);
-    out.write(reinterpret_cast<const char*>(ref_a.data()), std::streamsize(pixels * sizeof(double)));
-    out.write(reinterpret_cast<const char*>(ref_b.data()), std::streamsize(pixels * sizeof(double)));
+    out.write(reinterpret_cast<const char*>(ref_a.data()),
+              std::streamsize(pixels * sizeof(double)));
+    out.write(reinterpret_cast<const char*>(ref_b.data()),
+              std::streamsize(pixels * sizeof(double)));
     out.close();
     if (out.good()) std::filesystem::rename(tmp, ref_cache, ec);
   }
@@ -213,7 +219,8 @@ absl::Status RunViewEval(const ViewEvalArgs& a) {
   ref_noise /= double(std::max<size_t>(1, cr.receivers.size()));
   const double ref_seconds = Since(t);
   std::fprintf(stderr, "eval --view: reference %d rays per pixel %s in %.1f s (own MAE ~%.2g)\n",
-               2 * half_rays, (cached ? "read from " + ref_cache : std::string("traced")).c_str(), ref_seconds, ref_noise);
+               2 * half_rays, (cached ? "read from " + ref_cache : std::string("traced")).c_str(),
+               ref_seconds, ref_noise);
 
   // What the reference images look like: occlusion as 1 - occlusion (white = open), irradiance
   // scaled so that its mean is mid-grey.
@@ -287,7 +294,8 @@ absl::Status RunViewEval(const ViewEvalArgs& a) {
         PBGI_RETURN_IF_ERROR(WriteExr(a.out_dir + "/values_" + tag + ".exr", raw));
         rows_json += absl::StrFormat(
             "%s    {\"setting\": \"%s\", \"max_solid_angle\": %g, \"raster_res\": %d, "
-            "\"cut\": \"%s\", \"footprint\": \"%s\", \"curved_scale\": %g, \"us_per_receiver\": %.4g, \"clusters\": %.4g, \"surfels\": %.4g, "
+            "\"cut\": \"%s\", \"footprint\": \"%s\", \"curved_scale\": %g, "
+            "\"us_per_receiver\": %.4g, \"clusters\": %.4g, \"surfels\": %.4g, "
             "\"errors\": %s}",
             rows_json.empty() ? "" : ",\n", tag, msa, res, cut, footprint, a.curved_scale, us,
             double(st.query.clusters) / n, double(st.query.surfels) / n, ErrorsJson(e));
