@@ -158,7 +158,25 @@ void Rasterizer::BuildClusterFootprints(const Gathered& g) {
       bool inside = true;
       for (int k = 0; k < 3; ++k) inside &= lo[k] <= 0.0f && hi[k] >= 0.0f;
       if (inside || !(projected > 0.0f)) continue;  // keeps the cone splat
-      s.alpha = std::min(1.0f, seen / projected);
+      // Opacity: the cluster's solid angle over the faces' (exact, for each face the signed
+      // sum of the four rectangles from the receiver's foot point), so that a receiver close
+      // to the box, whose near faces subtend far more than the content behind them, is not
+      // over-occluded by a parallel projection's ratio.
+      auto corner = [](float a, float b, float h) {
+        return std::atan(a * b / (h * std::sqrt(h * h + a * a + b * b)));
+      };
+      float faces = 0.0f;
+      for (int k = 0; k < 3; ++k) {
+        const float at = lo[k] > 0.0f ? lo[k] : hi[k] < 0.0f ? hi[k] : 0.0f;
+        if (at == 0.0f) continue;
+        const int k1 = (k + 1) % 3, k2 = (k + 2) % 3;
+        const float h = std::fabs(at);
+        faces += corner(hi[k1], hi[k2], h) - corner(lo[k1], hi[k2], h) -
+                 corner(hi[k1], lo[k2], h) + corner(lo[k1], lo[k2], h);
+      }
+      (void)seen;
+      if (!(faces > 0.0f)) continue;  // keeps the cone splat
+      s.alpha = std::min(1.0f, s.omega / faces);
       for (int k = 0; k < 3; ++k) {
         float at;
         if (lo[k] > 0.0f) {
