@@ -29,6 +29,7 @@ using internal::BelowCut;
 using internal::CachedPage;
 using internal::DecodedPage;
 using internal::NodeBeyondMargin;
+using internal::NodeCut;
 using internal::NodeCutCosine;
 using internal::NodeHot;
 using internal::NodeMarginOf;
@@ -193,7 +194,8 @@ struct Reader::Impl {
         meta(d->meta()),
         source(std::move(r)),
         front(budget, max_entries),
-        points_per_page(internal::PointsPerPage(meta.page_size, meta.channels)) {}
+        points_per_page(internal::PointsPerPage(meta.page_size, meta.channels)),
+        cube(meta.bounds) {}
 
   // A page through both cache levels, counted at `level`.
   inline absl::Status Fetch(Section section, uint64_t page_no, int level, const DecodedPage** out) {
@@ -218,7 +220,8 @@ struct Reader::Impl {
   absl::Status FetchSlow(Section section, uint64_t page_no, uint64_t key, int level,
                          const DecodedPage** out);
   absl::Status Gather(const Receiver& receiver, const Cut& cut, Gathered* out);
-  absl::Status EmitLeafPoints(uint64_t first, uint64_t count, const glm::vec3& p,
+  absl::Status EmitLeafPoints(uint64_t first, uint64_t count, const Bounds& cell,
+                              const glm::vec3& p,
                               const glm::vec3& n, float max_distance, bool check_distance,
                               Gathered* out);
 
@@ -244,6 +247,7 @@ struct Reader::Impl {
   std::unique_ptr<internal::PageReader> source;
   internal::FrontCache front;
   const uint64_t points_per_page;
+  const internal::MortonCube cube;  // the root cell: a node's depth and corner give its cell
   // This Reader's CacheStats as Database::TotalStats() reads them (ForEachCounter order), on
   // cache lines of their own: the other thread never shares a line that a gather writes.
   alignas(64) std::atomic<uint64_t> published[kCacheCounters] = {};
@@ -290,11 +294,14 @@ absl::Status Reader::Impl::FetchSlow(Section section, uint64_t page_no, uint64_t
   return absl::OkStatus();
 }
 
-absl::Status Reader::Impl::EmitLeafPoints(uint64_t first, uint64_t count, const glm::vec3& p,
-                                          const glm::vec3& n, float max_distance,
-                                          bool check_distance, Gathered* out) {
+absl::Status Reader::Impl::EmitLeafPoints(uint64_t first, uint64_t count, const Bounds& cell,
+                                          const glm::vec3& p, const glm::vec3& n,
+                                          float max_distance, bool check_distance,
+                                          Gathered* out) {
   uint64_t i = first;
   const uint64_t end = first + count;
+  const uint32_t leaf = static_cast<uint32_t>(out->leaf_cells.size());
+  out->leaf_cells.push_back(cell);
   while (i < end) {
     const uint64_t page_no = i / points_per_page;
     const uint64_t slot0 = i % points_per_page;
@@ -308,6 +315,7 @@ absl::Status Reader::Impl::EmitLeafPoints(uint64_t first, uint64_t count, const 
       if (check_distance && internal::SurfelBeyondPoint(s, p, max_distance)) continue;
       out->surfels.push_back(s);
       out->surfel_ids.push_back(i + k);
+      out->surfel_leaf.push_back(leaf);
     }
     q.points_tested += run;
     i += run;
@@ -329,8 +337,11 @@ absl::Status Reader::Impl::Gather(const Receiver& receiver, const Cut& cut, Gath
         "and the normal finite and not zero",
         p.x, p.y, p.z, receiver.normal.x, receiver.normal.y, receiver.normal.z));
   }
+  if (!(cut.curved_scale > 0.0f && cut.curved_scale <= 1.0f)) {
+    return absl::InvalidArgumentError(
+        absl::StrFormat("Gather: Cut.curved_scale = %g: must be in (0, 1]", cut.curved_scale));
+  }
   const glm::vec3 n = glm::normalize(receiver.normal);
-  const float max_sa = cut.max_solid_angle;
   const float max_d = cut.max_distance;
   const bool check_distance = std::isfinite(max_d);
   const float p_abs_max = AbsMax(p);
@@ -374,20 +385,22 @@ absl::Status Reader::Impl::Gather(const Receiver& receiver, const Cut& cut, Gath
       ++q.nodes_culled;
       continue;
     }
+    const Cut node_cut = NodeCut(cut, node.sh_area.data());
     if (!NodeNearFieldSphere(node.near_centre, node.near_radius2, p) &&
-        (ClearlyBelowCut(node, p, max_sa) ||
-         BelowCut(NodeSolidAngleFrom(node.centre, node.sh_area.data(), p), cut,
+        (ClearlyBelowCut(node, p, node_cut.max_solid_angle) ||
+         BelowCut(NodeSolidAngleFrom(node.centre, node.sh_area.data(), p), node_cut,
                   [&] { return NodeCutCosine(node.near_centre, node.near_radius2, p, n); }))) {
       // Built in place (C++20 aggregate initialization): no zeroing of ~200 bytes first.
       const float area = page->areas[slot];
 #if defined(__cpp_aggregate_paren_init)
       if (page->power) {
         out->clusters.emplace_back(Bounds{node.lo, node.hi}, area, node.sh_area, page->power[slot],
-                                   uint32_t{node.depth}, node.first_point, node.point_count);
+                                   uint32_t{node.depth}, node.first_point, node.point_count,
+                                   cube.CellOf(node.lo, node.depth));
       } else {
         out->clusters.emplace_back(Bounds{node.lo, node.hi}, area, node.sh_area,
                                    std::array<Sh9, 3>{}, uint32_t{node.depth}, node.first_point,
-                                   node.point_count);
+                                   node.point_count, cube.CellOf(node.lo, node.depth));
       }
 #else  // clang 14: no parenthesized aggregate initialization, the same Cluster by braces
       out->clusters.push_back(Cluster{Bounds{node.lo, node.hi}, area, node.sh_area,
@@ -401,7 +414,8 @@ absl::Status Reader::Impl::Gather(const Receiver& receiver, const Cut& cut, Gath
       // The point pages may evict this node page from the front cache (a small budget): the
       // eviction counter makes the next node look its page up again.
       const uint64_t first = node.first_point, count = node.point_count;
-      if (absl::Status s = EmitLeafPoints(first, count, p, n, max_d, check_distance, out);
+      if (absl::Status s = EmitLeafPoints(first, count, cube.CellOf(node.lo, node.depth), p, n,
+                                          max_d, check_distance, out);
           !s.ok()) {
         return s;
       }

@@ -12,6 +12,7 @@ namespace pbgi::testing {
 namespace {
 
 using internal::BelowCut;
+using internal::NodeCut;
 using internal::NearSphere;
 using internal::NodeBeyond;
 using internal::NodeCutCosine;
@@ -106,7 +107,9 @@ absl::Status CheckValidCut(const Gathered& result, absl::Span<const Surfel> surf
     const float reach = NodeReach(cl.area);
     const float sa = ClusterSolidAngle(cl, receiver);
     const NearSphere near = NodeNearSphere(cl.bounds.lo, cl.bounds.hi, reach);
-    if (!BelowCut(sa, cut, [&] { return NodeCutCosine(near.centre, near.radius2, p, nrm); })) {
+    const Cut node_cut = NodeCut(cut, cl.sh_area.data());
+    if (!BelowCut(sa, node_cut,
+                  [&] { return NodeCutCosine(near.centre, near.radius2, p, nrm); })) {
       return fail(absl::StrFormat("%s subtends %g sr (cosine weight %g), not below the cut", name,
                                   sa, NodeCutCosine(near.centre, near.radius2, p, nrm)));
     }
@@ -159,7 +162,9 @@ absl::Status CheckFinerCutNotSmaller(const Gathered& coarse, const Gathered& fin
         "finer cut (%g sr) does not refine the coarser (%g sr) for %s: %s",
         fine_cut.max_solid_angle, coarse_cut.max_solid_angle, Describe(receiver), what));
   };
-  if (fine_cut.max_solid_angle > coarse_cut.max_solid_angle) {
+  if (fine_cut.max_solid_angle > coarse_cut.max_solid_angle ||
+      fine_cut.max_solid_angle * fine_cut.curved_scale >
+          coarse_cut.max_solid_angle * coarse_cut.curved_scale) {
     return absl::InvalidArgumentError("CheckFinerCutNotSmaller: fine_cut is coarser");
   }
   const uint64_t n = surfels.size();

@@ -204,7 +204,9 @@ int PrepareClusters(const Cluster* c, size_t count, const ClusterFrame& f, Prepa
                     bool avx2) {
   if (f.model != ClusterModel::kMoments) {
     int n = 0;
-    for (size_t i = 0; i < count; ++i) n += PrepareClusterOne<kRad>(c[i], f, out + n) ? 1 : 0;
+    for (size_t i = 0; i < count; ++i) {
+      if (PrepareClusterOne<kRad>(c[i], f, out + n)) out[n++].source = static_cast<uint32_t>(i);
+    }
     return n;
   }
 #if PBGI_RASTER_HAS_AVX2

@@ -171,13 +171,13 @@ glm::vec3 MicroBuffer::PixelDirection(int p) const {
 // is a no-op for those.
 float MicroBuffer::PixelCoverage(int p) const {
   internal::PixelState px = pixels_[p];
-  internal::Rasterizer::Close<false>(px, /*behind=*/false);
+  internal::Rasterizer::Close<false>(px, /*behind=*/false, free_layer_);
   return px.closed;
 }
 
 glm::vec3 MicroBuffer::PixelRadiance(int p) const {
   internal::PixelState px = pixels_[p];
-  internal::Rasterizer::Close<true>(px, /*behind=*/false);
+  internal::Rasterizer::Close<true>(px, /*behind=*/false, free_layer_);
   return glm::vec3(px.closed_rgb[0], px.closed_rgb[1], px.closed_rgb[2]);
 }
 

@@ -12,6 +12,7 @@
 #include "raster/cluster_model.h"
 #include "raster/cluster_prep.h"
 #include "raster/cube.h"
+#include "raster/polygon.h"
 
 namespace pbgi::internal {
 namespace {
@@ -82,7 +83,7 @@ void Rasterizer::PrepareClusters(const std::vector<Cluster>& clusters) {
       clusters.data(), clusters.size(), frame, mb_.splats_.data(), avx2_));
 }
 
-inline void Rasterizer::PrepareSurfel(const Surfel& sf, ShadeResult* out) {
+void Rasterizer::PrepareSurfel(const Surfel& sf, ShadeResult* out) {
   const glm::vec3 rel = sf.position - origin_;
   const float r = sf.radius;
   const float nn = glm::dot(sf.normal, sf.normal);
@@ -138,6 +139,18 @@ inline void Rasterizer::PrepareSurfel(const Surfel& sf, ShadeResult* out) {
   s.near = 0;
   ++count_;
   ++out->surfels_drawn;
+}
+
+template <bool kClamp, bool kRad>
+void Rasterizer::SplatPolygons(const PreparedSplat& s) {
+  const Frag fr = FragOf(s);
+  const Polygon* polys = mb_.polygons_.data() + s.poly_first;
+  auto& cov = mb_.coverage_;
+  for (uint32_t k = 0; k < s.poly_count; ++k) {
+    cov.clear();
+    RasterizePolygon(polys[k], res_, &mb_.accumulation_, &cov);
+    for (const PixelCoverage& c : cov) Emit<kClamp, kRad>(c.pixel, s.alpha * c.coverage, fr);
+  }
 }
 
 template <bool kClamp, bool kRad>
@@ -386,7 +399,7 @@ inline void Rasterizer::Integrate(const ShadeReceiver& r, ShadeResult* out) {
   if (radiance_) {
     for (size_t i = 0; i < n; ++i) {
       PixelState& px = px_[hp[i]];
-      Close<true>(px, /*behind=*/false);
+      Close<true>(px, /*behind=*/false, free_layer_);
       sum += __builtin_convertvector(Load4(&px.closed), V4d) * static_cast<double>(w[i]);
       cover += static_cast<double>(std::min(1.0f, px.closed)) * om[i];
     }
@@ -394,7 +407,7 @@ inline void Rasterizer::Integrate(const ShadeReceiver& r, ShadeResult* out) {
     double occ = 0.0;
     for (size_t i = 0; i < n; ++i) {
       PixelState& px = px_[hp[i]];
-      Close<false>(px, /*behind=*/false);
+      Close<false>(px, /*behind=*/false, free_layer_);
       occ += static_cast<double>(px.closed) * w[i];
       cover += static_cast<double>(std::min(1.0f, px.closed)) * om[i];
     }
@@ -445,7 +458,9 @@ template <bool kClamp, bool kRad>
 void Rasterizer::Draw(uint32_t count) {
   const PreparedSplat* splats = mb_.splats_.data();
   auto draw = [&](const PreparedSplat& s) {
-    if (s.near) {
+    if (s.near == 2) {
+      SplatPolygons<kClamp, kRad>(s);
+    } else if (s.near) {
       SplatDisk<kClamp, kRad>(s);
     } else {
       SplatCone<kClamp, kRad>(s);
@@ -463,7 +478,11 @@ void Rasterizer::Draw(uint32_t count) {
 template <bool kClamp, bool kRad>
 void Rasterizer::Finish(const Gathered& g, const ShadeReceiver& r, ShadeResult* out) {
   Reset();
-  for (const Surfel& s : g.surfels) PrepareSurfel(s, out);
+  if (polygons_) {
+    PrepareSurfelGroups(g, out);
+  } else {
+    for (const Surfel& s : g.surfels) PrepareSurfel(s, out);
+  }
   Draw<kClamp, kRad>(count_);
   Integrate(r, out);
 }
@@ -492,6 +511,7 @@ absl::Status Rasterizer::Run(const Gathered& g, const ShadeReceiver& r, ShadeRes
     PrepareClusters<false>(g.clusters);
   }
   out->clusters_drawn = count_;
+  if (polygons_) BuildClusterFootprints(g);
   out->culled = static_cast<uint32_t>(g.clusters.size()) - count_;
   if (clamp_) {
     if (radiance_) {

@@ -27,9 +27,29 @@ inline constexpr int kBoxMaxSpan = 4;
 // degrees of the layer's first fragment's (see Emit()).
 inline constexpr float kChainCos = 0.7f;
 // A cluster counts as flat (depth from its mean plane) when |sum A_i n_i| > kFlatness * A.
-inline constexpr float kFlatness = 0.8f;
+inline constexpr float kFlatness = kClusterFlatness;
 // Rays closer than this cosine to a flat element's plane keep its bounding-sphere depth range.
 inline constexpr float kMinPlaneCos = 1e-3f;
+
+// The footprint box of content whose surfel centres have bounds `centres` and spacing
+// `spacing`, inside its octree cell (raster/footprints.cc): grown to the cell's side where the
+// content comes within a spacing of it, else by half a spacing; along an axis near the plane's
+// normal it always grows by half a spacing (the plane stays inside, even on the cell's side).
+// *full: the plane with `plane_normal` fills the cell (every in-plane side reached it).
+// *snapped: bit 2k (2k+1) set when the low (high) side of axis k reached the cell. Without a
+// usable cell (empty, or not holding `centres`), every side grows by half a spacing.
+Bounds FootprintBox(const Bounds& centres, const Bounds& cell, float spacing,
+                    const glm::vec3& plane_normal, bool* full, int* snapped = nullptr);
+
+// The flat footprint of content of area `area` on the plane {dot(normal, x) = offset} (x
+// relative to `origin`): the plane inside the footprint box, its free in-plane sides moved out
+// until the polygon holds the content's area (a surface that ends inside its cell ends where
+// its area says, not where the outermost centres say, so that sampling that puts more centres
+// in one cell than its area does not lose the excess). Returns the coverage inside the
+// polygon (1 when the plane fills the cell), or 0 with p->n = 0 when there is no polygon.
+float FlatFootprint(const Bounds& centres, const Bounds& cell, float spacing,
+                    const glm::vec3& normal, float offset, const glm::vec3& origin, double area,
+                    Polygon* p);
 
 // Shades one receiver into a MicroBuffer that it borrows. Not thread-safe (neither is the
 // buffer); cheap to construct: everything it keeps lives in the MicroBuffer.
@@ -50,7 +70,11 @@ class Rasterizer {
         dir_z_(mb->dir_z_.data()),
         half_width_(mb->half_width_.data()),
         max_width_(mb->max_width_),
-        avx2_(UseAvx2()) {}
+        avx2_(UseAvx2()),
+        polygons_(o.footprint == Footprint::kPolygons),
+        free_layer_(!polygons_) {
+    mb->free_layer_ = free_layer_;
+  }
 
   absl::Status Run(const Gathered& g, const ShadeReceiver& r, ShadeResult* out);
 
@@ -59,9 +83,9 @@ class Rasterizer {
   // with a surface behind, the gaps are filled by that surface, so the overlaps must not count
   // twice: the layer is clamped at 1 like the later ones (bug: hidden_surface_overcount).
   template <bool kRad>
-  static void Close(PixelState& px, bool behind) {
+  static void Close(PixelState& px, bool behind, bool free_layer) {
     if (!(px.open > 0.0f)) return;
-    const float e = px.closed == 0.0f && !behind
+    const float e = free_layer && px.closed == 0.0f && !behind
                         ? px.open
                         : std::min(px.open, std::max(0.0f, 1.0f - px.closed));
     const float closed = px.closed + e;
@@ -86,6 +110,13 @@ class Rasterizer {
   template <bool kRad>
   void PrepareClusters(const std::vector<Cluster>& clusters);
   void PrepareSurfel(const Surfel& s, ShadeResult* out);
+  // Surfels grouped by leaf and normal into co-planar polygons (raster/footprints.cc).
+  void PrepareSurfelGroups(const Gathered& g, ShadeResult* out);
+  // The prepared clusters' footprint polygons (raster/footprints.cc).
+  void BuildClusterFootprints(const Gathered& g);
+  // Appends a polygon given relative to the receiver in world axes, in the receiver's frame and
+  // clipped to its hemisphere, to s's polygons.
+  void AddPolygon(const Polygon& world_rel, PreparedSplat* s);
   void Integrate(const ShadeReceiver& r, ShadeResult* out);
 
   // What Emit() needs of the element being drawn, by value: through a pointer into the
@@ -130,6 +161,8 @@ class Rasterizer {
   void SplatBox(const PreparedSplat& s, int base, float u, float v, float h, uint32_t q);
   template <bool kClamp, bool kRad>
   void SplatDisk(const PreparedSplat& s);
+  template <bool kClamp, bool kRad>
+  void SplatPolygons(const PreparedSplat& s);
 
   // A flat fragment's depth range in pixel p: where the pixel's central ray meets the slab of
   // half thickness `thick` around its plane, widened by t * half the pixel's width /
@@ -183,7 +216,7 @@ class Rasterizer {
   template <bool kRad>
   [[gnu::always_inline]] void Layer(PixelState& px, float cov, const Frag& f, float lo, float hi) {
     if (lo > px.far && px.open > 0.0f) {
-      Close<kRad>(px, /*behind=*/true);
+      Close<kRad>(px, /*behind=*/true, free_layer_);
       if (px.closed >= 1.0f) return;
     }
     if (!(px.open > 0.0f)) {
@@ -252,7 +285,10 @@ class Rasterizer {
   const float max_width_;  // the largest pixel's angular width
   const bool avx2_;        // run the AVX2 builds (UseAvx2())
   glm::vec3 origin_, t_, b_, n_;
-  uint32_t count_ = 0;  // prepared splats in mb_.splats_
+  uint32_t count_ = 0;       // prepared splats in mb_.splats_
+  uint32_t poly_count_ = 0;  // polygons in mb_.polygons_
+  const bool polygons_;      // Footprint::kPolygons
+  const bool free_layer_;    // !polygons_: the first layer sums freely
 };
 
 }  // namespace pbgi::internal

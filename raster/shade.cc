@@ -26,6 +26,9 @@ absl::Status ValidateRasterOptions(const RasterOptions& o) {
   if (o.near_field_samples < 1 || o.near_field_samples > 16) {
     return bad("near_field_samples", o.near_field_samples, "must be in [1, 16]");
   }
+  if (o.footprint != Footprint::kSplats && o.footprint != Footprint::kPolygons) {
+    return bad("footprint", static_cast<int>(o.footprint), "must be kSplats or kPolygons");
+  }
   if (!std::isfinite(o.phong_exponent) || o.phong_exponent < 0.0f) {
     return bad("phong_exponent", o.phong_exponent, "must be finite and >= 0");
   }

@@ -44,6 +44,10 @@ absl::Status Validate(absl::Span<const ShadeReceiver> receivers, const ShadeOpti
   if (!(options.cut.max_solid_angle >= 0.0f)) {
     return absl::InvalidArgumentError("max_solid_angle must be >= 0");
   }
+  if (!(options.cut.curved_scale > 0.0f && options.cut.curved_scale <= 1.0f)) {
+    return absl::InvalidArgumentError(
+        absl::StrFormat("Cut.curved_scale = %g: must be in (0, 1]", options.cut.curved_scale));
+  }
   PBGI_RETURN_IF_ERROR(ValidateRasterOptions(options.raster));
   for (size_t i = 0; i < receivers.size(); ++i) {
     const ShadeReceiver& r = receivers[i];

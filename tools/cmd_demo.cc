@@ -35,6 +35,8 @@ struct DemoArgs {
   int threads = 0;
   float max_solid_angle = 0.03f;
   std::string cut = "cosine";  // or "plain"
+  std::string footprint = "splats";  // or "polygons" (RasterOptions::footprint)
+  float curved_scale = 1.0f;         // Cut::curved_scale
   int raster_res = 12;
   uint64_t seed = 1;
 };
@@ -113,6 +115,8 @@ absl::Status ShadeDemoView(const DemoArgs& a, uint64_t cache, DemoRun* run) {
   so.cut.max_solid_angle = a.max_solid_angle;
   so.cut.cosine_weighted = a.cut == "cosine";
   so.raster.resolution = a.raster_res;
+  so.raster.footprint = a.footprint == "polygons" ? Footprint::kPolygons : Footprint::kSplats;
+  so.cut.curved_scale = a.curved_scale;
   so.raster.compute_radiance = scene.has_radiance;
   so.threads = ResolveThreads(a.threads);
   Progress progress("demo: shade", "receivers");  // the total: the pixels whose rays hit
@@ -234,6 +238,15 @@ CommandSetup Setup() {
         ->capture_default_str();
     app->add_option("--cut", a->cut, "cosine (solid angle weighted by the cosine) or plain")
         ->check(CLI::IsMember({"cosine", "plain"}))
+        ->capture_default_str();
+    app->add_option("--footprint", a->footprint,
+                    "splats (round splats, first layer summed freely) or polygons (footprints "
+                    "that tile, exact area coverage; see pbgi/raster.h)")
+        ->check(CLI::IsMember({"splats", "polygons"}))
+        ->capture_default_str();
+    app->add_option("--curved-scale", a->curved_scale,
+                    "Curved nodes are taken whole only below this times the max solid angle")
+        ->check(CLI::Range(1e-3f, 1.0f))
         ->capture_default_str();
     app->add_option("--raster-res", a->raster_res, "Micro-buffer pixels per cube face edge")
         ->check(CLI::Range(4, 64))

@@ -50,6 +50,8 @@ struct EvalArgs {
   std::vector<int> resolutions = {8, 12, 16};
   // Cut criteria to sweep: "cosine" (Cut::cosine_weighted, the default) and/or "plain".
   std::vector<std::string> cuts = {"cosine"};
+  std::vector<std::string> footprints = {"splats"};  // RasterOptions::footprint
+  float curved_scale = 1.0f;                         // Cut::curved_scale
   std::string memory = "auto";
   std::string cache = "auto";
   int threads = 0;
@@ -287,8 +289,12 @@ double TruthNoise(const EvalArgs& a, const std::vector<Row>& reference_rows) {
   return truth_noise;
 }
 
-ShadeOptions EvalShadeOptions(const EvalSetup& e, float msa, int res, bool cosine) {
+ShadeOptions EvalShadeOptions(const EvalArgs& a, const EvalSetup& e, float msa, int res,
+                              bool cosine) {
   ShadeOptions so;
+  so.cut.curved_scale = a.curved_scale;
+  so.raster.footprint =
+      a.footprints.front() == "polygons" ? Footprint::kPolygons : Footprint::kSplats;
   so.threads = e.threads;
   so.cut.max_solid_angle = msa;
   so.cut.cosine_weighted = cosine;
@@ -311,7 +317,7 @@ absl::StatusOr<size_t> PbgiRows(const EvalArgs& a, const EvalSetup& e, Database&
     std::vector<ShadeResult> results(e.receivers.size());
     const float finest = *std::min_element(a.solid_angles.begin(), a.solid_angles.end());
     PBGI_RETURN_IF_ERROR(ShadeBatch(db, shade_receivers,
-                                    EvalShadeOptions(e, finest, a.resolutions.front(), false),
+                                    EvalShadeOptions(a, e, finest, a.resolutions.front(), false),
                                     absl::MakeSpan(results)));
   }
   size_t default_row = 0;
@@ -319,7 +325,7 @@ absl::StatusOr<size_t> PbgiRows(const EvalArgs& a, const EvalSetup& e, Database&
   for (const std::string& cut : a.cuts) {
     for (int res : a.resolutions) {
       for (float msa : a.solid_angles) {
-        const ShadeOptions so = EvalShadeOptions(e, msa, res, cut == "cosine");
+        const ShadeOptions so = EvalShadeOptions(a, e, msa, res, cut == "cosine");
         std::vector<ShadeResult> results(e.receivers.size());
         ShadeStats st;
         std::vector<double> times, gather, raster;
@@ -641,6 +647,17 @@ CommandSetup Setup() {
                     "normal, the default) and/or plain")
         ->check(CLI::IsMember({"cosine", "plain"}))
         ->capture_default_str();
+    app->add_option("--footprints", a->footprints,
+                    "How elements cover the micro-buffer: splats and/or polygons (tiling "
+                    "footprints, see pbgi/raster.h); --view sweeps them, the receiver sweep "
+                    "takes the first")
+        ->check(CLI::IsMember({"splats", "polygons"}))
+        ->capture_default_str();
+    app->add_option("--curved-scale", a->curved_scale,
+                    "Cut::curved_scale: curved nodes are taken whole only below this times the "
+                    "max solid angle")
+        ->check(CLI::Range(1e-3f, 1.0f))
+        ->capture_default_str();
     app->add_option("--memory", a->memory, "Memory cap of the build, with a unit (512M), or auto")
         ->check(BudgetValidator())
         ->capture_default_str();
@@ -698,6 +715,8 @@ CommandSetup Setup() {
       if (app->count("--solid-angles")) v.solid_angles = a->solid_angles;
       if (app->count("--raster-res")) v.resolutions = a->resolutions;
       if (app->count("--cuts")) v.cuts = a->cuts;
+      v.footprints = a->footprints;
+      v.curved_scale = a->curved_scale;
       v.width = a->width;
       v.height = a->height;
       v.hitsides = a->hitsides;

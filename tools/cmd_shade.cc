@@ -42,6 +42,8 @@ struct ShadeArgs {
   int threads = 0;
   float max_solid_angle = 0.03f;
   std::string cut = "cosine";  // or "plain"; glossy always uses the plain cut
+  std::string footprint = "splats";  // or "polygons" (RasterOptions::footprint)
+  float curved_scale = 1.0f;         // Cut::curved_scale
   float max_distance = std::numeric_limits<float>::infinity();
   int raster_res = 12;
   float bias = 0.0f;
@@ -366,6 +368,8 @@ absl::Status RunShade(const ShadeArgs& a) {
   // The cosine weight suits integrals against the cosine (occlusion, irradiance), not a lobe.
   so.cut.cosine_weighted = a.cut == "cosine" && mode != Mode::kGlossy;
   so.raster.resolution = a.raster_res;
+  so.raster.footprint = a.footprint == "polygons" ? Footprint::kPolygons : Footprint::kSplats;
+  so.cut.curved_scale = a.curved_scale;
   so.raster.bias = a.bias;
   so.raster.max_distance = a.max_distance;
   so.raster.compute_radiance = mode != Mode::kOcclusion;
@@ -408,6 +412,15 @@ CommandSetup Setup() {
                     "cosine: the solid angle weighted by the cosine to the normal (fewer clusters "
                     "near the horizon; occlusion and irradiance only), or plain")
         ->check(CLI::IsMember({"cosine", "plain"}))
+        ->capture_default_str();
+    app->add_option("--footprint", a->footprint,
+                    "splats (round splats, first layer summed freely) or polygons (footprints "
+                    "that tile, exact area coverage; see pbgi/raster.h)")
+        ->check(CLI::IsMember({"splats", "polygons"}))
+        ->capture_default_str();
+    app->add_option("--curved-scale", a->curved_scale,
+                    "Curved nodes are taken whole only below this times the max solid angle")
+        ->check(CLI::Range(1e-3f, 1.0f))
         ->capture_default_str();
     app->add_option("--max-solid-angle", a->max_solid_angle,
                     "Accept a node as a cluster below this solid angle (sr): smaller is finer")

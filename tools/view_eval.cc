@@ -267,6 +267,7 @@ absl::Status RunViewEval(const ViewEvalArgs& a) {
       scene->name.c_str(), a.mode.c_str(), static_cast<unsigned long long>(bs.points), a.width,
       a.height, cr.receivers.size(), 2 * half_rays, ref_noise, a.hitsides.c_str());
   std::string rows_json;
+  for (const std::string& footprint : a.footprints) {
   for (const std::string& cut : a.cuts) {
     for (int res : a.resolutions) {
       for (float msa : a.solid_angles) {
@@ -277,6 +278,9 @@ absl::Status RunViewEval(const ViewEvalArgs& a) {
         so.raster.resolution = res;
         so.raster.compute_radiance = !occlusion;
         so.raster.hitsides = sides;
+        so.cut.curved_scale = a.curved_scale;
+        so.raster.footprint =
+            footprint == "polygons" ? Footprint::kPolygons : Footprint::kSplats;
         std::vector<ShadeResult> results(cr.shade.size());
         ShadeStats st;
         Progress progress(absl::StrFormat("eval --view: shade msa %g res %d %s", msa, res, cut),
@@ -290,12 +294,14 @@ absl::Status RunViewEval(const ViewEvalArgs& a) {
         }
         const ImageErrors e = CompareImages(a.width, a.height, got, ref, covered);
         const std::string tag =
-            absl::StrFormat("msa%g_res%d_%s", msa, res, cut == "cosine" ? "cos" : "plain");
+            absl::StrFormat("msa%g_res%d_%s%s", msa, res, cut == "cosine" ? "cos" : "plain",
+                            footprint == "polygons" ? "_poly" : "");
         const double n = double(std::max<size_t>(1, results.size()));
         const double us = st.seconds / n * 1e6;
-        PrintErrors(absl::StrFormat("msa %g res %d %s:", msa, res, cut).c_str(), e, !occlusion);
-        std::printf("%-26s %.2f us/receiver (%d threads), %.1f clusters + %.1f surfels\n", "", us,
-                    threads, double(st.query.clusters) / n, double(st.query.surfels) / n);
+        PrintErrors(absl::StrFormat("msa %g res %d %s %s:", msa, res, cut, footprint).c_str(), e,
+                    !occlusion);
+        std::printf("%-26s %.2f us/receiver (%d threads), %.1f clusters + %.1f surfels\n", "",
+                    us, threads, double(st.query.clusters) / n, double(st.query.surfels) / n);
         PBGI_RETURN_IF_ERROR(
             WritePng(a.out_dir + "/pbgi_" + tag + ".png", picture(got), 1.0f, false));
         PBGI_RETURN_IF_ERROR(WritePng(a.out_dir + "/error_" + tag + ".png",
@@ -309,12 +315,14 @@ absl::Status RunViewEval(const ViewEvalArgs& a) {
         PBGI_RETURN_IF_ERROR(WriteExr(a.out_dir + "/values_" + tag + ".exr", raw));
         rows_json += absl::StrFormat(
             "%s    {\"setting\": \"%s\", \"max_solid_angle\": %g, \"raster_res\": %d, "
-            "\"cut\": \"%s\", \"us_per_receiver\": %.4g, \"clusters\": %.4g, \"surfels\": %.4g, "
+            "\"cut\": \"%s\", \"footprint\": \"%s\", \"curved_scale\": %g, "
+            "\"us_per_receiver\": %.4g, \"clusters\": %.4g, \"surfels\": %.4g, "
             "\"errors\": %s}",
-            rows_json.empty() ? "" : ",\n", tag, msa, res, cut, us, double(st.query.clusters) / n,
-            double(st.query.surfels) / n, ErrorsJson(e));
+            rows_json.empty() ? "" : ",\n", tag, msa, res, cut, footprint, a.curved_scale, us,
+            double(st.query.clusters) / n, double(st.query.surfels) / n, ErrorsJson(e));
       }
     }
+  }
   }
   const std::string json_path = a.out_dir + "/view.json";
   PBGI_RETURN_IF_ERROR(WriteFileAtomically(

@@ -84,6 +84,24 @@ inline float NodeCutCosine(const glm::vec3& centre, float radius2, const glm::ve
   return std::clamp(cos_t * cos_a + sin_t * sin_a, kMinCutCosine, 1.0f);
 }
 
+// Whether a node with projected-area SH `sh_area` is flat (see kClusterFlatness): band 0
+// holds pi Y0 A and band 1 holds (2 pi / 3) Y1 N, for A(w) = sum A_i max(0, n_i.w).
+inline bool NodeIsFlat(const float* sh_area) {
+  const float a = sh_area[0] * static_cast<float>(1.0 / (sh::kPi * sh::kY0));
+  const float k = static_cast<float>(3.0 / (2.0 * sh::kPi * sh::kY1));
+  const glm::vec3 nsum(sh_area[3] * k, sh_area[1] * k, sh_area[2] * k);
+  return glm::dot(nsum, nsum) > (kClusterFlatness * a) * (kClusterFlatness * a);
+}
+
+// The cut for one node: `cut`, with max_solid_angle scaled by curved_scale when the node is not
+// flat.
+inline Cut NodeCut(const Cut& cut, const float* sh_area) {
+  if (cut.curved_scale == 1.0f || NodeIsFlat(sh_area)) return cut;
+  Cut c = cut;
+  c.max_solid_angle *= cut.curved_scale;
+  return c;
+}
+
 // Whether a node whose solid angle from the receiver is `solid_angle` passes the cut's
 // criterion; `cosine` is NodeCutCosine() of its near sphere, read only when cosine_weighted.
 template <typename CosineFn>

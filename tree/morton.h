@@ -11,6 +11,7 @@
 #include <utility>
 #include <vector>
 
+#include "glm/common.hpp"
 #include "glm/vec3.hpp"
 #include "pbgi/surfel.h"
 
@@ -66,9 +67,14 @@ inline TreePrefix PrefixAt(uint64_t key, uint32_t rank, uint32_t depth) {
 
 // Maps positions to keys inside a cube around the bounds, padded so that rounding never pushes
 // a point out; points on the upper boundary land in the last cell (clamped), never outside.
-class MortonQuantizer {
- public:
-  explicit MortonQuantizer(const Bounds& b) {
+// The cube of the octree's root cell around the bounds, padded so that rounding never pushes
+// a point out: the cell at depth d with key prefix k is the cube of side size / 2^d at
+// origin + (the prefix's x, y, z) * that side.
+struct MortonCube {
+  glm::dvec3 origin{0.0};
+  double size = 0.0;
+
+  explicit MortonCube(const Bounds& b) {
     glm::dvec3 lo(b.lo), hi(b.hi);
     glm::dvec3 center = 0.5 * (lo + hi);
     double half = 0.5 * std::max({hi.x - lo.x, hi.y - lo.y, hi.z - lo.z});
@@ -77,8 +83,31 @@ class MortonQuantizer {
     double mag = std::max({std::abs(center.x), std::abs(center.y), std::abs(center.z)});
     half = half * (1.0 + 1e-6) + mag * 1e-7 + 1e-30;
     if (!(half > 0) || !std::isfinite(half)) half = 1.0;
-    origin_ = center - glm::dvec3(half);
-    scale_ = double(1u << kMortonBitsPerAxis) / (2.0 * half);
+    origin = center - glm::dvec3(half);
+    size = 2.0 * half;
+  }
+
+  // The depth-d cell that contains p (a point of a node at that depth: its bounds' lo corner).
+  Bounds CellOf(const glm::vec3& p, uint32_t depth) const {
+    // Below the key's resolution (a pile split by arrival rank) the cell is the finest one.
+    const uint32_t d = std::min<uint32_t>(depth, kMortonBitsPerAxis);
+    const double cells = double(uint64_t{1} << d);
+    const double side = size / cells;
+    glm::dvec3 i = glm::floor((glm::dvec3(p) - origin) / side);
+    i = glm::clamp(i, glm::dvec3(0.0), glm::dvec3(cells - 1.0));
+    Bounds cell;
+    cell.lo = glm::vec3(origin + i * side);
+    cell.hi = glm::vec3(origin + (i + 1.0) * side);
+    return cell;
+  }
+};
+
+class MortonQuantizer {
+ public:
+  explicit MortonQuantizer(const Bounds& b) {
+    const MortonCube cube(b);
+    origin_ = cube.origin;
+    scale_ = double(1u << kMortonBitsPerAxis) / cube.size;
   }
 
   uint64_t Key(const glm::vec3& p) const {

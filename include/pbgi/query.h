@@ -103,6 +103,11 @@ struct Cut {
   // and can be coarser for the same error; a node that reaches up toward the normal keeps the
   // plain criterion. Not for glossy light, whose lobe is not the cosine.
   bool cosine_weighted = false;
+  // A node that is not flat (|sum A_i n_i| <= kClusterFlatness * sum A_i: an edge, a corner,
+  // a crease, foliage) is taken whole only below curved_scale * max_solid_angle, in (0, 1].
+  // A flat cluster is drawn exactly (its plane); a curved one only approximately (its box), so
+  // refining just the curved nodes buys accuracy where it is lost (docs/eval.md).
+  float curved_scale = 1.0f;
 };
 
 // The smallest cosine weight of the cosine-weighted cut: nodes at the horizon are at most

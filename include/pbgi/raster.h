@@ -31,6 +31,11 @@
 //    1, and each later layer only fills what the nearer ones left below 1 (the depth test).
 //    Surfaces closer in depth than a pixel's footprint spans (about depth * slope * pixel angle)
 //    merge into one layer and add up.
+//  - With footprint = kPolygons (see Footprint), elements are polygons that tile instead:
+//    clusters and groups of co-planar leaf surfels become the part of their plane inside their
+//    octree cell (or, not flat, their cell's faces that face the receiver), rasterized with
+//    exact area coverage; every layer is clamped at 1, the first one too, since footprints that
+//    tile need no free sum to fill their gaps.
 //  - Pixel solid angles are exact for their place on the face (closed form for a rectangle on a
 //    cube face), and each pixel's cosine weight is the exact projected solid angle of the part
 //    of the pixel above the horizon (Lambert's polygon formula), so the weights sum to pi.
@@ -74,6 +79,16 @@ enum class HitSides : uint8_t { kFront, kBack, kBoth };
 //   kGgx:   D = alpha^2 / (pi ((alpha^2 - 1) cos^2(a) + 1)^2), alpha = ggx_roughness.
 enum class GlossyLobe : uint8_t { kNone, kPhong, kGgx };
 
+// What an element covers on the micro-buffer.
+//   kSplats: round splats (cones of the element's solid angle; exact disks near the receiver)
+//     whose overlaps and gaps cancel in a freely summed first layer (see the top).
+//   kPolygons: footprints that tile (raster/polygon.h, docs/design.md "Raster"): a flat
+//     cluster or a leaf's group of co-planar surfels is its plane inside its octree cell, a
+//     curved cluster its cell's receiver-facing faces, each with exact area coverage and an
+//     opacity of its projected area over the footprint's; every layer clamps at 1. Continuous
+//     in the receiver's position and free of the splats' blocks and streaks; costs more.
+enum class Footprint : uint8_t { kSplats, kPolygons };
+
 // How a cluster's projected area A(w) is reconstructed from its SH (see the header comment).
 enum class ClusterModel : uint8_t { kMoments, kShEval };
 
@@ -97,6 +112,7 @@ struct RasterOptions {
   // Accumulate radiance (irradiance, glossy); false computes occlusion only, faster.
   bool compute_radiance = true;
   ClusterModel cluster_model = ClusterModel::kMoments;
+  Footprint footprint = Footprint::kSplats;
   GlossyLobe lobe = GlossyLobe::kNone;
   float phong_exponent = 32.0f;  // >= 0
   float ggx_roughness = 0.2f;    // (0, 1]
@@ -125,6 +141,19 @@ struct ShadeResult {
 };
 
 namespace internal {
+// A convex polygon in the micro-buffer's frame (raster/polygon.h): a plane cut by a box has at
+// most 6 vertices, and each of the 5 clips of rasterizing (the horizon, a face's 4 sides) adds
+// at most one.
+inline constexpr int kMaxPolygonVertices = 12;
+struct Polygon {
+  int n = 0;
+  glm::vec3 v[kMaxPolygonVertices];
+};
+// One pixel's share of a polygon: the fraction of the pixel's area that it covers.
+struct PixelCoverage {
+  uint32_t pixel;
+  float coverage;
+};
 // One element ready to splat (local frame), kept in the MicroBuffer to avoid allocation.
 // 64 bytes, the radiance first and 16-byte aligned so that Emit() adds it four lanes wide.
 struct alignas(16) PreparedSplat {
@@ -137,8 +166,13 @@ struct alignas(16) PreparedSplat {
   // Far and flat: the element lies within `thick` of its plane {x : normal.x = plane} (x
   // relative to the receiver; plane < 0), which gives its depth along each pixel's ray.
   float plane, thick;
-  uint8_t near;  // 1 for an exact disk
+  uint8_t near;  // 1 for an exact disk, 2 for polygons (poly_first, poly_count)
   uint8_t flat;  // far: 1 when plane and thick are set (a surfel, or a nearly flat cluster)
+  uint8_t poly_count;
+  uint8_t unused_;
+  uint32_t source;      // the cluster's index in Gathered::clusters (clusters only)
+  uint32_t poly_first;  // polygons: the first in the MicroBuffer's polygon list
+  float alpha;          // polygons: the coverage of the element inside them
 };
 // A pixel's state: layers of fragments that overlap in depth (one surface) add up freely in
 // `open`; when a fragment lies wholly behind the open layer, the layer closes into `closed`.
@@ -212,6 +246,12 @@ class MicroBuffer {
   std::vector<internal::PreparedSplat> splats_;
   std::vector<uint64_t> order_, order_tmp_;            // (depth key << 32) | splat index
   std::vector<std::pair<uint32_t, float>> fragments_;  // one splat's pixels and coverages
+  std::vector<internal::Polygon> polygons_;             // the splats' footprints
+  std::vector<float> accumulation_;                     // scratch of RasterizePolygon
+  std::vector<internal::PixelCoverage> coverage_;       // one polygon's pixels
+  std::vector<uint32_t> groups_;                        // scratch of the surfel groups
+  std::vector<uint64_t> group_keys_;                    // their grid cells
+  bool free_layer_ = true;  // the last Shade()'s first layer summed freely (kSplats)
 };
 
 // Shades one receiver from the gathered elements. `scratch` is reused across receivers.

@@ -120,7 +120,16 @@ struct Cluster {
   // of global point indices (rank in Morton order): the test harness checks cuts with it.
   uint64_t first_point = 0;
   uint64_t point_count = 0;
+  // The node's octree cell (the cube of its Morton key prefix, which holds every surfel centre
+  // below it): the cells of a cut tile space, so the rasterizer cuts footprints with them that
+  // tile the view (docs/design.md, "Raster"). Empty when unknown (then the bounds serve).
+  Bounds cell;
 };
+
+// A cluster is flat when |sum A_i n_i| > kClusterFlatness * sum A_i (its surfels face within
+// about 37 degrees of one way on average): the rasterizer draws it by its mean plane and the
+// cut may refine the others further (Cut::curved_scale).
+inline constexpr float kClusterFlatness = 0.8f;
 
 // What Gather() returns for one receiver: every surfel in front of the receiver is represented
 // exactly once, either by itself (surfels) or by one ancestor node (clusters).
@@ -130,11 +139,17 @@ struct Gathered {
   std::vector<Surfel> surfels;
   // Global point index (rank in Morton order) of each surfel, parallel to `surfels`.
   std::vector<uint64_t> surfel_ids;
+  // The octree cell of the leaf each surfel came from: surfel_leaf[i] indexes leaf_cells.
+  // Optional (empty: the rasterizer groups surfels on a grid of its own).
+  std::vector<uint32_t> surfel_leaf;
+  std::vector<Bounds> leaf_cells;
 
   void Clear() {
     clusters.clear();
     surfels.clear();
     surfel_ids.clear();
+    surfel_leaf.clear();
+    leaf_cells.clear();
   }
   size_t size() const { return clusters.size() + surfels.size(); }
 };

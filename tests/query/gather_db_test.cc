@@ -109,6 +109,51 @@ INSTANTIATE_TEST_SUITE_P(
                              HasRadiance(info.param.channels) ? "radiance" : "occlusion");
     });
 
+// The cells that Gather reports: a cluster's cell holds its bounds, a leaf's cell holds its
+// surfels, and the cells of one cut do not overlap (they tile the space the cut covers).
+TEST(GatherDb, CellsHoldTheirContentAndDoNotOverlap) {
+  BuildOptions b;
+  b.leaf_size = 8;
+  b.memory_bytes = 64 << 20;
+  auto t = TempDatabase::Create(testing::RandomSceneSurfels(2500, 31), b);
+  ASSERT_TRUE(t.ok()) << t.status();
+  const std::vector<Surfel>& surfels = (*t)->surfels();
+  auto reader = (*t)->db().NewReader();
+  ASSERT_TRUE(reader.ok()) << reader.status();
+  Gathered g;
+  for (const Receiver& r : Receivers(surfels, 60, 3)) {
+    ASSERT_TRUE((*reader)->Gather(r, Cut{0.03f}, &g).ok());
+    ASSERT_EQ(g.surfel_leaf.size(), g.surfels.size());
+    std::vector<Bounds> cells;
+    auto holds = [](const Bounds& cell, const glm::vec3& lo, const glm::vec3& hi) {
+      const float tol = 1e-5f * glm::length(cell.hi - cell.lo);
+      return glm::all(glm::greaterThanEqual(lo, cell.lo - tol)) &&
+             glm::all(glm::lessThanEqual(hi, cell.hi + tol));
+    };
+    for (const Cluster& c : g.clusters) {
+      ASSERT_FALSE(c.cell.Empty());
+      EXPECT_TRUE(holds(c.cell, c.bounds.lo, c.bounds.hi)) << "cluster at depth " << c.depth;
+      cells.push_back(c.cell);
+    }
+    for (size_t i = 0; i < g.surfels.size(); ++i) {
+      ASSERT_LT(g.surfel_leaf[i], g.leaf_cells.size());
+      const Bounds& cell = g.leaf_cells[g.surfel_leaf[i]];
+      EXPECT_TRUE(holds(cell, g.surfels[i].position, g.surfels[i].position));
+    }
+    cells.insert(cells.end(), g.leaf_cells.begin(), g.leaf_cells.end());
+    for (size_t i = 0; i < cells.size(); ++i) {
+      for (size_t j = i + 1; j < cells.size(); ++j) {
+        const glm::vec3 lo = glm::max(cells[i].lo, cells[j].lo);
+        const glm::vec3 hi = glm::min(cells[i].hi, cells[j].hi);
+        const glm::vec3 ext = glm::max(cells[i].hi - cells[i].lo, cells[j].hi - cells[j].lo);
+        const bool overlap = glm::all(glm::greaterThan(hi - lo, 1e-4f * ext));
+        ASSERT_FALSE(overlap) << "cells " << i << " and " << j << " of " << cells.size();
+      }
+    }
+  }
+}
+
+
 TEST(GatherDb, TinyCacheAndEightThreadsMatchOneThread) {
   BuildOptions b;
   b.page_size = EfficientPageSize(1);

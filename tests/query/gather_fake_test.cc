@@ -133,6 +133,41 @@ TEST_P(GatherFakeTest, CutIsValidAgainstBruteForce) {
   EXPECT_GT(clusters, 800u);  // the cut does cluster
 }
 
+// Cut::curved_scale: the curved nodes' cut is finer, the flat ones' the same; the harness checks
+// the gather against the scaled criterion (a gather that ignored it fails the check).
+TEST_P(GatherFakeTest, CurvedScaleRefinesTheCurvedNodesOnly) {
+  Gathered plain, curved;
+  const Cut plain_cut{0.03f};
+  Cut curved_cut = plain_cut;
+  curved_cut.curved_scale = 0.25f;
+  size_t more = 0, caught = 0;
+  for (const Receiver& r : Receivers(surfels, 400, 9)) {
+    ASSERT_TRUE(reader->Gather(r, plain_cut, &plain).ok());
+    ASSERT_TRUE(reader->Gather(r, curved_cut, &curved).ok());
+    absl::Status s = testing::CheckValidCut(curved, surfels, r, curved_cut);
+    ASSERT_TRUE(s.ok()) << s;
+    s = testing::CheckFinerCutNotSmaller(plain, curved, surfels, r, plain_cut, curved_cut);
+    ASSERT_TRUE(s.ok()) << s;
+    more += curved.size() > plain.size();
+    caught += !testing::CheckValidCut(plain, surfels, r, curved_cut).ok();
+    // Flat clusters of the plain cut stay whole in the curved one.
+    size_t flat_plain = 0, flat_kept = 0;
+    for (const Cluster& c : plain.clusters) {
+      if (!internal::NodeIsFlat(c.sh_area.data())) continue;
+      ++flat_plain;
+      for (const Cluster& d : curved.clusters) {
+        if (d.first_point == c.first_point && d.point_count == c.point_count) {
+          ++flat_kept;
+          break;
+        }
+      }
+    }
+    EXPECT_EQ(flat_kept, flat_plain);
+  }
+  EXPECT_GT(more, 100u);
+  EXPECT_GT(caught, 10u);
+}
+
 // NodeCutCosine against brute force: the largest cosine to the normal over many points of the
 // sphere's surface (where the maximum lies), for spheres all around the receiver.
 TEST(CutCosine, BoundsTheSphereTightlyAndHasItsAnalyticValues) {

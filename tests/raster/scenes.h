@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <cstdint>
 #include <map>
 #include <tuple>
 #include <utility>
@@ -28,11 +29,23 @@ inline void Basis(const glm::vec3& n, glm::vec3* t, glm::vec3* b) {
   *b = glm::cross(n, *t);
 }
 
+// A deterministic uniform number in [0, 1) from an integer (a 32-bit integer hash).
+inline float Hash01(uint32_t x) {
+  x ^= x >> 16;
+  x *= 0x7feb352dU;
+  x ^= x >> 15;
+  x *= 0x846ca68bU;
+  x ^= x >> 16;
+  return static_cast<float>(x >> 8) * (1.0f / 16777216.0f);
+}
+
 // A disk of radius `radius` centred at `centre` with unit normal `normal`, made of surfels on a
 // square grid of pitch `pitch`; each surfel's area is pitch^2, so the areas sum to the disk's.
+// `jitter` moves each centre to a random point of its grid square (stratified sampling).
 inline std::vector<Surfel> DiskSurfels(const glm::vec3& centre, const glm::vec3& normal,
                                        float radius, float pitch,
-                                       const glm::vec3& radiance = glm::vec3(0.0f)) {
+                                       const glm::vec3& radiance = glm::vec3(0.0f),
+                                       bool jitter = false) {
   glm::vec3 t, b;
   Basis(normal, &t, &b);
   std::vector<Surfel> out;
@@ -40,8 +53,13 @@ inline std::vector<Surfel> DiskSurfels(const glm::vec3& centre, const glm::vec3&
   const float r = pitch / std::sqrt(static_cast<float>(kPi));
   for (int j = -n; j <= n; ++j) {
     for (int i = -n; i <= n; ++i) {
-      const float u = (i + 0.5f) * pitch, v = (j + 0.5f) * pitch;
+      float u = (i + 0.5f) * pitch, v = (j + 0.5f) * pitch;
       if (u * u + v * v > radius * radius) continue;
+      if (jitter) {
+        // Stratified like the scene sampler: one uniform point per lattice square.
+        u += (Hash01(uint32_t(i * 73856093) ^ uint32_t(j * 19349663)) - 0.5f) * pitch;
+        v += (Hash01(uint32_t(i * 83492791) ^ uint32_t(j * 2654435761u)) - 0.5f) * pitch;
+      }
       Surfel s;
       s.position = centre + u * t + v * b;
       s.normal = normal;
@@ -111,6 +129,55 @@ inline std::vector<Cluster> Clusters(const std::vector<Surfel>& surfels, float c
   std::vector<Cluster> out;
   for (const auto& [key, group] : groups) out.push_back(Aggregate(group));
   return out;
+}
+
+// Clusters() with each cluster's octree-like cell set (the cube of edge `cell` that holds it),
+// as Gather returns them.
+inline std::vector<Cluster> ClustersInCells(const std::vector<Surfel>& surfels, float cell) {
+  std::map<std::tuple<int, int, int>, std::vector<Surfel>> groups;
+  for (const Surfel& s : surfels) {
+    const glm::vec3 q = glm::floor(s.position / cell);
+    groups[{static_cast<int>(q.x), static_cast<int>(q.y), static_cast<int>(q.z)}].push_back(s);
+  }
+  std::vector<Cluster> out;
+  for (const auto& [key, group] : groups) {
+    Cluster c = Aggregate(group);
+    const auto [x, y, z] = key;
+    c.cell.lo = glm::vec3(static_cast<float>(x), static_cast<float>(y), static_cast<float>(z)) * cell;
+    c.cell.hi = c.cell.lo + cell;
+    out.push_back(c);
+  }
+  return out;
+}
+
+// A square [-half, half]^2 at height h facing down (-z), surfels on a grid of pitch `pitch`
+// (area pitch^2 each).
+inline std::vector<Surfel> SquareSurfels(float half, float h, float pitch,
+                                         const glm::vec3& radiance = glm::vec3(0.0f)) {
+  std::vector<Surfel> out;
+  const int n = static_cast<int>(std::lround(2.0f * half / pitch));
+  for (int j = 0; j < n; ++j) {
+    for (int i = 0; i < n; ++i) {
+      Surfel s;
+      s.position = glm::vec3(-half + (i + 0.5f) * pitch, -half + (j + 0.5f) * pitch, h);
+      s.normal = glm::vec3(0, 0, -1);
+      s.radius = pitch / std::sqrt(static_cast<float>(kPi));
+      s.radiance = radiance;
+      out.push_back(s);
+    }
+  }
+  return out;
+}
+
+// The form factor from a point at the origin with normal +z to the rectangle
+// [x1, x2] x [y1, y2] at height h parallel to it (the corner formula, odd in each of X and Y,
+// summed with signs).
+inline double RectangleFormFactor(double x1, double x2, double y1, double y2, double h) {
+  auto corner = [h](double x, double y) {
+    const double ax = std::sqrt(h * h + x * x), ay = std::sqrt(h * h + y * y);
+    return (x / ax * std::atan(y / ax) + y / ay * std::atan(x / ay)) / (2.0 * kPi);
+  };
+  return corner(x2, y2) - corner(x1, y2) - corner(x2, y1) + corner(x1, y1);
 }
 
 // Applies p -> rot * (scale * p) + shift to a surfel (position, normal, radius).

@@ -1,0 +1,366 @@
+// The elements' footprints on the micro-buffer: polygons that tile (see raster/polygon.h and
+// docs/design.md, "Raster").
+//
+// - A flat cluster (|sum A_i n_i| > kFlatness A) is the part of its mean plane inside its
+//   footprint box.
+// - A cluster that is not flat is the faces of its footprint box that face the receiver: they
+//   tile the box's silhouette, and two boxes that share a face draw it once (it faces only one
+//   side).
+// - The surfels that the gather returns are grouped by leaf and normal; a group of co-planar
+//   surfels is the part of its plane inside its footprint box, like a flat cluster.
+// The footprint box is the element's box of surfel centres grown to its octree cell where the
+// surface reaches the cell's side (within a surfel spacing), else by half a spacing (where the
+// surface ends): cells of a cut tile space, so the footprints of one surface tile the view.
+// Coverage inside a footprint is the element's projected area over the footprint's, at most 1,
+// and exactly 1 when the surface fills its cell.
+#include <algorithm>
+#include <cmath>
+
+#include "glm/geometric.hpp"
+#include "raster/polygon.h"
+#include "raster/rasterizer.h"
+
+namespace pbgi::internal {
+namespace {
+
+// Whether `cell` is a usable octree cell for content with box `b` (the gather sets it; a
+// caller-built cluster may not).
+bool CellHolds(const Bounds& cell, const Bounds& b) {
+  if (cell.Empty() || b.Empty()) return false;
+  const float tol = 1e-4f * std::max(1e-30f, glm::length(cell.hi - cell.lo));
+  return glm::all(glm::greaterThanEqual(b.lo, cell.lo - tol)) &&
+         glm::all(glm::lessThanEqual(b.hi, cell.hi + tol));
+}
+
+}  // namespace
+
+Bounds FootprintBox(const Bounds& centres, const Bounds& cell, float spacing,
+                    const glm::vec3& plane_normal, bool* full, int* snapped) {
+  Bounds b;
+  bool all = true;
+  int mask = 0;
+  const bool has_cell = CellHolds(cell, centres);
+  for (int k = 0; k < 3; ++k) {
+    const bool in_plane = std::fabs(plane_normal[k]) < 0.9f;
+    const bool snap_lo = has_cell && in_plane && centres.lo[k] - cell.lo[k] < 1.5f * spacing;
+    const bool snap_hi = has_cell && in_plane && cell.hi[k] - centres.hi[k] < 1.5f * spacing;
+    b.lo[k] = snap_lo ? cell.lo[k] : centres.lo[k] - 0.5f * spacing;
+    b.hi[k] = snap_hi ? cell.hi[k] : centres.hi[k] + 0.5f * spacing;
+    mask |= (snap_lo ? 1 : 0) << (2 * k);
+    mask |= (snap_hi ? 2 : 0) << (2 * k);
+    // An axis along which the plane extends must reach both sides of the cell for the plane to
+    // fill it (an axis nearly along the normal does not matter).
+    if (in_plane && !(snap_lo && snap_hi)) all = false;
+  }
+  if (full) *full = all && has_cell;
+  if (snapped) *snapped = mask;
+  return b;
+}
+
+float FlatFootprint(const Bounds& centres, const Bounds& cell, float spacing,
+                    const glm::vec3& normal, float offset, const glm::vec3& origin, double area,
+                    Polygon* p) {
+  bool full = false;
+  int snapped = 0;
+  Bounds box = FootprintBox(centres, cell, spacing, normal, &full, &snapped);
+  PlaneBoxPolygon(normal, offset, box.lo - origin, box.hi - origin, p);
+  double poly = p->n >= 3 ? PolygonArea(*p) : 0.0;
+  if (!(poly > 0.0) || !(area > 0.0)) {
+    p->n = 0;
+    return 0.0f;
+  }
+  // A surface that reaches every side of its cell fills it, unless it clearly lacks the area
+  // (a corner cut off): the sum of surfel areas is a noisy estimate of the surface's area, and
+  // a coverage clamped at 1 would lose the noise's excess.
+  if (full && area >= 0.7 * poly) return 1.0f;
+  const bool has_cell = CellHolds(cell, centres);
+  for (int iter = 0; iter < 2 && area > poly * 1.0001; ++iter) {
+    // Grow the free in-plane axes by the missing factor, shared among them.
+    int free_axes = 0;
+    for (int k = 0; k < 3; ++k) {
+      const int sides = (snapped >> (2 * k)) & 3;
+      if (std::fabs(normal[k]) < 0.9f && sides != 3) ++free_axes;
+    }
+    if (free_axes == 0) break;
+    const double f = std::pow(area / poly, 1.0 / free_axes);
+    for (int k = 0; k < 3; ++k) {
+      const int sides = (snapped >> (2 * k)) & 3;
+      if (!(std::fabs(normal[k]) < 0.9f) || sides == 3) continue;
+      const float grow = static_cast<float>((f - 1.0) * (box.hi[k] - box.lo[k]));
+      const bool lo_free = !(sides & 1), hi_free = !(sides & 2);
+      const float share = lo_free && hi_free ? 0.5f * grow : grow;
+      if (lo_free) box.lo[k] -= share;
+      if (hi_free) box.hi[k] += share;
+      if (has_cell) {
+        box.lo[k] = std::max(box.lo[k], cell.lo[k]);
+        box.hi[k] = std::min(box.hi[k], cell.hi[k]);
+      }
+    }
+    Polygon q;
+    PlaneBoxPolygon(normal, offset, box.lo - origin, box.hi - origin, &q);
+    const double qa = q.n >= 3 ? PolygonArea(q) : 0.0;
+    if (!(qa > poly)) break;
+    *p = q;
+    poly = qa;
+  }
+  return std::min(1.0f, static_cast<float>(area / poly));
+}
+
+void Rasterizer::AddPolygon(const Polygon& world_rel, PreparedSplat* s) {
+  auto& polys = mb_.polygons_;
+  if (poly_count_ == polys.size()) polys.emplace_back();
+  Polygon& p = polys[poly_count_];
+  p.n = world_rel.n;
+  bool below = false;
+  for (int i = 0; i < p.n; ++i) {
+    p.v[i] = ToLocal(world_rel.v[i]);
+    below |= p.v[i].z < 0.0f;
+  }
+  // Only the hemisphere above the receiver counts.
+  if (below) ClipHalfSpace(glm::vec3(0.0f, 0.0f, 1.0f), &p);
+  if (p.n < 3) return;
+  ++poly_count_;
+  ++s->poly_count;
+}
+
+void Rasterizer::BuildClusterFootprints(const Gathered& g) {
+  poly_count_ = 0;
+  PreparedSplat* splats = mb_.splats_.data();
+  for (uint32_t i = 0; i < count_; ++i) {
+    PreparedSplat& s = splats[i];
+    const Cluster& c = g.clusters[s.source];
+    const float spacing =
+        std::sqrt(std::max(0.0f, c.area) / static_cast<float>(std::max<uint64_t>(1, c.point_count)));
+    // The projected area toward the receiver, as the cut and the splat measured it.
+    const float seen = s.omega * s.depth * s.depth;
+    const glm::vec3 mean_world = s.normal.x * t_ + s.normal.y * b_ + s.normal.z * n_;
+    const uint32_t first = poly_count_;
+    s.poly_count = 0;
+    s.poly_first = first;
+    if (s.flat) {
+      // The mean plane (through the box centre, s.plane in the receiver's frame), cut by the box.
+      const float cosw = std::fabs(glm::dot(s.normal, s.dir));
+      if (!(cosw > 0.0f)) continue;  // keeps the cone splat
+      Polygon p;
+      const float alpha = FlatFootprint(c.bounds, c.cell, spacing, mean_world, s.plane, origin_,
+                                        seen / cosw, &p);
+      if (p.n < 3) continue;  // keeps the cone splat
+      s.alpha = alpha;
+      AddPolygon(p, &s);
+    } else {
+      // The box's faces that face the receiver (at the origin).
+      const Bounds box = FootprintBox(c.bounds, c.cell, spacing, glm::vec3(0.0f), nullptr);
+      const glm::vec3 lo = box.lo - origin_, hi = box.hi - origin_;
+      const glm::vec3 ext = hi - lo;
+      const glm::vec3 w = -(s.dir.x * t_ + s.dir.y * b_ + s.dir.z * n_);  // towards the receiver
+      const float projected = ext.y * ext.z * std::fabs(w.x) + ext.x * ext.z * std::fabs(w.y) +
+                              ext.x * ext.y * std::fabs(w.z);
+      bool inside = true;
+      for (int k = 0; k < 3; ++k) inside &= lo[k] <= 0.0f && hi[k] >= 0.0f;
+      if (inside || !(projected > 0.0f)) continue;  // keeps the cone splat
+      // Opacity: the cluster's solid angle over the faces' (exact, for each face the signed
+      // sum of the four rectangles from the receiver's foot point), so that a receiver close
+      // to the box, whose near faces subtend far more than the content behind them, is not
+      // over-occluded by a parallel projection's ratio.
+      auto corner = [](float a, float b, float h) {
+        return std::atan(a * b / (h * std::sqrt(h * h + a * a + b * b)));
+      };
+      float faces = 0.0f;
+      for (int k = 0; k < 3; ++k) {
+        const float at = lo[k] > 0.0f ? lo[k] : hi[k] < 0.0f ? hi[k] : 0.0f;
+        if (at == 0.0f) continue;
+        const int k1 = (k + 1) % 3, k2 = (k + 2) % 3;
+        const float h = std::fabs(at);
+        faces += corner(hi[k1], hi[k2], h) - corner(lo[k1], hi[k2], h) -
+                 corner(hi[k1], lo[k2], h) + corner(lo[k1], lo[k2], h);
+      }
+      (void)seen;
+      if (!(faces > 0.0f)) continue;  // keeps the cone splat
+      s.alpha = std::min(1.0f, s.omega / faces);
+      for (int k = 0; k < 3; ++k) {
+        float at;
+        if (lo[k] > 0.0f) {
+          at = lo[k];
+        } else if (hi[k] < 0.0f) {
+          at = hi[k];
+        } else {
+          continue;
+        }
+        const int k1 = (k + 1) % 3, k2 = (k + 2) % 3;
+        if (!(ext[k1] > 0.0f) || !(ext[k2] > 0.0f)) continue;
+        Polygon q;
+        q.n = 4;
+        for (int j = 0; j < 4; ++j) {
+          q.v[j][k] = at;
+          q.v[j][k1] = (j == 1 || j == 2) ? hi[k1] : lo[k1];
+          q.v[j][k2] = (j >= 2) ? hi[k2] : lo[k2];
+        }
+        AddPolygon(q, &s);
+      }
+    }
+    s.near = 2;
+  }
+}
+
+void Rasterizer::PrepareSurfelGroups(const Gathered& g, ShadeResult* out) {
+  const size_t n = g.surfels.size();
+  if (n == 0) return;
+  const bool leaves =
+      g.surfel_leaf.size() == n && !g.leaf_cells.empty();
+  // Order: by leaf (the gather emits a leaf's surfels together), or by a cell of a grid of
+  // about seven mean radii (four spacings) aligned to the surfels' own bounds, so that the
+  // grouping moves, scales and turns with the scene.
+  auto& order = mb_.groups_;
+  auto& keys = mb_.group_keys_;
+  order.resize(n);
+  for (size_t i = 0; i < n; ++i) order[i] = static_cast<uint32_t>(i);
+  // The grid: cells of about four surfel spacings, a power of two times a base of four mean
+  // spacings so that denser and sparser surfaces each get their own, nested and aligned at
+  // the surfels' low corner less half a mean spacing.
+  glm::vec3 grid_lo(0.0f);
+  float base = 1.0f;
+  constexpr int kLevels = 8;  // levels -8..7 around the base
+  auto level_of = [&](const Surfel& sf) {
+    const float spacing = 1.7724539f * std::fabs(sf.radius);  // sqrt(pi) r: area-preserving
+    const float l = std::round(std::log2(std::max(1e-30f, 4.0f * spacing / base)));
+    return static_cast<int>(std::isfinite(l) ? std::clamp(l, -float(kLevels), kLevels - 1.0f)
+                                             : 0.0f);
+  };
+  if (!leaves) {
+    Bounds all;
+    double area = 0.0;
+    for (const Surfel& sf : g.surfels) {
+      all.Extend(sf.position);
+      area += std::isfinite(sf.radius) ? double(sf.radius) * sf.radius * 3.14159265358979 : 0.0;
+    }
+    const float spacing = static_cast<float>(std::sqrt(area / double(n)));
+    base = std::max(4.0f * spacing, 1e-6f * glm::length(all.hi - all.lo));
+    if (!(base > 0.0f) || !std::isfinite(base)) base = 1.0f;
+    grid_lo = all.lo - 0.5f * spacing;
+    keys.resize(n);
+    for (size_t i = 0; i < n; ++i) {
+      const int level = level_of(g.surfels[i]);
+      const float size = std::ldexp(base, level);
+      const glm::vec3 q = glm::floor((g.surfels[i].position - grid_lo) / size);
+      uint64_t k = static_cast<uint64_t>(level + kLevels);
+      for (int c = 0; c < 3; ++c) {
+        const float v = std::isfinite(q[c]) ? std::clamp(q[c], 0.0f, 524287.0f) : 0.0f;
+        k = (k << 19) | static_cast<uint64_t>(v);
+      }
+      keys[i] = k;
+    }
+    std::sort(order.begin(), order.end(),
+              [&](uint32_t a, uint32_t b) { return keys[a] < keys[b]; });
+  }
+  auto cell_of = [&](uint32_t i) {
+    if (leaves) return g.leaf_cells[g.surfel_leaf[i]];
+    const uint64_t k = keys[i];
+    const float size = std::ldexp(base, static_cast<int>(k >> 57) - kLevels);
+    const glm::vec3 q(float((k >> 38) & 0x7ffff), float((k >> 19) & 0x7ffff),
+                      float(k & 0x7ffff));
+    Bounds cell;
+    cell.lo = grid_lo + q * size;
+    cell.hi = grid_lo + (q + 1.0f) * size;
+    return cell;
+  };
+  auto same_cell = [&](uint32_t a, uint32_t b) {
+    return leaves ? g.surfel_leaf[a] == g.surfel_leaf[b] : keys[a] == keys[b];
+  };
+  size_t run0 = 0;
+  while (run0 < n) {
+    size_t run1 = run0 + 1;
+    while (run1 < n && same_cell(order[run0], order[run1])) ++run1;
+    const Bounds cell = cell_of(order[run0]);
+    // Greedy groups of surfels within ~25 degrees of the group's first normal; a used surfel
+    // is marked by moving it to the front of the run's unused part.
+    size_t next = run0;
+    while (next < run1) {
+      const Surfel& first = g.surfels[order[next]];
+      const float nn0 = glm::length(first.normal);
+      if (!(nn0 > 0.0f) || !(first.radius > 0.0f)) {
+        ++out->culled;
+        ++next;
+        continue;
+      }
+      const glm::vec3 n0 = first.normal / nn0;
+      double area = 0;
+      glm::dvec3 nsum(0.0), csum(0.0), lsum(0.0);
+      Bounds centres;
+      int count = 0;
+      size_t end = next;
+      for (size_t j = next; j < run1; ++j) {
+        const Surfel& sf = g.surfels[order[j]];
+        const float nn = glm::length(sf.normal);
+        if (!(nn > 0.0f) || !(sf.radius > 0.0f)) continue;
+        const glm::vec3 nj = sf.normal / nn;
+        if (glm::dot(nj, n0) < 0.9f) continue;
+        std::swap(order[j], order[end++]);
+        const double a = sf.Area();
+        area += a;
+        nsum += a * glm::dvec3(nj);
+        csum += a * glm::dvec3(sf.position);
+        lsum += a * glm::dvec3(sf.radiance);
+        centres.Extend(sf.position);
+        ++count;
+      }
+      next = end;
+      if (count == 1) {
+        // A lone surfel is its own disk (exact near the receiver).
+        PrepareSurfel(g.surfels[order[end - 1]], out);
+        continue;
+      }
+      const double nl = glm::length(nsum);
+      if (!(area > 0.0) || !(nl > 0.0)) continue;
+      const glm::vec3 normal = glm::vec3(nsum / nl);
+      const glm::vec3 centroid = glm::vec3(csum / area);
+      const glm::vec3 rel = centroid - origin_;
+      const float side = -glm::dot(normal, rel);  // > 0: the receiver is in front
+      const bool visible = (o_.hitsides == HitSides::kFront && side > 0.0f) ||
+                           (o_.hitsides == HitSides::kBack && side < 0.0f) ||
+                           (o_.hitsides == HitSides::kBoth && side != 0.0f);
+      const float d = glm::length(rel);
+      if (!visible || !std::isfinite(d) || d > o_.max_distance) {
+        out->culled += count;
+        continue;
+      }
+      const float spacing = static_cast<float>(std::sqrt(area / count));
+      const glm::vec3 facing = side > 0.0f ? normal : -normal;
+      Polygon p;
+      const float alpha =
+          FlatFootprint(centres, cell, spacing, facing, -std::fabs(side), origin_, area, &p);
+      if (p.n < 3) {
+        out->culled += count;
+        continue;
+      }
+      PreparedSplat& s = mb_.splats_[count_];
+      s.depth = d;
+      s.extent = 0.5f * glm::length(centres.hi - centres.lo) + spacing;
+      const glm::vec3 rad = glm::vec3(lsum / area);
+      if (radiance_) {
+        Store4(s.rgb1, V4{1.0f, rad.x, rad.y, rad.z});
+      } else {
+        Store4(s.rgb1, V4{1.0f, 0.0f, 0.0f, 0.0f});
+      }
+      s.normal = ToLocal(facing);
+      s.plane = -std::fabs(side);
+      s.thick = 0.0f;
+      s.flat = 1;
+      s.dir = d > 0.0f ? ToLocal(rel) / d : glm::vec3(0.0f, 0.0f, 1.0f);
+      s.omega = 0.0f;
+      s.near = 2;
+      s.alpha = alpha;
+      s.poly_first = poly_count_;
+      s.poly_count = 0;
+      AddPolygon(p, &s);
+      if (s.poly_count == 0) {
+        out->culled += count;
+        continue;
+      }
+      ++count_;
+      out->surfels_drawn += count;
+    }
+    run0 = run1;
+  }
+}
+
+}  // namespace pbgi::internal

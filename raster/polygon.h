@@ -1,0 +1,47 @@
+// Convex polygons on the micro-buffer: the footprints that tile (docs/design.md, "Raster").
+//
+// An element's footprint is the part of its plane inside its box (a flat cluster or a group of
+// co-planar surfels), or a face of its box (an element that is not flat). Boxes of neighbouring
+// octree cells share their faces exactly, so the footprints of one surface cut into cells tile
+// the sphere of directions without gap or overlap, and a pixel's coverage is the exact area of
+// the polygons in it: a covered pixel holds 1, not a sum of round splats that overlap here and
+// leave gaps there.
+//
+// Coverage is exact area coverage on the cube face's plane (signed-area accumulation over the
+// pixel grid, the way font rasterizers compute it), so it is continuous in the polygon's
+// vertices: a receiver that moves a little moves its footprints a little.
+#ifndef PBGI_RASTER_POLYGON_H_
+#define PBGI_RASTER_POLYGON_H_
+
+#include <cstdint>
+#include <vector>
+
+#include "glm/vec3.hpp"
+#include "pbgi/raster.h"
+#include "pbgi/surfel.h"
+
+namespace pbgi::internal {
+
+// Polygon and PixelCoverage are declared in pbgi/raster.h (the MicroBuffer keeps them).
+
+// The polygon {x : dot(normal, x) = offset} inside the box [lo, hi], its vertices in order
+// around the normal; n = 0 when the plane misses the box. A box thinner than 1e-4 of its
+// largest extent along an axis is treated as that thick (a wall's cluster has a flat box).
+void PlaneBoxPolygon(const glm::vec3& normal, float offset, const glm::vec3& lo,
+                     const glm::vec3& hi, Polygon* out);
+
+// Keeps the part of p with dot(m, x) >= 0 (a half-space bounded by a plane through the origin).
+void ClipHalfSpace(const glm::vec3& m, Polygon* p);
+
+// Area of a planar polygon (any orientation).
+double PolygonArea(const Polygon& p);
+
+// Rasterizes a polygon given in the micro-buffer's frame (relative to the receiver; the
+// caller clips it to the upper hemisphere first) onto the cube faces of a res x res buffer
+// (pixel numbering of MicroBuffer). Appends to `out`; `acc` is scratch.
+void RasterizePolygon(const Polygon& p, int res, std::vector<float>* acc,
+                      std::vector<PixelCoverage>* out);
+
+}  // namespace pbgi::internal
+
+#endif  // PBGI_RASTER_POLYGON_H_

@@ -1,0 +1,135 @@
+// Polygon footprints (raster/polygon.h): exact area coverage, tiling, and the cube's faces.
+#include "raster/polygon.h"
+
+#include <cmath>
+#include <map>
+#include <random>
+#include <vector>
+
+#include "glm/geometric.hpp"
+#include "gtest/gtest.h"
+#include "pbgi/raster.h"
+
+namespace pbgi::internal {
+namespace {
+
+// Face-plane pixel area of face +z at resolution res: (2 / res)^2.
+Polygon Quad(glm::vec3 a, glm::vec3 b, glm::vec3 c, glm::vec3 d) {
+  Polygon p;
+  p.n = 4;
+  p.v[0] = a, p.v[1] = b, p.v[2] = c, p.v[3] = d;
+  return p;
+}
+
+std::map<uint32_t, float> Coverage(const Polygon& p, int res) {
+  std::vector<float> acc;
+  std::vector<PixelCoverage> out;
+  RasterizePolygon(p, res, &acc, &out);
+  std::map<uint32_t, float> m;
+  for (const PixelCoverage& c : out) m[c.pixel] += c.coverage;
+  return m;
+}
+
+TEST(PolygonTest, PixelAlignedSquareCoversItsPixelsExactly) {
+  // On the plane z = 1 (face +z, res 8: pixel edges at x = -1 + k / 4), the square
+  // [-0.5, 0.25] x [0, 0.5] covers columns 2..4 and rows 4..5 exactly.
+  const int res = 8;
+  const Polygon p = Quad({-0.5f, 0.0f, 1.0f}, {0.25f, 0.0f, 1.0f}, {0.25f, 0.5f, 1.0f},
+                         {-0.5f, 0.5f, 1.0f});
+  const auto m = Coverage(p, res);
+  const uint32_t base = 4 * res * res;
+  EXPECT_EQ(m.size(), 6u);
+  for (int row = 4; row <= 5; ++row) {
+    for (int col = 2; col <= 4; ++col) {
+      auto it = m.find(base + uint32_t(row * res + col));
+      ASSERT_NE(it, m.end()) << row << " " << col;
+      EXPECT_NEAR(it->second, 1.0f, 1e-5f);
+    }
+  }
+}
+
+TEST(PolygonTest, CoverageSumsToTheAreaOfAnyConvexPolygon) {
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<float> u(-0.95f, 0.95f);
+  const int res = 12;
+  for (int trial = 0; trial < 200; ++trial) {
+    // A random triangle and a random quad (convex hull of 4 points on a circle) on z = 1.
+    Polygon p;
+    const float cx = u(rng) * 0.5f, cy = u(rng) * 0.5f, r = 0.02f + 0.4f * std::fabs(u(rng));
+    const int n = 3 + trial % 4;
+    float angle = 0.0f;
+    for (int i = 0; i < n; ++i) {
+      angle += 0.2f + 1.2f * std::fabs(u(rng)) / n * 4.0f;
+      if (angle > 6.2f) break;
+      p.v[p.n++] = glm::vec3(cx + r * std::cos(angle), cy + r * std::sin(angle), 1.0f);
+    }
+    if (p.n < 3) continue;
+    const auto m = Coverage(p, res);
+    const double pixel_area = (2.0 / res) * (2.0 / res);
+    double sum = 0;
+    for (const auto& [pixel, c] : m) {
+      EXPECT_LE(c, 1.0f + 1e-6f);
+      sum += c * pixel_area;
+    }
+    EXPECT_NEAR(sum, PolygonArea(p), 2e-5 + 1e-4 * PolygonArea(p)) << trial;
+  }
+}
+
+TEST(PolygonTest, PolygonsSharingAnEdgeTileTheirUnion) {
+  // A quad cut by a line into two polygons: per pixel, the two coverages add up to the quad's.
+  const int res = 12;
+  const Polygon whole = Quad({-0.7f, -0.6f, 1.0f}, {0.5f, -0.4f, 1.0f}, {0.6f, 0.55f, 1.0f},
+                             {-0.5f, 0.7f, 1.0f});
+  Polygon left = whole, right = whole;
+  const glm::vec3 m(1.0f, 0.3f, 0.05f);  // the cutting plane through the origin
+  ClipHalfSpace(m, &left);
+  ClipHalfSpace(-m, &right);
+  ASSERT_GE(left.n, 3);
+  ASSERT_GE(right.n, 3);
+  auto a = Coverage(whole, res), l = Coverage(left, res), r = Coverage(right, res);
+  for (const auto& [pixel, c] : a) {
+    EXPECT_NEAR(l[pixel] + r[pixel], c, 2e-5f) << pixel;
+  }
+  for (const auto& [pixel, c] : l) EXPECT_TRUE(a.count(pixel)) << pixel;
+}
+
+TEST(PolygonTest, APolygonAcrossFacesKeepsItsSolidAngle) {
+  // A large square at distance 1 below the receiver's zenith, tilted, spanning five faces:
+  // sum over pixels of coverage * pixel solid angle approaches the polygon's solid angle (the
+  // face-plane area fraction is not exactly the solid-angle fraction inside a pixel).
+  MicroBuffer mb;
+  ASSERT_TRUE(mb.Prepare(32).ok());
+  const int res = 32;
+  const Polygon p = Quad({-3.0f, -3.0f, 0.4f}, {3.0f, -3.0f, 0.4f}, {3.0f, 3.0f, 0.4f},
+                         {-3.0f, 3.0f, 0.4f});
+  const auto m = Coverage(p, res);
+  double omega = 0;
+  for (const auto& [pixel, c] : m) omega += c * mb.PixelSolidAngle(int(pixel));
+  // Solid angle of the square [-3, 3]^2 at height 0.4: 4 atan(a b / (h sqrt(h^2 + a^2 + b^2))).
+  const double a = 3, h = 0.4;
+  const double exact = 4.0 * std::atan(a * a / (h * std::sqrt(h * h + 2 * a * a)));
+  EXPECT_NEAR(omega, exact, 0.01 * exact);
+}
+
+TEST(PolygonTest, PlaneBoxPolygonIsTheCrossSection) {
+  Polygon p;
+  // The plane z = 0.25 through the unit box: the square [0,1]^2 at z = 0.25.
+  PlaneBoxPolygon({0, 0, 1}, 0.25f, {0, 0, 0}, {1, 1, 1}, &p);
+  EXPECT_EQ(p.n, 4);
+  EXPECT_NEAR(PolygonArea(p), 1.0, 1e-5);
+  // The diagonal plane x + y + z = 1.5 cuts the unit cube in a regular hexagon of side
+  // sqrt(2) / 2: area 3 sqrt(3) / 2 * s^2 = 3 sqrt(3) / 4.
+  PlaneBoxPolygon(glm::normalize(glm::vec3(1, 1, 1)), 1.5f / std::sqrt(3.0f), {0, 0, 0},
+                  {1, 1, 1}, &p);
+  EXPECT_EQ(p.n, 6);
+  EXPECT_NEAR(PolygonArea(p), 3.0 * std::sqrt(3.0) / 4.0, 1e-4);
+  // A flat box (a wall's cluster) and its own plane.
+  PlaneBoxPolygon({1, 0, 0}, 2.0f, {2, -1, -1}, {2, 1, 1}, &p);
+  EXPECT_NEAR(PolygonArea(p), 4.0, 1e-3);
+  // A plane that misses the box.
+  PlaneBoxPolygon({0, 0, 1}, 3.0f, {0, 0, 0}, {1, 1, 1}, &p);
+  EXPECT_EQ(p.n, 0);
+}
+
+}  // namespace
+}  // namespace pbgi::internal
