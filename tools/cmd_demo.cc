@@ -16,6 +16,7 @@
 #include "pbgi/status.h"
 #include "tools/command.h"
 #include "tools/scene_views.h"
+#include "tools/sharing_flags.h"
 
 namespace pbgi::tools {
 namespace {
@@ -33,6 +34,7 @@ struct DemoArgs {
   std::string cut = "cosine";  // or "plain"
   int raster_res = 12;
   uint64_t seed = 1;
+  SharingFlags sharing;
 };
 
 // What the demo made, for its summary.
@@ -104,6 +106,7 @@ absl::Status ShadeDemoView(const DemoArgs& a, uint64_t cache, bool tty, DemoRun*
   so.raster.resolution = a.raster_res;
   so.raster.compute_radiance = scene.has_radiance;
   so.threads = a.threads;
+  ApplySharingFlags(a.sharing, &so);
   so.progress = [&](const ShadeProgress& p) {
     std::fprintf(stderr, tty ? "\rdemo: shade %llu receivers" : "demo: shade %llu receivers\n",
                  static_cast<unsigned long long>(p.done));
@@ -148,6 +151,7 @@ void PrintDemoSummary(const DemoArgs& a, const DemoRun& run, uint64_t memory, ui
       run.shade_seconds, static_cast<unsigned long long>(view.receivers), a.width, a.height,
       view.shade.seconds * 1e6 / receivers, a.threads > 0 ? a.threads : DefaultShadeThreads(),
       view.trace_seconds);
+  std::printf("%s\n", SharingSummary(view.shade).c_str());
   std::printf(
       "  cache          %s cap, reader hits %.2f%%, shared hits %.2f%%, %llu pages read "
       "(%s)\n",
@@ -212,6 +216,7 @@ CommandSetup Setup() {
         ->capture_default_str();
     app->add_option("--raster-res", a->raster_res)->check(CLI::Range(4, 64))->capture_default_str();
     app->add_option("--seed", a->seed)->capture_default_str();
+    AddSharingFlags(app, &a->sharing);
     return [a]() { return RunDemo(*a); };
   };
 }

@@ -20,11 +20,13 @@
 #include "pbgi/status.h"
 #include "tools/command.h"
 #include "tools/scene_views.h"
+#include "tools/sharing_flags.h"
 
 namespace pbgi::tools {
 namespace {
 
 struct ShadeArgs {
+  SharingFlags sharing;
   std::string db;
   std::string receivers;
   std::string scene;
@@ -143,6 +145,7 @@ void PrintSummary(const char* what, uint64_t receivers, const ShadeStats& s, int
       lookups ? 100.0 * double(cs.reader.hits) / double(lookups) : 100.0,
       100.0 * cs.shared.HitRate(), static_cast<unsigned long long>(cs.shared.pages_read),
       FormatBytes(cs.shared.bytes_read).c_str(), FormatBytes(internal::PeakRssBytes()).c_str());
+  std::printf("%s\n", SharingSummary(s).c_str());
 }
 
 absl::Status ShadePoints(const ShadeArgs& a, Database& db, const ShadeOptions& so, Mode mode,
@@ -249,6 +252,7 @@ absl::Status RunShade(const ShadeArgs& a) {
     so.raster.lobe = GlossyLobe::kPhong;
     so.raster.phong_exponent = a.phong_exponent;
   }
+  ApplySharingFlags(a.sharing, &so);
   return a.scene.empty() ? ShadePoints(a, *db, so, mode, cache)
                          : ShadeCamera(a, *db, so, mode, cache);
 }
@@ -292,6 +296,7 @@ CommandSetup Setup() {
     app->add_option("--chunk", a->chunk, "Receivers shaded per batch")
         ->check(CLI::Range(int64_t{1}, int64_t{1} << 28))
         ->capture_default_str();
+    AddSharingFlags(app, &a->sharing);
     return [a]() { return RunShade(*a); };
   };
 }

@@ -358,8 +358,7 @@ absl::Status RunViewEval(const ViewEvalArgs& a) {
             label += absl::StrFormat(" shared%s s%d t%g", a.layout == "image" ? "" : " (points)",
                                      m.spacing, m.tolerance);
           } else {
-            tag += "_exact";
-            label += " exact";
+            label += " exact";  // the tag of the reference mode stays the setting alone
           }
           const double n = double(std::max<size_t>(1, results.size()));
           const double us = st.seconds / n * 1e6;
