@@ -3,6 +3,7 @@
 // count, an object edge (surface ids) acts like the border of the image, and bad layouts are
 // rejected by field.
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 #include <memory>
 #include <vector>
@@ -232,6 +233,30 @@ TEST_F(SharedShadeTest, PointSetSharing) {
   EXPECT_GT(n, a.size() / 2);
   ASSERT_GT(n, 0u);
   EXPECT_LT(sum / double(n), 0.075 * tol);
+}
+
+// Progress reaches the total exactly once at the end, and a cancel raised from a progress
+// report stops the shared batch with Cancelled.
+TEST_F(SharedShadeTest, ProgressAndCancel) {
+  ShadeOptions o = Shared(8, 0.05f);
+  o.progress_interval_seconds = 0;
+  uint64_t last = 0, ends = 0;
+  bool monotone = true;
+  o.progress = [&](const ShadeProgress& p) {
+    monotone = monotone && p.done >= last && p.done <= p.total;
+    last = p.done;
+    if (p.done == p.total) ++ends;
+  };
+  std::vector<ShadeResult> out(receivers_.size());
+  ASSERT_TRUE(ShadeBatch(db_->db(), receivers_, o, absl::MakeSpan(out)).ok());
+  EXPECT_TRUE(monotone);
+  EXPECT_EQ(last, receivers_.size());
+  EXPECT_GE(ends, 1u);
+  std::atomic<bool> cancel{false};
+  o.cancel = &cancel;
+  o.progress = [&](const ShadeProgress&) { cancel.store(true); };
+  const absl::Status s = ShadeBatch(db_->db(), receivers_, o, absl::MakeSpan(out));
+  EXPECT_EQ(s.code(), absl::StatusCode::kCancelled) << s;
 }
 
 TEST_F(SharedShadeTest, RejectsBadLayoutsByField) {
