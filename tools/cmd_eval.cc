@@ -60,7 +60,7 @@ struct EvalArgs {
   // --view: shared rows besides the exact ones (tools/view_eval.h).
   bool exact = false, shared = false;
   std::vector<int> spacings = {8};
-  std::vector<float> tolerances = {0.02f};
+  std::vector<float> tolerances = {0.05f};
   float radius_factor = 0.5f;
   std::string sharing_layout = "image";
 };

@@ -65,7 +65,7 @@ struct ViewEvalArgs {
   bool exact_only = false;
   bool shared_only = false;
   std::vector<int> spacings = {8};
-  std::vector<float> tolerances = {0.02f};
+  std::vector<float> tolerances = {0.05f};
   float radius_factor = 0.5f;
   std::string layout = "image";
   // The reference at these rays per pixel, timed and compared like PBGI, for the speed ratio at

@@ -64,7 +64,7 @@ awk -v p="$plain" -v c="$cosine" 'BEGIN {exit !(p > 0 && c > 0 && c < p)}' && ok
 run eval_view "$pbgi" eval --view cornell -o "$dir/eval_view" --points 30000 --width 48 \
   --height 32 --rays 256
 for f in reference.png pbgi_msa0.03_res12_cos.png error_msa0.03_res12_cos.png view.json \
-  pbgi_msa0.03_res12_cos_shared_s8_t0.02.png shaded_msa0.03_res12_cos_shared_s8_t0.02.png; do
+  pbgi_msa0.03_res12_cos_shared_s8_t0.05.png shaded_msa0.03_res12_cos_shared_s8_t0.05.png; do
   [ -s "$dir/eval_view/$f" ] && ok || fail "eval --view wrote no $f"
 done
 grep -q '"mode": "shared"' "$dir/eval_view/view.json" && ok || fail "view.json lacks the shared row"
