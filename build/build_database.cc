@@ -144,11 +144,16 @@ uint64_t DirectoryBytes(const std::string& path) {
 absl::StatusOr<BuildStats> BuildDatabase(SurfelSource& source, const std::string& db_path,
                                          const BuildOptions& options) {
   std::string tmp_dir = options.tmp_dir;
+  std::error_code ec;
   if (tmp_dir.empty()) {
+    // The database's parent directory, or its nearest ancestor that exists yet.
     std::filesystem::path parent = std::filesystem::absolute(db_path).parent_path();
+    while (!parent.empty() && parent != parent.root_path() &&
+           !std::filesystem::is_directory(parent, ec)) {
+      parent = parent.parent_path();
+    }
     tmp_dir = parent.empty() ? std::string(".") : parent.string();
   }
-  std::error_code ec;
   if (!std::filesystem::is_directory(tmp_dir, ec)) {
     return absl::InvalidArgumentError(
         absl::StrFormat("temporary directory '%s' does not exist", tmp_dir));
@@ -181,6 +186,7 @@ absl::StatusOr<BuildStats> BuildDatabase(SurfelSource& source, const std::string
 }
 
 absl::Status VerifyTree(const PageStore& store) {
+  PBGI_RETURN_IF_ERROR(internal::CheckDatabaseMeta(store.meta(), store.path()));
   absl::Status s = internal::VerifyTreePages(store.meta(), *internal::BorrowStorePageSource(store));
   if (!s.ok()) {
     return absl::Status(s.code(), absl::StrFormat("%s: %s", store.path(), s.message()));

@@ -8,6 +8,7 @@
 #include "absl/strings/str_format.h"
 #include "base/stopwatch.h"
 #include "build/external_sort.h"
+#include "build/input_range.h"
 #include "build/node_packer.h"
 #include "build/octree_builder.h"
 #include "build/sort_record.h"
@@ -120,6 +121,17 @@ MemoryPlan PlanFor(const BuildOptions& o, int64_t known_count, int threads) {
 
 }  // namespace
 
+}  // namespace internal
+
+uint64_t MinimumBuildMemory(const BuildOptions& o) {
+  // PlanFor's fixed part and smallest write batch, the smallest upper share and the smallest
+  // sorted run, on one thread (the plan drops to one under a small budget).
+  return internal::kMiB + 24 * internal::kMiB + 4 * uint64_t{o.page_size} + (256 << 10) +
+         internal::kMinRunRecords * internal::kSortBytesPerRecord;
+}
+
+namespace internal {
+
 MemoryPlan PlanMemory(const BuildOptions& o, int64_t known_count) {
   const int threads = ThreadCount(o);
   const MemoryPlan one = PlanFor(o, known_count, 1);
@@ -142,7 +154,7 @@ absl::StatusOr<BuildStats> BuildToSink(SurfelSource& source, PageSink& sink,
   BuildStats stats;
   std::vector<Surfel> batch(kBatch);
 
-  // Reads the whole source once, calling f(index, surfel) for every valid surfel.
+  // Reads the whole source once, calling f(surfel, index) for every valid surfel.
   auto for_each_valid = [&](const char* pass, auto&& f) -> absl::Status {
     PBGI_RETURN_IF_ERROR(source.Rewind());
     uint64_t index = 0, skipped = 0, next_report = kProgressEvery;
@@ -162,7 +174,7 @@ absl::StatusOr<BuildStats> BuildToSink(SurfelSource& source, PageSink& sink,
           ++skipped;
           continue;
         }
-        PBGI_RETURN_IF_ERROR(f(s));
+        PBGI_RETURN_IF_ERROR(f(s, index));
       }
       if (index >= next_report) {
         Report(options, pass, index, known);
@@ -177,7 +189,7 @@ absl::StatusOr<BuildStats> BuildToSink(SurfelSource& source, PageSink& sink,
   Bounds bounds = source.KnownBounds();
   Stopwatch t;
   if (bounds.Empty()) {
-    PBGI_RETURN_IF_ERROR(for_each_valid("bounds", [&](const Surfel& s) {
+    PBGI_RETURN_IF_ERROR(for_each_valid("bounds", [&](const Surfel& s, uint64_t) {
       bounds.Extend(s.position);
       return absl::OkStatus();
     }));
@@ -195,7 +207,9 @@ absl::StatusOr<BuildStats> BuildToSink(SurfelSource& source, PageSink& sink,
   // Records are made in place in the sorter's run buffer.
   absl::Span<SortRecord> slots;
   size_t used = 0;
-  PBGI_RETURN_IF_ERROR(for_each_valid("sort", [&](const Surfel& in) -> absl::Status {
+  InputRangeCheck range;
+  PBGI_RETURN_IF_ERROR(for_each_valid("sort", [&](const Surfel& in, uint64_t index) -> absl::Status {
+    PBGI_RETURN_IF_ERROR(range.Add(in, index, radiance));
     if (used == slots.size()) {
       sorter.Commit(used);
       used = 0;

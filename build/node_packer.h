@@ -133,7 +133,7 @@ class NodePacker {
   absl::Status PlaceAndWritePages(const std::vector<std::vector<Group*>>& pages);
 
   Layout layout_;
-  Channels channels_;
+  [[maybe_unused]] Channels channels_;
   PageSink* sink_;
   uint64_t seed_;
   uint32_t record_size_;

@@ -69,8 +69,9 @@ OctreeBuilder::OctreeBuilder(uint32_t leaf_size, Channels channels, PointPageWri
       channels_(channels),
       points_(points),
       packer_(packer),
-      window_(leaf_size_ + 1) {
-  stack_.reserve(kMaxOctreeDepth + 1);
+      window_(leaf_size_ + 1),
+      window_rank_(leaf_size_ + 1) {
+  stack_.reserve(kMaxSplitDepth + 1);
 }
 
 absl::Status OctreeBuilder::Add(const SortRecord& r) {
@@ -78,13 +79,17 @@ absl::Status OctreeBuilder::Add(const SortRecord& r) {
     return absl::InternalError(absl::StrFormat("octree pass: point %d arrived out of Morton order",
                                                next_point_ + window_size_));
   }
+  const uint32_t rank = any_ && r.key == last_key_ ? std::min(last_rank_ + 1, kMaxRank) : 0;
   any_ = true;
   last_key_ = r.key;
+  last_rank_ = rank;
   const size_t cap = window_.size();
   window_[(window_head_ + window_size_) % cap] = r;
+  window_rank_[(window_head_ + window_size_) % cap] = rank;
   if (++window_size_ == cap) {
     // The oldest point is i, the newest i + leaf_size.
-    PBGI_RETURN_IF_ERROR(Process(window_[window_head_], true, r.key));
+    PBGI_RETURN_IF_ERROR(
+        Process(window_[window_head_], window_rank_[window_head_], true, r.key, rank));
     window_head_ = (window_head_ + 1) % cap;
     --window_size_;
   }
@@ -157,9 +162,10 @@ absl::Status OctreeBuilder::CloseTop() {
   return Deliver(std::move(c), n.agg, n.count);
 }
 
-absl::Status OctreeBuilder::Process(const SortRecord& r, bool have_ahead, uint64_t ahead_key) {
+absl::Status OctreeBuilder::Process(const SortRecord& r, uint32_t rank, bool have_ahead,
+                                   uint64_t ahead_key, uint32_t ahead_rank) {
   if (leaf_open_) {
-    if (KeyPrefix(r.key, leaf_.depth) == leaf_.prefix) {
+    if (PrefixAt(r.key, rank, leaf_.depth) == leaf_.prefix) {
       ++leaf_.count;
       leaf_.agg.AddPoint(r, HasRadiance(channels_));
       ++next_point_;
@@ -167,7 +173,8 @@ absl::Status OctreeBuilder::Process(const SortRecord& r, bool have_ahead, uint64
     }
     PBGI_RETURN_IF_ERROR(CloseLeaf());
   }
-  while (!stack_.empty() && KeyPrefix(r.key, stack_.back().depth) != stack_.back().prefix) {
+  while (!stack_.empty() &&
+         PrefixAt(r.key, rank, stack_.back().depth) != stack_.back().prefix) {
     PBGI_RETURN_IF_ERROR(CloseTop());
   }
   if (stack_.empty() && have_root_) {
@@ -177,9 +184,11 @@ absl::Status OctreeBuilder::Process(const SortRecord& r, bool have_ahead, uint64
   for (uint32_t d = stack_.empty() ? 0 : stack_.back().depth + 1;; ++d) {
     OpenNode n;
     n.depth = d;
-    n.prefix = KeyPrefix(r.key, d);
+    n.prefix = PrefixAt(r.key, rank, d);
     n.first_point = next_point_;
-    const bool interior = d < kMaxOctreeDepth && have_ahead && KeyPrefix(ahead_key, d) == n.prefix;
+    // Below depth 21 the ranks split what the keys cannot (coincident points).
+    const bool interior =
+        d < kMaxSplitDepth && have_ahead && PrefixAt(ahead_key, ahead_rank, d) == n.prefix;
     if (!interior) {
       leaf_ = std::move(n);
       leaf_open_ = true;
@@ -196,7 +205,7 @@ absl::Status OctreeBuilder::Process(const SortRecord& r, bool have_ahead, uint64
 absl::StatusOr<NodeRef> OctreeBuilder::Finish() {
   const size_t cap = window_.size();
   while (window_size_ > 0) {
-    PBGI_RETURN_IF_ERROR(Process(window_[window_head_], false, 0));
+    PBGI_RETURN_IF_ERROR(Process(window_[window_head_], window_rank_[window_head_], false, 0, 0));
     window_head_ = (window_head_ + 1) % cap;
     --window_size_;
   }

@@ -24,6 +24,7 @@
 #include "pbgi/surfel.h"
 #include "store/page_io.h"
 #include "tree/format.h"
+#include "tree/morton.h"
 
 namespace pbgi::internal {
 
@@ -37,7 +38,7 @@ class PointPageWriter {
   uint64_t points() const { return points_; }
 
  private:
-  Channels channels_;
+  [[maybe_unused]] Channels channels_;
   PageSink* sink_;
   uint32_t record_size_;
   uint32_t per_page_;
@@ -78,14 +79,17 @@ class OctreeBuilder {
  private:
   struct OpenNode {
     uint32_t depth = 0;
-    uint64_t prefix = 0;
+    TreePrefix prefix;
     uint64_t first_point = 0;
     uint64_t count = 0;
     NodeAggregate agg;
     std::vector<ClosedNode> children;
   };
 
-  absl::Status Process(const SortRecord& r, bool have_ahead, uint64_t ahead_key);
+  // `rank`: the point's rank among the points of its key (tree/morton.h, kVirtualLevels); the
+  // ahead point is the one leaf_size places later.
+  absl::Status Process(const SortRecord& r, uint32_t rank, bool have_ahead, uint64_t ahead_key,
+                       uint32_t ahead_rank);
   PendingNode MakeRecord(const OpenNode& n, bool leaf) const;
   absl::Status CloseLeaf();
   absl::Status CloseTop();
@@ -97,7 +101,9 @@ class OctreeBuilder {
   NodePacker* packer_;
   // Look-ahead window: a ring of leaf_size + 1 records.
   std::vector<SortRecord> window_;
+  std::vector<uint32_t> window_rank_;  // each window record's rank (same ring positions)
   size_t window_head_ = 0, window_size_ = 0;
+  uint32_t last_rank_ = 0;
   uint64_t next_point_ = 0;  // global index of the next point to place
   uint64_t last_key_ = 0;
   bool any_ = false;

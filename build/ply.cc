@@ -1,10 +1,14 @@
 // PLY reader (binary little-endian and ASCII) and writer. See pbgi/ply.h.
 #include "pbgi/ply.h"
 
+#include <sys/stat.h>
+#include <unistd.h>
+
 #include <algorithm>
 #include <cerrno>
 #include <cmath>
 #include <cstring>
+#include <limits>
 #include <string>
 #include <vector>
 
@@ -51,6 +55,38 @@ double TypeScale(PType t) {
     default:
       return 1.0;
   }
+}
+
+const char* TypeName(PType t) {
+  static const char* kNames[] = {"char", "uchar", "short", "ushort", "int", "uint", "float",
+                                 "double"};
+  return kNames[static_cast<int>(t)];
+}
+
+// Whether an ASCII value is one of the declared type: integers whole and in range (uchar 300 is
+// not a colour), floats within float's range (NaN and infinities pass through; the builder
+// refuses them).
+bool FitsType(double v, PType t) {
+  auto whole_in = [&](double lo, double hi) { return v >= lo && v <= hi && std::floor(v) == v; };
+  switch (t) {
+    case PType::kI8:
+      return whole_in(-128, 127);
+    case PType::kU8:
+      return whole_in(0, 255);
+    case PType::kI16:
+      return whole_in(-32768, 32767);
+    case PType::kU16:
+      return whole_in(0, 65535);
+    case PType::kI32:
+      return whole_in(-2147483648.0, 2147483647.0);
+    case PType::kU32:
+      return whole_in(0, 4294967295.0);
+    case PType::kF32:
+      return !std::isfinite(v) || std::abs(v) <= double(std::numeric_limits<float>::max());
+    case PType::kF64:
+      return true;
+  }
+  return false;
 }
 
 double Decode(const uint8_t* p, PType t) {
@@ -140,6 +176,10 @@ class PlySource final : public SurfelSource {
   }
 
   absl::StatusOr<size_t> Next(absl::Span<Surfel> out) override {
+    if (record_ >= count_ && !end_checked_) {
+      end_checked_ = true;
+      PBGI_RETURN_IF_ERROR(CheckAsciiEnd());
+    }
     if (!ascii_ && all_float_in_order_) return NextBinaryFloats(out);
     size_t n = 0;
     while (n < out.size() && record_ < count_) {
@@ -160,6 +200,7 @@ class PlySource final : public SurfelSource {
           absl::StrFormat("%s: cannot seek: %s", path_, std::strerror(errno)));
     }
     record_ = 0;
+    end_checked_ = false;
     line_ = header_lines_;
     buf_pos_ = buf_len_ = 0;
     file_pos_ = body_offset_;
@@ -177,18 +218,42 @@ class PlySource final : public SurfelSource {
         absl::StrFormat("%s: PLY header line %d: %s", path_, line_, what));
   }
 
+  // One header line of any length up to kMaxHeaderLine (comments can be long). False at the
+  // end of the file before any character.
+  bool ReadHeaderLine(std::string* line, bool* too_long) {
+    line->clear();
+    *too_long = false;
+    int c;
+    bool any = false;
+    while ((c = std::fgetc(file_)) != EOF) {
+      any = true;
+      if (c == '\n') break;
+      if (line->size() >= kMaxHeaderLine) {
+        *too_long = true;
+        return true;
+      }
+      line->push_back(static_cast<char>(c));
+    }
+    return any;
+  }
+
   absl::Status ReadHeader() {
-    char linebuf[4096];
     bool in_vertex = false, seen_vertex = false, seen_format = false;
     int elements = 0;
+    std::string line;
     for (;;) {
-      if (std::fgets(linebuf, sizeof(linebuf), file_) == nullptr) {
+      bool too_long = false;
+      if (!ReadHeaderLine(&line, &too_long)) {
         line_ = line_ == 0 ? 1 : line_;
         return HeaderError(line_ <= 1 ? "empty file, not a PLY file"
                                       : "the header has no end_header line");
       }
       ++line_;
-      std::string line(linebuf);
+      if (too_long) {
+        return HeaderError(absl::StrFormat(
+            "longer than %d bytes (not a PLY header, or a header line without its newline)",
+            kMaxHeaderLine));
+      }
       while (!line.empty() && (line.back() == '\n' || line.back() == '\r')) line.pop_back();
       std::vector<absl::string_view> tok =
           absl::StrSplit(line, absl::ByAnyChar(" \t"), absl::SkipEmpty());
@@ -212,6 +277,11 @@ class PlySource final : public SurfelSource {
         if (tok.size() != 3) return HeaderError("malformed element line");
         ++elements;
         in_vertex = tok[1] == "vertex";
+        if (!in_vertex) {
+          uint64_t n = 0;
+          // Records of later elements follow the vertices: the body may then be longer.
+          if (!absl::SimpleAtoi(tok[2], &n) || n > 0) later_records_ = true;
+        }
         if (in_vertex) {
           if (elements != 1) return HeaderError("the vertex element must come first");
           if (!absl::SimpleAtoi(tok[2], &count_)) {
@@ -228,6 +298,10 @@ class PlySource final : public SurfelSource {
         Property p;
         if (!ParseType(tok[1], &p.type, &p.size)) {
           return HeaderError(absl::StrFormat("unknown property type '%s'", tok[1]));
+        }
+        if (props_.size() >= kMaxProperties) {
+          return HeaderError(
+              absl::StrFormat("more than %d properties on vertices", kMaxProperties));
         }
         p.offset = stride_;
         stride_ += p.size;
@@ -265,8 +339,62 @@ class PlySource final : public SurfelSource {
     header_lines_ = line_;
     body_offset_ = std::ftell(file_);
     file_pos_ = body_offset_;
-    buf_.resize(1 << 20);
+    // Room for at least two records, whatever their size.
+    buf_.resize(std::max<size_t>(size_t{1} << 20, 2 * static_cast<size_t>(stride_)));
+    if (!ascii_) PBGI_RETURN_IF_ERROR(CheckBinaryBodySize());
     return absl::OkStatus();
+  }
+
+  // A binary body is exactly count x stride bytes when the vertices are all the file holds:
+  // anything else means a wrong count (records silently dropped, or read past) or a body that
+  // is not binary at all (an ASCII body under a binary header read as floats).
+  absl::Status CheckBinaryBodySize() const {
+    struct stat st;
+    if (fstat(fileno(file_), &st) != 0 || !S_ISREG(st.st_mode)) return absl::OkStatus();
+    const uint64_t body = static_cast<uint64_t>(st.st_size) - static_cast<uint64_t>(body_offset_);
+    const uint64_t want = count_ * static_cast<uint64_t>(stride_);
+    // Numbers, signs, points, exponents and white space only: text, not floats.
+    char peek[64];
+    const ssize_t got = pread(fileno(file_), peek, sizeof(peek), body_offset_);
+    bool text = got > 0;
+    for (ssize_t i = 0; i < got && text; ++i) {
+      text = std::strchr("0123456789+-.eE \t\r\n", peek[i]) != nullptr && peek[i] != '\0';
+    }
+    const char* hint =
+        text ? " (the body looks like ASCII text: it is not binary_little_endian)" : "";
+    if (stride_ > 0 && count_ > body / static_cast<uint64_t>(stride_)) {
+      return absl::DataLossError(absl::StrFormat(
+          "%s: truncated at byte offset %d, in record %d of %d (each record is %d bytes)%s", path_,
+          st.st_size, body / static_cast<uint64_t>(stride_), count_, stride_, hint));
+    }
+    if (body != want && !later_records_) {
+      return absl::InvalidArgumentError(absl::StrFormat(
+          "%s: the header says %d vertices of %d bytes (%d bytes), but the body after byte offset "
+          "%d holds %d bytes%s: a wrong vertex count, or a body that is not "
+          "binary_little_endian%s",
+          path_, count_, stride_, want, body_offset_, body,
+          body > want ? absl::StrFormat(" (%d more)", body - want) : std::string(), hint));
+    }
+    return absl::OkStatus();
+  }
+
+  // After the last vertex of an ASCII file that holds nothing else, only blank lines may
+  // follow: more records mean the header's count is too small.
+  absl::Status CheckAsciiEnd() {
+    if (!ascii_ || later_records_) return absl::OkStatus();
+    for (;;) {
+      if (buf_pos_ == buf_len_ && Fill(1) == 0) return absl::OkStatus();
+      const char c = buf_[buf_pos_];
+      if (c != ' ' && c != '\t' && c != '\r' && c != '\n') {
+        return absl::InvalidArgumentError(absl::StrFormat(
+            "%s: the header says %d vertices but more records follow at byte offset %d (line "
+            "%d): the vertex count is wrong",
+            path_, count_, file_pos_, line_ + 1));
+      }
+      if (c == '\n') ++line_;
+      ++buf_pos_;
+      ++file_pos_;
+    }
   }
 
   // Ensures `want` bytes are buffered; returns how many are.
@@ -388,15 +516,25 @@ class PlySource final : public SurfelSource {
         return absl::InvalidArgumentError(absl::StrFormat(
             "%s: line %d (record %d): '%s' is not a number", path_, line_, record_, tok[i]));
       }
+      if (!FitsType(d, q.type)) {
+        return absl::InvalidArgumentError(absl::StrFormat(
+            "%s: line %d (record %d): '%s' is not a value of the property's type %s", path_,
+            line_, record_, tok[i], TypeName(q.type)));
+      }
       if (q.field != kSkip) v[q.field] = d * q.scale;
     }
     Assign(s, v);
     return absl::OkStatus();
   }
 
+  static constexpr size_t kMaxHeaderLine = size_t{1} << 20;
+  static constexpr size_t kMaxProperties = 4096;
+
   std::string path_;
   std::FILE* file_ = nullptr;
   bool ascii_ = false;
+  bool later_records_ = false;  // elements after the vertices hold records
+  bool end_checked_ = false;
   bool has_color_ = false;
   bool all_float_in_order_ = false;
   bool have_[kNumFields] = {};
@@ -459,7 +597,9 @@ absl::Status PlyWriter::Write(absl::Span<const Surfel> surfels) {
     if (options_.ascii) {
       for (int i = 0; i < n; ++i) {
         // %.9g round-trips every float exactly.
-        buf_ += absl::StrFormat(i + 1 < n ? "%.9g " : "%.9g\n", v[i]);
+        // (One constant format: absl checks formats at compile time, which clang enforces.)
+        absl::StrAppendFormat(&buf_, "%.9g", v[i]);
+        buf_ += i + 1 < n ? ' ' : '\n';
       }
     } else {
       buf_.append(reinterpret_cast<const char*>(v), n * sizeof(float));

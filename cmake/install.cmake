@@ -1,6 +1,7 @@
 # install(EXPORT ...) so that an embedding project can find_package(pbgi) and link pbgi::pbgi.
 # Three export sets, one per part of the package (see cmake/pbgiConfig.cmake.in):
-#  - core (pbgiTargets): pbgi::pbgi and the modules it links; needs absl, GLM, LMDB and TBB;
+#  - core (pbgiTargets): pbgi::pbgi and the modules it links; needs absl, GLM, LMDB and TBB; also
+#    the C API: pbgi::capi (static, a module) and pbgi::c (libpbgi_c.so, for C programs);
 #  - scene (pbgiSceneTargets): procedural scenes, mesh import, Embree tracing; Embree, Assimp;
 #  - testing (pbgiTestingTargets): the query test harness of pbgi/testing.h.
 include(GNUInstallDirs)
@@ -12,7 +13,8 @@ get_property(_pbgi_scene GLOBAL PROPERTY PBGI_MODULES_scene)
 get_property(_pbgi_testing GLOBAL PROPERTY PBGI_MODULES_testing)
 foreach(set core scene testing)
   if(set STREQUAL core)
-    set(_targets ${_pbgi_core} pbgi pbgi_warnings pbgi_sanitize)
+    get_property(_pbgi_c GLOBAL PROPERTY PBGI_C_LIBRARY)
+    set(_targets ${_pbgi_core} ${_pbgi_c} pbgi pbgi_warnings pbgi_sanitize)
     set(_export pbgiTargets)
   elseif(set STREQUAL scene)
     set(_targets ${_pbgi_scene})

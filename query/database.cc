@@ -20,6 +20,7 @@
 #include "tree/decoded_page.h"
 #include "tree/format.h"
 #include "tree/morton.h"
+#include "tree/verify.h"
 
 namespace pbgi {
 
@@ -126,6 +127,9 @@ absl::StatusOr<std::unique_ptr<Database>> internal::OpenDatabase(
     return absl::FailedPreconditionError(
         absl::StrFormat("%s: page size %d is too small", source->name(), m.page_size));
   }
+  // A record crafted with a valid checksum (no points, bounds that are NaN or inverted, ...)
+  // must not be shaded as zeros.
+  PBGI_RETURN_IF_ERROR(internal::CheckDatabaseMeta(m, source->name()));
   if (m.point_count > 0 && internal::RefSlot(m.root) >= 0xffffu) {
     return absl::DataLossError(absl::StrFormat("%s: meta: bad root reference", source->name()));
   }
@@ -376,6 +380,7 @@ absl::Status Reader::Impl::Gather(const Receiver& receiver, const Cut& cut, Gath
                   [&] { return NodeCutCosine(node.near_centre, node.near_radius2, p, n); }))) {
       // Built in place (C++20 aggregate initialization): no zeroing of ~200 bytes first.
       const float area = page->areas[slot];
+#if defined(__cpp_aggregate_paren_init)
       if (page->power) {
         out->clusters.emplace_back(Bounds{node.lo, node.hi}, area, node.sh_area, page->power[slot],
                                    uint32_t{node.depth}, node.first_point, node.point_count);
@@ -384,6 +389,11 @@ absl::Status Reader::Impl::Gather(const Receiver& receiver, const Cut& cut, Gath
                                    std::array<Sh9, 3>{}, uint32_t{node.depth}, node.first_point,
                                    node.point_count);
       }
+#else  // clang 14: no parenthesized aggregate initialization, the same Cluster by braces
+      out->clusters.push_back(Cluster{Bounds{node.lo, node.hi}, area, node.sh_area,
+                                      page->power ? page->power[slot] : std::array<Sh9, 3>{},
+                                      uint32_t{node.depth}, node.first_point, node.point_count});
+#endif
       ++q.clusters;
       continue;
     }

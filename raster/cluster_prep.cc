@@ -117,8 +117,12 @@ namespace baseline {
 }  // namespace baseline
 
 #if PBGI_RASTER_HAS_AVX2
+#if defined(__clang__)
+#pragma clang attribute push(__attribute__((target("avx2"))), apply_to = function)
+#else
 #pragma GCC push_options
 #pragma GCC target("avx2")
+#endif
 namespace avx2 {
 typedef float V8 __attribute__((vector_size(32)));
 typedef int V8i __attribute__((vector_size(32)));
@@ -153,7 +157,11 @@ struct Lanes8 {
   [[gnu::always_inline]] static V4 High(V v) { return __builtin_shufflevector(v, v, 4, 5, 6, 7); }
 };
 }  // namespace avx2
+#if defined(__clang__)
+#pragma clang attribute pop
+#else
 #pragma GCC pop_options
+#endif
 #endif
 
 #if PBGI_RASTER_HAS_AVX2

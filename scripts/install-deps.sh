@@ -4,13 +4,15 @@
 set -euo pipefail
 
 PACKAGES=(
-  # toolchain
-  g++ make cmake ninja-build pkg-config ca-certificates
+  # toolchain (clang and its runtime libraries: the clang build and libFuzzer's fuzz targets)
+  g++ make cmake ninja-build pkg-config ca-certificates clang libclang-rt-14-dev
   # libraries
   liblmdb-dev lmdb-utils libabsl-dev libglm-dev
   libgtest-dev libgmock-dev libbenchmark-dev
   libembree-dev libassimp-dev libopenexr-dev libstb-dev libcli11-dev libtbb-dev
   nlohmann-json3-dev
+  # the Python module (python/) and its tests, example and progress bars
+  python3-dev pybind11-dev python3-numpy python3-pytest python3-matplotlib python3-tqdm
   # tools used by the test suite and the measurements
   time valgrind
 )

@@ -2,6 +2,8 @@
 # The whole test suite: installs what is missing, configures and builds in out/ci (warnings are
 # errors), then runs every test with ctest. Extra arguments go to ctest (e.g. -R Store).
 #   PBGI_SANITIZE=asan|tsan scripts/test.sh   builds in out/ci-asan or out/ci-tsan instead.
+# Then (default build, no ctest arguments) it runs the fuzz targets for PBGI_FUZZ_SECONDS (5)
+# each under libFuzzer in out/ci-fuzz (clang).
 set -euo pipefail
 here="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 cd "$here"
@@ -28,5 +30,22 @@ else
   cmake -S . -B "$build" "${flags[@]}" >/dev/null
 fi
 cmake --build "$build" -j "$jobs"
-cd "$build"
-ctest --output-on-failure -j "$jobs" "$@"
+(cd "$build" && ctest --output-on-failure -j "$jobs" "$@")
+
+# The fuzz targets under libFuzzer (clang, ASan + UBSan), a few seconds each
+# (PBGI_FUZZ_SECONDS; 0 skips them). Only the modules they link are built. Not with a
+# sanitizer suite (the fuzzers bring their own) nor when ctest was given a test selection.
+fuzz_seconds="${PBGI_FUZZ_SECONDS:-5}"
+if [ -z "$san" ] && [ $# -eq 0 ] && [ "$fuzz_seconds" != 0 ]; then
+  fuzz_build=out/ci-fuzz
+  if [ ! -f "$fuzz_build/CMakeCache.txt" ]; then
+    CC=clang CXX=clang++ cmake -S . -B "$fuzz_build" "${generator[@]}" \
+      -DCMAKE_BUILD_TYPE=RelWithDebInfo -DPBGI_WERROR=ON -DPBGI_FUZZ=ON \
+      -DPBGI_BUILD_TESTS=OFF -DPBGI_BUILD_BENCH=OFF -DPBGI_BUILD_TOOLS=OFF -DPBGI_BUILD_PYTHON=OFF \
+      -DPBGI_FUZZ_SECONDS="$fuzz_seconds"
+  else
+    cmake -S . -B "$fuzz_build" -DPBGI_FUZZ_SECONDS="$fuzz_seconds" >/dev/null
+  fi
+  cmake --build "$fuzz_build" -j "$jobs" --target pbgi_fuzzers
+  (cd "$fuzz_build" && ctest --output-on-failure -L fuzz)
+fi

@@ -1,5 +1,6 @@
 #include "store/meta_codec.h"
 
+#include <cmath>
 #include <cstring>
 
 #include "absl/strings/str_format.h"
@@ -156,6 +157,35 @@ absl::StatusOr<DecodedMeta> DecodeMeta(absl::string_view bytes, absl::string_vie
     return absl::DataLossError(absl::StrFormat(
         "%s: meta record has page size %d: not a multiple of 8 above the header size", where,
         m.page_size));
+  }
+  // What no store ever holds, whatever its pages are (a record can be crafted with a valid
+  // checksum): refused here, so that no reader starts on it.
+  if (m.sh_order != 2) {
+    return absl::DataLossError(absl::StrFormat(
+        "%s: meta record has SH order %d: this library reads order 2 only", where, m.sh_order));
+  }
+  for (int i = 0; i < 3; ++i) {
+    if (std::isnan(m.bounds.lo[i]) || std::isnan(m.bounds.hi[i])) {
+      return absl::DataLossError(
+          absl::StrFormat("%s: meta record has NaN in its bounds", where));
+    }
+  }
+  const bool empty_box = m.bounds.lo == Bounds{}.lo && m.bounds.hi == Bounds{}.hi;
+  if (!empty_box) {
+    for (int i = 0; i < 3; ++i) {
+      if (!(m.bounds.lo[i] <= m.bounds.hi[i]) || !std::isfinite(m.bounds.lo[i]) ||
+          !std::isfinite(m.bounds.hi[i])) {
+        return absl::DataLossError(absl::StrFormat(
+            "%s: meta record has bounds (%g, %g, %g) .. (%g, %g, %g): inverted or not finite",
+            where, m.bounds.lo.x, m.bounds.lo.y, m.bounds.lo.z, m.bounds.hi.x, m.bounds.hi.y,
+            m.bounds.hi.z));
+      }
+    }
+  }
+  if (m.max_depth >= kMaxStoredDepth) {
+    return absl::DataLossError(absl::StrFormat(
+        "%s: meta record says the tree is %d levels deep (at most %d)", where, m.max_depth,
+        kMaxStoredDepth - 1));
   }
   // Bytes after the known fields are ignored: a later minor revision of version 1 may append.
   return d;

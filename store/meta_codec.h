@@ -24,6 +24,8 @@
 namespace pbgi::internal {
 
 inline constexpr uint32_t kMetaFlagComplete = 1u;
+// Node depths are below this (the query layer's per-level tables have this many entries).
+inline constexpr uint32_t kMaxStoredDepth = 32;
 inline constexpr size_t kMetaHeaderBytes = 24;
 
 std::string EncodeMeta(const StoreMeta& meta, bool complete);
@@ -33,7 +35,10 @@ struct DecodedMeta {
   bool complete = false;
 };
 // `where` names the store in error messages. Wrong magic -> InvalidArgument, future version ->
-// FailedPrecondition with both numbers, damaged record -> DataLoss.
+// FailedPrecondition with both numbers, damaged record -> DataLoss, and so is a record that no
+// store can hold (SH order other than 2, NaN, inverted or infinite bounds other than the empty
+// box, a depth of 32 or more) even with a valid checksum. What only a pbgi database must hold
+// (points, nodes, counts that fit the pages) is CheckDatabaseMeta's (tree/verify.h).
 absl::StatusOr<DecodedMeta> DecodeMeta(absl::string_view bytes, absl::string_view where);
 
 }  // namespace pbgi::internal

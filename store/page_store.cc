@@ -1,4 +1,5 @@
 // PageStore (read-only opening of a finished store) and ReadTxn.
+#include <fcntl.h>
 #include <lmdb.h>
 #include <sys/mman.h>
 #include <sys/stat.h>
@@ -9,6 +10,7 @@
 #include <cstdlib>
 #include <cstring>
 #include <memory>
+#include <optional>
 #include <string>
 #include <utility>
 
@@ -18,9 +20,11 @@
 #include "pbgi/status.h"
 #include "pbgi/store.h"
 #include "store/crc32c.h"
+#include "store/lmdb_check.h"
 #include "store/lmdb_status.h"
 #include "store/meta_codec.h"
 #include "store/store_internal.h"
+#include "store/write_lock.h"
 
 namespace pbgi {
 
@@ -175,6 +179,7 @@ void ReadTxn::Reset() {
 absl::Status ReadTxn::Renew() {
   if (impl_ == nullptr) return absl::FailedPreconditionError("ReadTxn::Renew on a moved-from txn");
   if (impl_->active) return absl::OkStatus();
+  PBGI_RETURN_IF_ERROR(impl_->store->CheckUnchanged());
   PBGI_RETURN_IF_ERROR(internal::LmdbStatus(
       mdb_txn_renew(impl_->txn), absl::StrCat("store ", impl_->store->path, ": renewing a read")));
   impl_->active = true;
@@ -195,6 +200,9 @@ absl::StatusOr<uint64_t> PageStore::MapResidentBytes() const {
 }
 
 absl::StatusOr<ReadTxn> PageStore::BeginRead() const {
+  // A file truncated under the map faults (SIGBUS) on the next read of a page past its new
+  // end; catch what can be caught before a reader starts (store.h, "Caveats").
+  PBGI_RETURN_IF_ERROR(impl_->CheckUnchanged());
   auto t = std::make_unique<ReadTxn::Impl>();
   t->store = impl_.get();
   PBGI_RETURN_IF_ERROR(
@@ -204,9 +212,12 @@ absl::StatusOr<ReadTxn> PageStore::BeginRead() const {
   return ReadTxn(std::move(t));
 }
 
-absl::StatusOr<std::unique_ptr<PageStore>> PageStore::Open(const std::string& path,
-                                                           const StoreOptions& options) {
+// `*replaced` is set when data.mdb was swapped for another file between the structural check
+// and LMDB's own open (a build finishing): the caller tries again.
+absl::StatusOr<std::unique_ptr<PageStore::Impl>> PageStore::Impl::OpenOnce(
+    const std::string& path, const StoreOptions& options, bool* replaced) {
   using internal::LmdbStatus;
+  *replaced = false;
   struct stat st;
   if (stat(path.c_str(), &st) != 0) {
     const int err = errno;
@@ -219,16 +230,23 @@ absl::StatusOr<std::unique_ptr<PageStore>> PageStore::Open(const std::string& pa
     return absl::FailedPreconditionError(absl::StrFormat(
         "%s is not a store: a store is a directory holding %s", path, internal::kDataFile));
   }
-  auto impl = std::make_unique<Impl>();
+  auto impl = std::make_unique<PageStore::Impl>();
   impl->path = path;
   impl->data_path = absl::StrCat(path, "/", internal::kDataFile);
   impl->options = options;
   const std::string& data_path = impl->data_path;
-  if (stat(data_path.c_str(), &st) != 0) {
+  const int check_fd = open(data_path.c_str(), O_RDONLY | O_CLOEXEC);
+  if (check_fd < 0) {
     const int err = errno;
     const std::string building = absl::StrCat(path, "/", internal::kBuildingFile);
     struct stat bst;
     if (err == ENOENT && stat(building.c_str(), &bst) == 0) {
+      const std::optional<std::string> writer = internal::WriterLockHolder(path);
+      if (writer.has_value()) {
+        return absl::FailedPreconditionError(absl::StrFormat(
+            "store %s is not built yet: a build (pid %s) is writing %s now", path, *writer,
+            internal::kBuildingFile));
+      }
       return absl::FailedPreconditionError(absl::StrFormat(
           "store %s is incomplete: the build did not finish (only %s exists; rebuild it)", path,
           internal::kBuildingFile));
@@ -239,7 +257,15 @@ absl::StatusOr<std::unique_ptr<PageStore>> PageStore::Open(const std::string& pa
     }
     return LmdbStatus(err, absl::StrFormat("store %s: %s", path, internal::kDataFile));
   }
+  struct CloseFd {
+    int fd;
+    ~CloseFd() { close(fd); }
+  } close_check{check_fd};
+  if (fstat(check_fd, &st) != 0) {
+    return LmdbStatus(errno, absl::StrFormat("store %s: %s", path, internal::kDataFile));
+  }
   impl->file_bytes = static_cast<uint64_t>(st.st_size);
+  impl->identity = internal::FileIdentity::Of(st);
   if (impl->file_bytes == 0) {
     // LMDB would take an empty file for a new environment and try to initialize it.
     return absl::DataLossError(
@@ -247,6 +273,34 @@ absl::StatusOr<std::unique_ptr<PageStore>> PageStore::Open(const std::string& pa
                         internal::kDataFile));
   }
   const std::string where = absl::StrCat("store ", path);
+
+  // LMDB trusts its own pages blindly; check them (lmdb_check.h) before LMDB sees the file.
+  PBGI_ASSIGN_OR_RETURN(impl->lmdb, internal::CheckLmdbFile(check_fd, impl->file_bytes, where));
+  if (!impl->lmdb.meta.present) {
+    return absl::FailedPreconditionError(absl::StrFormat(
+        "store %s has no meta section: not a pbgi store, or its build did not finish", path));
+  }
+  if (!impl->lmdb.has_meta_record) {
+    return absl::FailedPreconditionError(absl::StrFormat(
+        "store %s is incomplete: the build did not finish (no meta record)", path));
+  }
+  PBGI_ASSIGN_OR_RETURN(internal::DecodedMeta decoded,
+                        internal::DecodeMeta(impl->lmdb.meta_record, where));
+  if (!decoded.complete) {
+    return absl::FailedPreconditionError(absl::StrFormat(
+        "store %s is incomplete: the build did not finish (meta record not marked complete)",
+        path));
+  }
+  impl->meta = std::move(decoded.meta);
+  if (!impl->lmdb.nodes.present || !impl->lmdb.points.present) {
+    return absl::DataLossError(
+        absl::StrFormat("store %s: the nodes or points section is missing", path));
+  }
+  for (Section section : {Section::kNodes, Section::kPoints}) {
+    PBGI_RETURN_IF_ERROR(internal::CheckLmdbSection(check_fd, impl->lmdb, section,
+                                                    impl->meta.page_size,
+                                                    /*overflow_headers=*/false, where));
+  }
 
   PBGI_RETURN_IF_ERROR(LmdbStatus(mdb_env_create(&impl->env), where));
   PBGI_RETURN_IF_ERROR(LmdbStatus(mdb_env_set_maxdbs(impl->env, 4), where));
@@ -257,6 +311,16 @@ absl::StatusOr<std::unique_ptr<PageStore>> PageStore::Open(const std::string& pa
   if (!options.read_ahead) flags |= MDB_NORDAHEAD;
   PBGI_RETURN_IF_ERROR(LmdbStatus(mdb_env_open(impl->env, data_path.c_str(), flags, 0644),
                                   absl::StrCat(where, ": opening ", internal::kDataFile)));
+  PBGI_RETURN_IF_ERROR(LmdbStatus(mdb_env_get_fd(impl->env, &impl->fd), where));
+  // LMDB opened the path again: it must be the file that was checked.
+  struct stat lst;
+  if (fstat(impl->fd, &lst) != 0) return LmdbStatus(errno, where);
+  if (!(internal::FileIdentity::Of(lst) == impl->identity)) {
+    *replaced = true;
+    return absl::UnavailableError(absl::StrFormat(
+        "store %s: %s was replaced or modified while it was being opened", path,
+        internal::kDataFile));
+  }
 
   // A file cut short still has valid LMDB meta pages; reading a page past its end would fault.
   MDB_envinfo info;
@@ -264,7 +328,6 @@ absl::StatusOr<std::unique_ptr<PageStore>> PageStore::Open(const std::string& pa
   PBGI_RETURN_IF_ERROR(LmdbStatus(mdb_env_info(impl->env, &info), where));
   PBGI_RETURN_IF_ERROR(LmdbStatus(mdb_env_stat(impl->env, &est), where));
   const uint64_t needed = (static_cast<uint64_t>(info.me_last_pgno) + 1) * est.ms_psize;
-  PBGI_RETURN_IF_ERROR(LmdbStatus(mdb_env_get_fd(impl->env, &impl->fd), where));
   if (impl->file_bytes < needed) {
     return absl::DataLossError(absl::StrFormat(
         "store %s: %s is truncated: it has %d bytes but its last page ends at byte %d", path,
@@ -279,44 +342,56 @@ absl::StatusOr<std::unique_ptr<PageStore>> PageStore::Open(const std::string& pa
   };
   MDB_dbi meta_dbi;
   int rc = mdb_dbi_open(txn, internal::kMetaDb, 0, &meta_dbi);
-  if (rc == MDB_NOTFOUND) {
-    return abort(absl::FailedPreconditionError(absl::StrFormat(
-        "store %s has no meta section: not a pbgi store, or its build did not finish", path)));
-  }
   if (rc != MDB_SUCCESS) return abort(LmdbStatus(rc, absl::StrCat(where, ": meta section")));
   MDB_val key{sizeof(internal::kMetaKey) - 1, const_cast<char*>(internal::kMetaKey)};
   MDB_val val;
   rc = mdb_get(txn, meta_dbi, &key, &val);
-  if (rc == MDB_NOTFOUND) {
-    return abort(absl::FailedPreconditionError(absl::StrFormat(
-        "store %s is incomplete: the build did not finish (no meta record)", path)));
-  }
   if (rc != MDB_SUCCESS) return abort(LmdbStatus(rc, absl::StrCat(where, ": meta record")));
-  absl::StatusOr<internal::DecodedMeta> decoded = internal::DecodeMeta(
-      absl::string_view(static_cast<const char*>(val.mv_data), val.mv_size), where);
-  if (!decoded.ok()) return abort(decoded.status());
-  if (!decoded->complete) {
-    return abort(absl::FailedPreconditionError(absl::StrFormat(
-        "store %s is incomplete: the build did not finish (meta record not marked complete)",
-        path)));
+  if (absl::string_view(static_cast<const char*>(val.mv_data), val.mv_size) !=
+      impl->lmdb.meta_record) {
+    // Not damage that got past the check: the file LMDB reads changed since.
+    *replaced = true;
+    return abort(absl::UnavailableError(
+        absl::StrFormat("store %s: the meta record changed while the store was being opened",
+                        path)));
   }
-  impl->meta = std::move(decoded->meta);
   rc = mdb_dbi_open(txn, internal::kNodesDb, 0, &impl->nodes);
   if (rc == MDB_SUCCESS) rc = mdb_dbi_open(txn, internal::kPointsDb, 0, &impl->points);
-  if (rc == MDB_NOTFOUND) {
-    return abort(absl::DataLossError(
-        absl::StrFormat("store %s: the nodes or points section is missing", path)));
-  }
   if (rc != MDB_SUCCESS) return abort(LmdbStatus(rc, absl::StrCat(where, ": sections")));
   // Any value LMDB hands out points into its map; the meta record does, so it finds the map.
   // (Only the map's address is needed: copy_pages turns pointers into file offsets with it.)
-  absl::StatusOr<internal::FileMapping> map = internal::FindFileMapping(st, val.mv_data, data_path);
+  absl::StatusOr<internal::FileMapping> map = internal::FindFileMapping(lst, val.mv_data, data_path);
   if (!map.ok()) return abort(map.status());
   impl->map_addr = map->start;
   impl->map_size = map->bytes;
   // Committing (not aborting) a read transaction keeps the opened section handles.
   PBGI_RETURN_IF_ERROR(LmdbStatus(mdb_txn_commit(txn), where));
-  return std::unique_ptr<PageStore>(new PageStore(std::move(impl)));
+  return impl;
+}
+
+absl::StatusOr<std::unique_ptr<PageStore>> PageStore::Open(const std::string& path,
+                                                           const StoreOptions& options) {
+  // A build that finishes renames its file over data.mdb; the few microseconds between the
+  // check and LMDB's open can see both. Each attempt either opens one file or fails for good.
+  for (int attempt = 0;; ++attempt) {
+    bool replaced = false;
+    absl::StatusOr<std::unique_ptr<Impl>> impl = Impl::OpenOnce(path, options, &replaced);
+    if (impl.ok()) return std::unique_ptr<PageStore>(new PageStore(std::move(*impl)));
+    if (!replaced || attempt == 3) return impl.status();
+  }
+}
+
+absl::Status PageStore::Impl::CheckUnchanged() const {
+  struct stat st;
+  if (fstat(fd, &st) != 0) return internal::LmdbStatus(errno, absl::StrCat("store ", path));
+  const internal::FileIdentity now = internal::FileIdentity::Of(st);
+  if (now == identity) return absl::OkStatus();
+  return absl::DataLossError(absl::StrFormat(
+      "store %s: %s was modified in place after it was opened (size %d -> %d bytes, mtime "
+      "changed: %s): a finished store must never be written, only replaced by a new build; "
+      "reopen it",
+      path, internal::kDataFile, identity.size, now.size,
+      now.mtime_ns == identity.mtime_ns ? "no" : "yes"));
 }
 
 }  // namespace pbgi

@@ -11,6 +11,7 @@
 #include <cstring>
 #include <filesystem>
 #include <memory>
+#include <optional>
 #include <string>
 #include <utility>
 #include <vector>
@@ -23,6 +24,7 @@
 #include "store/meta_codec.h"
 #include "store/page_io.h"
 #include "store/store_internal.h"
+#include "store/write_lock.h"
 
 namespace pbgi {
 namespace {
@@ -68,6 +70,10 @@ struct PageWriter::Impl {
   uint64_t bytes_written = 0;
   absl::Status failed;  // sticky: after an error the writer refuses to continue
   bool finished = false;
+  std::optional<internal::WriterLock> lock;  // held from Create to destruction
+  // Directories that Create made (deepest first): a writer that does not finish removes them
+  // again when they are empty, so a failed build leaves nothing behind.
+  std::vector<std::string> created_dirs;
 
   static int Index(Section s) { return s == Section::kNodes ? 0 : 1; }
   MDB_dbi Dbi(Section s) const { return s == Section::kNodes ? nodes : points; }
@@ -76,9 +82,16 @@ struct PageWriter::Impl {
   ~Impl() {
     if (txn != nullptr) mdb_txn_abort(txn);
     if (env != nullptr) mdb_env_close(env);
-    if (!finished) {
+    // Only the lock's holder may touch the files: without it they belong to another writer.
+    if (!finished && lock.has_value()) {
       RemoveFile(tmp_path);
       RemoveFile(tmp_path + internal::kLockSuffix);
+    }
+    if (lock.has_value()) lock->Release();
+    if (!finished) {
+      for (const std::string& d : created_dirs) {
+        if (rmdir(d.c_str()) != 0) break;  // not empty (or gone): leave it and its parents
+      }
     }
   }
 
@@ -253,22 +266,34 @@ absl::StatusOr<std::unique_ptr<PageWriter>> PageWriter::Create(const std::string
         "store %s: map sizes must satisfy 64 KiB <= initial_map_size (%d) <= max_map_size (%d)",
         path, options.initial_map_size, options.max_map_size));
   }
+  auto impl = std::make_unique<Impl>();
+  impl->path = path;
+  impl->tmp_path = absl::StrCat(path, "/", internal::kBuildingFile);
+  impl->final_path = absl::StrCat(path, "/", internal::kDataFile);
   std::error_code ec;
+  // The directories that do not exist yet, deepest first.
+  for (std::filesystem::path p = std::filesystem::absolute(path, ec).lexically_normal();
+       !ec && !p.empty() && p != p.root_path(); p = p.parent_path()) {
+    if (p.filename().empty()) continue;  // a trailing separator
+    if (std::filesystem::exists(p, ec) || ec) break;
+    impl->created_dirs.push_back(p.string());
+  }
+  ec.clear();
   std::filesystem::create_directories(path, ec);
   if (ec || !std::filesystem::is_directory(path, ec)) {
     return absl::FailedPreconditionError(
         absl::StrFormat("store %s: cannot create the store directory: %s", path,
                         ec ? ec.message() : std::string("a file of that name exists")));
   }
-  auto impl = std::make_unique<Impl>();
-  impl->path = path;
-  impl->tmp_path = absl::StrCat(path, "/", internal::kBuildingFile);
-  impl->final_path = absl::StrCat(path, "/", internal::kDataFile);
+  // One writer per directory: a second one would delete the first one's file and the first
+  // would then publish the second's half-written one.
+  PBGI_ASSIGN_OR_RETURN(internal::WriterLock lock, internal::WriterLock::Acquire(path));
+  impl->lock.emplace(std::move(lock));
   impl->options = options;
   impl->options.batch_bytes =
       std::clamp<uint64_t>(options.batch_bytes, options.page_size, kMaxBatchBytes);
   impl->map_size = options.initial_map_size;
-  // A leftover from a build that died.
+  // A leftover from a build that died (the lock says no build is running).
   RemoveFile(impl->tmp_path);
   RemoveFile(impl->tmp_path + internal::kLockSuffix);
 
@@ -412,11 +437,18 @@ absl::Status PageWriter::Finish(const StoreMeta& meta) {
   }
   w.finished = true;
   RemoveFile(w.tmp_path + internal::kLockSuffix);
-  // Make the rename itself durable.
-  const int dir = sync ? open(w.path.c_str(), O_RDONLY | O_DIRECTORY) : -1;
-  if (dir >= 0) {
-    fsync(dir);
-    close(dir);
+  // Make the rename itself durable. The new store is in place whatever happens here; a failure
+  // is still an error, because the rename may not survive a power cut.
+  if (sync) {
+    const int dir = open(w.path.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
+    const int rc = dir < 0 || fsync(dir) != 0 ? errno : 0;
+    if (dir >= 0) close(dir);
+    if (rc != 0) {
+      return LmdbStatus(rc, absl::StrFormat("%s: the new store is in place, but syncing its "
+                                            "directory failed, so the replacement may not "
+                                            "survive a power cut",
+                                            w.Where()));
+    }
   }
   return absl::OkStatus();
 }

@@ -7,6 +7,7 @@
 #include "absl/strings/str_format.h"
 #include "pbgi/status.h"
 #include "pbgi/store.h"
+#include "store/lmdb_check.h"
 #include "store/lmdb_status.h"
 #include "store/store_internal.h"
 
@@ -19,6 +20,16 @@ absl::StatusOr<StoreCheckReport> CheckAllPages(const PageStore& store) {
   auto note = [&](absl::Status st) {
     if (report.first_error.ok()) report.first_error = std::move(st);
   };
+
+  PBGI_RETURN_IF_ERROR(s.CheckUnchanged());
+  // Open() checked LMDB's tree pages; the headers of the overflow runs, which no read uses,
+  // are checked here only (LMDB's pages, so no page of ours is counted bad for them).
+  internal::LmdbFile lmdb = s.lmdb;
+  for (Section section : {Section::kNodes, Section::kPoints}) {
+    note(internal::CheckLmdbSection(s.fd, lmdb, section, s.meta.page_size,
+                                    /*overflow_headers=*/true, where));
+  }
+  report.lmdb_tree_pages = lmdb.tree_pages_read - s.lmdb.tree_pages_read;
 
   MDB_txn* txn = nullptr;
   PBGI_RETURN_IF_ERROR(

@@ -8,12 +8,14 @@
 
 #include <atomic>
 #include <cstdint>
+#include <memory>
 #include <string>
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
 #include "base/proc.h"
 #include "pbgi/store.h"
+#include "store/lmdb_check.h"
 
 namespace pbgi::internal {
 
@@ -57,6 +59,22 @@ absl::Status ReadFully(int fd, void* out, size_t size, uint64_t offset, const st
 // CRC-32C of a page as stored in its header: bytes [4, page_size).
 uint32_t PageChecksum(const void* page, uint32_t page_size);
 
+// What identifies the contents of a file cheaply: which file, its size and its last change.
+// A finished store never changes; a reader compares this with the file now (fstat) to catch a
+// store written in place under it before its map faults.
+struct FileIdentity {
+  uint64_t dev = 0, ino = 0, size = 0;
+  int64_t mtime_ns = 0;
+  static FileIdentity Of(const struct stat& st) {
+    return {static_cast<uint64_t>(st.st_dev), static_cast<uint64_t>(st.st_ino),
+            static_cast<uint64_t>(st.st_size),
+            int64_t{st.st_mtim.tv_sec} * 1000000000 + st.st_mtim.tv_nsec};
+  }
+  bool operator==(const FileIdentity& o) const {
+    return dev == o.dev && ino == o.ino && size == o.size && mtime_ns == o.mtime_ns;
+  }
+};
+
 }  // namespace pbgi::internal
 
 namespace pbgi {
@@ -75,6 +93,15 @@ struct PageStore::Impl {
   // copy_pages: reads since open, for StoreOptions::trim_map_every.
   mutable std::atomic<uint64_t> copied_reads{0};
   int fd = -1;  // LMDB's descriptor of data.mdb (copy_pages reads through it)
+  internal::FileIdentity identity;  // data.mdb when it was opened
+  internal::LmdbFile lmdb;          // LMDB's structure as checked at open
+
+  // DataLoss when data.mdb is no longer the file that was opened and checked.
+  absl::Status CheckUnchanged() const;
+  // One attempt of PageStore::Open (see page_store.cc).
+  static absl::StatusOr<std::unique_ptr<Impl>> OpenOnce(const std::string& path,
+                                                        const StoreOptions& options,
+                                                        bool* replaced);
 
   MDB_dbi Dbi(Section s) const { return s == Section::kNodes ? nodes : points; }
   ~Impl() {

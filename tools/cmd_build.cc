@@ -13,6 +13,8 @@
 #include "pbgi/build.h"
 #include "pbgi/ply.h"
 #include "pbgi/status.h"
+#include "pbgi/store.h"
+#include "tools/budget.h"
 #include "tools/command.h"
 #include "tools/report.h"
 
@@ -26,7 +28,7 @@ extern "C" void OnInterrupt(int) { g_interrupted.store(true); }
 struct Args {
   std::string input;
   std::string output;
-  std::string memory = "1G";
+  std::string memory = "auto";
   uint32_t leaf_size = 16;
   std::string page_size;
   std::string channels = "radiance";
@@ -69,14 +71,18 @@ class Progress {
 };
 
 absl::Status Run(const Args& a) {
+  if (!a.stats_json.empty()) PBGI_RETURN_IF_ERROR(CheckOutsideStores(a.stats_json));
   BuildOptions o;
-  PBGI_ASSIGN_OR_RETURN(o.memory_bytes, ParseBytes(a.memory));
   o.leaf_size = a.leaf_size;
   if (!a.page_size.empty()) {
     PBGI_ASSIGN_OR_RETURN(uint64_t ps, ParseBytes(a.page_size));
     if (ps > (uint64_t{1} << 30)) return absl::InvalidArgumentError("--page-size is too large");
     o.page_size = static_cast<uint32_t>(ps);
   }
+  PBGI_ASSIGN_OR_RETURN(o.memory_bytes,
+                        ResolveBudget("build", "--memory", a.memory, uint64_t{1} << 30,
+                                      MinimumBuildMemory(o),
+                                      "fixed buffers, one write batch and the smallest sort run"));
   if (a.channels == "radiance") {
     o.channels = Channels::kRadiance;
   } else if (a.channels == "occlusion") {
@@ -134,7 +140,9 @@ CommandSetup Setup() {
     auto a = std::make_shared<Args>();
     app->add_option("IN", a->input, "Input PLY point file (binary or ASCII)")->required();
     app->add_option("-o,--output", a->output, "Database directory to create")->required();
-    app->add_option("--memory", a->memory, "Memory budget (sort, merge, write batch)")
+    app->add_option("--memory", a->memory,
+                    "Memory budget (sort, merge, write batch); auto: 1 GiB, or half of what the "
+                    "machine or the memory cgroup leaves")
         ->check(BytesValidator())
         ->capture_default_str();
     app->add_option("--leaf-size", a->leaf_size, "Maximum points per leaf")

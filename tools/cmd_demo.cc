@@ -14,6 +14,8 @@
 #include "pbgi/query.h"
 #include "pbgi/scene.h"
 #include "pbgi/status.h"
+#include "pbgi/store.h"
+#include "tools/budget.h"
 #include "tools/command.h"
 #include "tools/scene_views.h"
 #include "tools/sharing_flags.h"
@@ -25,8 +27,8 @@ struct DemoArgs {
   std::string out_dir = "out/demo";
   std::string scene = "city";
   int64_t points = 4'000'000;
-  std::string memory = "512M";
-  std::string cache = "256M";
+  std::string memory = "auto";
+  std::string cache = "auto";
   int width = 960;
   int height = 540;
   int threads = 0;
@@ -173,8 +175,14 @@ void PrintDemoSummary(const DemoArgs& a, const DemoRun& run, uint64_t memory, ui
 }
 
 absl::Status RunDemo(const DemoArgs& a) {
-  PBGI_ASSIGN_OR_RETURN(uint64_t memory, ParseBytes(a.memory));
-  PBGI_ASSIGN_OR_RETURN(uint64_t cache, ParseBytes(a.cache));
+  PBGI_RETURN_IF_ERROR(CheckOutsideStores(a.out_dir));
+  PBGI_ASSIGN_OR_RETURN(uint64_t memory,
+                        ResolveBudget("demo", "--memory", a.memory, uint64_t{512} << 20,
+                                      MinimumBuildMemory(BuildOptions{}),
+                                      "fixed buffers, one write batch and the smallest sort run"));
+  PBGI_ASSIGN_OR_RETURN(uint64_t cache, ResolveBudget("demo", "--cache", a.cache,
+                                                      uint64_t{256} << 20, kMinCacheBytes,
+                                                      "a few pages per thread"));
   std::error_code ec;
   std::filesystem::create_directories(a.out_dir, ec);
   if (ec) {

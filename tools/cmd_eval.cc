@@ -10,6 +10,8 @@
 #include <limits>
 #include <memory>
 #include <string>
+#include <tuple>
+#include <utility>
 #include <vector>
 
 #include "absl/strings/match.h"
@@ -22,6 +24,8 @@
 #include "pbgi/scene.h"
 #include "pbgi/shade.h"
 #include "pbgi/status.h"
+#include "pbgi/store.h"
+#include "tools/budget.h"
 #include "tools/chart.h"
 #include "tools/command.h"
 #include "tools/report.h"
@@ -43,8 +47,8 @@ struct EvalArgs {
   std::vector<int> resolutions = {8, 12, 16};
   // Cut criteria to sweep: "cosine" (Cut::cosine_weighted, the default) and/or "plain".
   std::vector<std::string> cuts = {"cosine"};
-  std::string memory = "512M";
-  std::string cache = "256M";
+  std::string memory = "auto";
+  std::string cache = "auto";
   int threads = 0;
   uint64_t seed = 1;
   bool keep_hidden = false;  // database surfels inside solid geometry too (the old sampler)
@@ -508,11 +512,24 @@ absl::Status WriteEvalChart(const std::string& path, const EvalArgs& a,
   return WriteLogLogChart(path, series);
 }
 
+// --memory (the build's cap) and --cache of both eval modes (tools/budget.h).
+absl::StatusOr<std::pair<uint64_t, uint64_t>> EvalBudgets(const EvalArgs& a) {
+  PBGI_ASSIGN_OR_RETURN(uint64_t memory,
+                        ResolveBudget("eval", "--memory", a.memory, uint64_t{512} << 20,
+                                      MinimumBuildMemory(BuildOptions{}),
+                                      "fixed buffers, one write batch and the smallest sort run"));
+  PBGI_ASSIGN_OR_RETURN(
+      uint64_t cache, ResolveBudget("eval", "--cache", a.cache, uint64_t{256} << 20, kMinCacheBytes,
+                                    "a few pages per thread"));
+  return std::make_pair(memory, cache);
+}
+
 absl::Status RunEval(const EvalArgs& a) {
+  PBGI_RETURN_IF_ERROR(CheckOutsideStores(a.out_dir));
   EvalSetup e;
   e.occlusion = a.mode == "occlusion";
-  PBGI_ASSIGN_OR_RETURN(uint64_t memory, ParseBytes(a.memory));
-  PBGI_ASSIGN_OR_RETURN(uint64_t cache, ParseBytes(a.cache));
+  PBGI_ASSIGN_OR_RETURN(const auto budgets, EvalBudgets(a));
+  const auto [memory, cache] = budgets;
   std::error_code ec;
   std::filesystem::create_directories(a.out_dir, ec);
   if (ec) return absl::UnavailableError(absl::StrFormat("cannot create %s", a.out_dir));
@@ -651,8 +668,8 @@ CommandSetup Setup() {
       v.width = a->width;
       v.height = a->height;
       v.hitsides = a->hitsides;
-      PBGI_ASSIGN_OR_RETURN(v.memory_bytes, ParseBytes(a->memory));
-      PBGI_ASSIGN_OR_RETURN(v.cache_bytes, ParseBytes(a->cache));
+      PBGI_ASSIGN_OR_RETURN(const auto budgets, EvalBudgets(*a));
+      std::tie(v.memory_bytes, v.cache_bytes) = budgets;
       v.threads = a->threads;
       v.seed = a->seed;
       v.size = a->size;

@@ -14,6 +14,7 @@
 #include "pbgi/ply.h"
 #include "pbgi/scene.h"
 #include "pbgi/status.h"
+#include "pbgi/store.h"
 #include "tools/command.h"
 
 namespace pbgi::tools {
@@ -63,6 +64,7 @@ struct Options {
 };
 
 absl::Status Run(const Options& o) {
+  PBGI_RETURN_IF_ERROR(CheckOutsideStores(o.out));
   PBGI_ASSIGN_OR_RETURN(int64_t count, ParseCount(o.points));
   if (count <= 0) return absl::InvalidArgumentError("-n must be at least 1");
   SceneOptions so;

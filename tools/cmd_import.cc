@@ -14,6 +14,7 @@
 #include "pbgi/ply.h"
 #include "pbgi/scene.h"
 #include "pbgi/status.h"
+#include "pbgi/store.h"
 #include "tools/command.h"
 
 namespace pbgi::tools {
@@ -72,6 +73,7 @@ struct Options {
 };
 
 absl::Status Run(const Options& o) {
+  PBGI_RETURN_IF_ERROR(CheckOutsideStores(o.out));
   int64_t points = 0;
   if (!o.points.empty()) {
     PBGI_ASSIGN_OR_RETURN(points, ParseCount(o.points));

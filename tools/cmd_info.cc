@@ -7,6 +7,7 @@
 #include "pbgi/store.h"
 #include "tools/command.h"
 #include "tools/report.h"
+#include "tree/verify.h"
 
 namespace pbgi::tools {
 namespace {
@@ -71,11 +72,18 @@ CommandSetup Setup() {
     app->add_option("DB", *db, "Store directory")->required();
     app->add_flag("--json", *json, "Print JSON instead of a table");
     return [db, json]() -> absl::Status {
+      NoteStoreLeftovers("info", *db);
       PBGI_ASSIGN_OR_RETURN(std::unique_ptr<PageStore> store, PageStore::Open(*db));
       if (*json) {
         PrintJson(*store);
       } else {
         PrintTable(*store);
+      }
+      // info shows what the record holds, even when it is no database (a bare store of pages);
+      // verify and shade refuse such a record.
+      if (absl::Status s = internal::CheckDatabaseMeta(store->meta(), store->path()); !s.ok()) {
+        std::fflush(stdout);
+        std::fprintf(stderr, "pbgi info: warning: %s\n", std::string(s.message()).c_str());
       }
       return absl::OkStatus();
     };

@@ -13,6 +13,7 @@
 #include "base/stopwatch.h"
 #include "pbgi/query.h"
 #include "pbgi/status.h"
+#include "tools/budget.h"
 #include "tools/command.h"
 #include "tools/report.h"
 
@@ -41,7 +42,7 @@ struct Args {
   std::string normal;
   float max_solid_angle = 0.03f;
   float max_distance = std::numeric_limits<float>::infinity();
-  std::string cache = "256M";
+  std::string cache = "auto";
   bool json = false;
   bool list = false;
 };
@@ -193,7 +194,9 @@ absl::Status Run(const Args& a) {
   if (!(a.max_solid_angle >= 0)) {
     return absl::InvalidArgumentError("--max-solid-angle must be >= 0");
   }
-  PBGI_ASSIGN_OR_RETURN(uint64_t cache, ParseBytes(a.cache));
+  PBGI_ASSIGN_OR_RETURN(uint64_t cache, ResolveBudget("query", "--cache", a.cache,
+                                                      uint64_t{256} << 20, kMinCacheBytes,
+                                                      "a few pages"));
   DatabaseOptions options;
   options.cache_bytes = cache;
   PBGI_ASSIGN_OR_RETURN(std::unique_ptr<Database> db, Database::Open(a.db, options));

@@ -1,5 +1,7 @@
 // `pbgi shade`: occlusion, colour bleeding or glossy light from a database, for a point file of
 // receivers (RenderMan's ptfilter workflow) or for the pixels of a camera view of a scene.
+#include <unistd.h>
+
 #include <algorithm>
 #include <cerrno>
 #include <chrono>
@@ -18,6 +20,8 @@
 #include "pbgi/raster.h"
 #include "pbgi/scene.h"
 #include "pbgi/status.h"
+#include "pbgi/store.h"
+#include "tools/budget.h"
 #include "tools/command.h"
 #include "tools/scene_views.h"
 #include "tools/sharing_flags.h"
@@ -32,7 +36,7 @@ struct ShadeArgs {
   std::string scene;
   std::string out;
   std::string mode = "irradiance";
-  std::string cache = "256M";
+  std::string cache = "auto";
   int threads = 0;
   float max_solid_angle = 0.03f;
   std::string cut = "cosine";  // or "plain"; glossy always uses the plain cut
@@ -58,10 +62,14 @@ class ResultPlyWriter {
                                                                  Mode mode) {
     auto w = std::unique_ptr<ResultPlyWriter>(new ResultPlyWriter());
     w->path_ = path;
+    // Written beside the output and renamed over it by Close(): an output is never replaced
+    // by a half-written one (a job that fails or is killed leaves the previous file).
+    w->tmp_path_ = absl::StrFormat("%s.tmp-%d", path, getpid());
     w->mode_ = mode;
-    w->file_ = std::fopen(path.c_str(), "wb");
+    w->file_ = std::fopen(w->tmp_path_.c_str(), "wb");
     if (w->file_ == nullptr) {
-      return absl::UnavailableError(absl::StrFormat("cannot create %s", path));
+      return absl::UnavailableError(
+          absl::StrFormat("cannot create %s: %s", w->tmp_path_, std::strerror(errno)));
     }
     std::string header =
         "ply\nformat binary_little_endian 1.0\ncomment written by pbgi shade\n"
@@ -84,6 +92,7 @@ class ResultPlyWriter {
   }
   ~ResultPlyWriter() {
     if (file_ != nullptr) std::fclose(file_);
+    if (!closed_) std::remove(tmp_path_.c_str());
   }
   absl::Status Write(const Surfel& s, const ShadeResult& r) {
     float v[11] = {s.position.x, s.position.y, s.position.z, s.normal.x,
@@ -104,18 +113,26 @@ class ResultPlyWriter {
         std::fwrite(count.data(), 1, count.size(), file_) != count.size()) {
       return WriteError();
     }
-    const int rc = std::fclose(file_);
+    bool ok = std::fflush(file_) == 0 && fsync(fileno(file_)) == 0;
+    ok = std::fclose(file_) == 0 && ok;
     file_ = nullptr;
-    if (rc != 0) return WriteError();
+    if (!ok) return WriteError();
+    if (std::rename(tmp_path_.c_str(), path_.c_str()) != 0) {
+      return absl::UnavailableError(absl::StrFormat("cannot rename %s to %s: %s", tmp_path_, path_,
+                                                    std::strerror(errno)));
+    }
+    closed_ = true;
     return absl::OkStatus();
   }
 
  private:
   absl::Status WriteError() {
     return absl::UnavailableError(
-        absl::StrFormat("cannot write %s: %s (disk full?)", path_, std::strerror(errno)));
+        absl::StrFormat("cannot write %s: %s (disk full?)", tmp_path_, std::strerror(errno)));
   }
   std::string path_;
+  std::string tmp_path_;
+  bool closed_ = false;
   Mode mode_ = Mode::kIrradiance;
   std::FILE* file_ = nullptr;
   long count_offset_ = 0;
@@ -149,12 +166,12 @@ void PrintSummary(const char* what, uint64_t receivers, const ShadeStats& s, int
 }
 
 absl::Status ShadePoints(const ShadeArgs& a, Database& db, const ShadeOptions& so, Mode mode,
-                         uint64_t cache) {
+                         uint64_t cache, uint64_t chunk_receivers) {
   PBGI_ASSIGN_OR_RETURN(std::unique_ptr<SurfelSource> in, OpenPly(a.receivers));
   PBGI_ASSIGN_OR_RETURN(std::unique_ptr<ResultPlyWriter> out, ResultPlyWriter::Create(a.out, mode));
   // Receivers stream through in chunks (Z-ordered within each chunk), so a receiver file of any
-  // size shades inside the cache budget plus one chunk.
-  std::vector<Surfel> chunk(static_cast<size_t>(a.chunk));
+  // size shades inside the budget: the cache plus one chunk (RunShade splits it).
+  std::vector<Surfel> chunk(static_cast<size_t>(chunk_receivers));
   std::vector<ShadeReceiver> receivers;
   std::vector<ShadeResult> results;
   ShadeStats total, s;
@@ -204,6 +221,8 @@ absl::Status ShadeCamera(const ShadeArgs& a, Database& db, const ShadeOptions& s
     return absl::InvalidArgumentError(
         absl::StrFormat("%s: the output of a camera view is an .exr or a .png", a.out));
   }
+  PBGI_RETURN_IF_ERROR(CheckOutsideStores(exr));
+  PBGI_RETURN_IF_ERROR(CheckOutsideStores(png));
   PBGI_RETURN_IF_ERROR(WriteExr(exr, *image));
   PBGI_RETURN_IF_ERROR(WritePng(png, *image, 1.0f, mode != Mode::kOcclusion));
   std::printf("traced %dx%d primary rays in %.2f s\n", a.width, a.height, view.trace_seconds);
@@ -217,6 +236,7 @@ absl::Status RunShade(const ShadeArgs& a) {
   if (a.receivers.empty() == a.scene.empty()) {
     return absl::InvalidArgumentError("give either --receivers IN.ply or --scene SCENE");
   }
+  PBGI_RETURN_IF_ERROR(CheckOutsideStores(a.out));
   Mode mode = Mode::kIrradiance;
   if (a.mode == "occlusion")
     mode = Mode::kOcclusion;
@@ -226,10 +246,40 @@ absl::Status RunShade(const ShadeArgs& a) {
     return absl::InvalidArgumentError(
         absl::StrFormat("--mode %s: use occlusion, irradiance or glossy", a.mode));
   }
-  PBGI_ASSIGN_OR_RETURN(uint64_t cache, ParseBytes(a.cache));
+  // One budget, --cache, for the page cache and what the job holds besides: a chunk of
+  // receivers (at most a quarter of the budget, at least kMinChunk of them) or the view's pixels.
+  constexpr uint64_t kMinChunk = 1024;
+  constexpr uint64_t kViewBytesPerPixel = 256;  // receivers, results, traced hits, images
+  const uint64_t job_min =
+      a.scene.empty() ? std::min<uint64_t>(kMinChunk, uint64_t(a.chunk)) * kShadeBytesPerReceiver
+                      : uint64_t(a.width) * uint64_t(a.height) * kViewBytesPerPixel;
+  PBGI_ASSIGN_OR_RETURN(const uint64_t budget,
+                        ResolveBudget("shade", "--cache", a.cache, uint64_t{256} << 20,
+                                      kMinCacheBytes + job_min,
+                                      a.scene.empty() ? "a few pages and 1024 receivers"
+                                                      : "a few pages and the view's pixels"));
+  uint64_t chunk_receivers = 0, job = job_min;
+  if (a.scene.empty()) {
+    chunk_receivers = std::clamp<uint64_t>(budget / 4 / kShadeBytesPerReceiver,
+                                           std::min<uint64_t>(kMinChunk, uint64_t(a.chunk)),
+                                           uint64_t(a.chunk));
+    job = chunk_receivers * kShadeBytesPerReceiver;
+  }
+  const uint64_t cache = budget - job;
   DatabaseOptions dbo;
   dbo.cache_bytes = cache;
   PBGI_ASSIGN_OR_RETURN(std::unique_ptr<Database> db, Database::Open(a.db, dbo));
+  // Every Reader (one per thread) pins two pages at least; below that the cache cannot hold.
+  const int threads = a.threads > 0 ? a.threads : DefaultShadeThreads();
+  const uint64_t min_cache =
+      4 * uint64_t(threads) * std::max<uint64_t>(db->meta().page_size, 4096);
+  if (cache < min_cache) {
+    return absl::InvalidArgumentError(absl::StrFormat(
+        "--cache %s leaves %s for pages after the job's %s, less than the %s that %d threads "
+        "need (4 pages of %d bytes each): give at least --cache %dK",
+        a.cache, FormatBytes(cache), FormatBytes(job), FormatBytes(min_cache), threads,
+        db->meta().page_size, (min_cache + job + 1023) / 1024));
+  }
   if (mode != Mode::kOcclusion && !HasRadiance(db->meta().channels)) {
     return absl::FailedPreconditionError(absl::StrFormat(
         "%s stores occlusion only (built with --channels occlusion): --mode %s needs radiance",
@@ -253,7 +303,7 @@ absl::Status RunShade(const ShadeArgs& a) {
     so.raster.phong_exponent = a.phong_exponent;
   }
   ApplySharingFlags(a.sharing, &so);
-  return a.scene.empty() ? ShadePoints(a, *db, so, mode, cache)
+  return a.scene.empty() ? ShadePoints(a, *db, so, mode, cache, chunk_receivers)
                          : ShadeCamera(a, *db, so, mode, cache);
 }
 
@@ -268,7 +318,9 @@ CommandSetup Setup() {
     app->add_option("--mode", a->mode, "occlusion, irradiance or glossy")
         ->check(CLI::IsMember({"occlusion", "irradiance", "glossy"}))
         ->capture_default_str();
-    app->add_option("--cache", a->cache, "Page cache budget")
+    app->add_option("--cache", a->cache,
+                    "Memory budget: the page cache and the receivers in flight; auto: 256 MiB, or "
+                    "half of what the machine or the memory cgroup leaves")
         ->check(BytesValidator())
         ->capture_default_str();
     app->add_option("--threads", a->threads, "0: all cores")->capture_default_str();

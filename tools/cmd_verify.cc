@@ -30,6 +30,7 @@ CommandSetup Setup() {
                   "Check pages and counts only, not the octree stored in them");
     return [db, pages_only]() -> absl::Status {
       const auto start = std::chrono::steady_clock::now();
+      NoteStoreLeftovers("verify", *db);
       StoreOptions options;
       options.read_ahead = true;  // one sequential pass
       PBGI_ASSIGN_OR_RETURN(std::unique_ptr<PageStore> store, PageStore::Open(*db, options));

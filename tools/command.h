@@ -28,6 +28,9 @@ absl::StatusOr<uint64_t> ParseBytes(const std::string& text);
 CLI::Validator BytesValidator();
 // "1.5 GiB"
 std::string FormatBytes(uint64_t bytes);
+// Prints to stderr what a build that did not finish left in the store directory `db` (or that a
+// build is writing it now), if anything: `pbgi info` and `pbgi verify` mention it.
+void NoteStoreLeftovers(const char* command, const std::string& db);
 // Whether stderr is a terminal (progress redraws a line) or not (a line per second).
 bool StderrIsTerminal();
 

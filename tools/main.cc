@@ -11,6 +11,7 @@
 
 #include "absl/strings/numbers.h"
 #include "absl/strings/str_format.h"
+#include "pbgi/store.h"
 #include "tools/command.h"
 
 namespace pbgi::tools {
@@ -66,12 +67,18 @@ absl::StatusOr<uint64_t> ParseBytes(const std::string& text) {
     return absl::InvalidArgumentError(
         absl::StrFormat("'%s' is not a size (examples: 4096, 512M, 1G)", text));
   }
+  // 2^64 and more do not fit (the conversion would be undefined, and came out as 0).
+  if (v * mult >= 18446744073709551616.0) {
+    return absl::InvalidArgumentError(
+        absl::StrFormat("'%s' is too large a size (at most 16 EiB)", text));
+  }
   return static_cast<uint64_t>(v * mult);
 }
 
 CLI::Validator BytesValidator() {
   return CLI::Validator(
       [](std::string& s) -> std::string {
+        if (s == "auto") return std::string();  // budgets: see tools/budget.h
         auto r = ParseBytes(s);
         return r.ok() ? std::string() : std::string(r.status().message());
       },
@@ -87,6 +94,21 @@ std::string FormatBytes(uint64_t bytes) {
     ++u;
   }
   return u == 0 ? absl::StrFormat("%d B", bytes) : absl::StrFormat("%.1f %s", v, units[u]);
+}
+
+void NoteStoreLeftovers(const char* command, const std::string& db) {
+  const StoreLeftovers left = FindStoreLeftovers(db);
+  if (!left.active_writer.empty()) {
+    std::fprintf(stderr,
+                 "pbgi %s: note: a build (pid %s) is writing %s now; it replaces the store when "
+                 "it finishes\n",
+                 command, left.active_writer.c_str(), db.c_str());
+  } else if (!left.files.empty()) {
+    std::fprintf(stderr,
+                 "pbgi %s: note: %s (%s) is left over from a build that did not finish; the next "
+                 "build to %s removes it (or delete it)\n",
+                 command, left.files.front().c_str(), FormatBytes(left.bytes).c_str(), db.c_str());
+  }
 }
 
 bool StderrIsTerminal() { return isatty(STDERR_FILENO) != 0; }

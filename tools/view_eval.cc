@@ -17,6 +17,7 @@
 #include "pbgi/scene.h"
 #include "pbgi/shade.h"
 #include "pbgi/status.h"
+#include "pbgi/store.h"
 #include "tools/scene_views.h"
 
 namespace pbgi::tools {
@@ -131,6 +132,7 @@ std::string ErrorsJson(const ImageErrors& e) {
 absl::Status RunViewEval(const ViewEvalArgs& a) {
   const bool occlusion = a.mode == "occlusion";
   const uint64_t memory = a.memory_bytes, cache = a.cache_bytes;
+  PBGI_RETURN_IF_ERROR(CheckOutsideStores(a.out_dir));
   std::error_code ec;
   std::filesystem::create_directories(a.out_dir, ec);
   if (ec) return absl::UnavailableError(absl::StrFormat("cannot create %s", a.out_dir));

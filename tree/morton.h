@@ -19,6 +19,26 @@ namespace pbgi::internal {
 inline constexpr int kMortonBitsPerAxis = 21;
 inline constexpr uint32_t kMaxOctreeDepth = 21;  // a depth-21 cell holds one key
 
+// Below a depth-21 cell that holds more than a leaf's points (coincident points, or points
+// closer than a cell), the tree goes on splitting by arrival order: the i-th point of the cell
+// (its rank) has a virtual key of kVirtualLevels octal digits, most significant first, and the
+// node at depth 21 + v holds the points whose ranks share the top v digits. So the pile gets
+// aggregates at every level and the cut works on it like on any other subtree, with leaves of
+// at most the leaf size (down to one point at kMaxSplitDepth). Ranks beyond kMaxRank all go to
+// the cell's last leaf. A pile of n points makes a chain of 10 - ceil(log8 n) single-child
+// nodes above its first split.
+inline constexpr uint32_t kVirtualLevels = 10;
+inline constexpr uint32_t kMaxSplitDepth = kMaxOctreeDepth + kVirtualLevels;  // 31
+inline constexpr uint32_t kMaxRank = (1u << (3 * kVirtualLevels)) - 1;
+
+// The node of depth `depth` that holds the point of `key` and rank `rank` in its cell.
+struct TreePrefix {
+  uint64_t key = 0;   // KeyPrefix(key, depth), the whole key below depth 21
+  uint32_t rank = 0;  // the rank's top (depth - 21) octal digits below depth 21, else 0
+  bool operator==(const TreePrefix& o) const { return key == o.key && rank == o.rank; }
+  bool operator!=(const TreePrefix& o) const { return !(*this == o); }
+};
+
 // Spreads the low 21 bits of v so that bit i lands at bit 3*i.
 inline uint64_t SpreadBits3(uint32_t v) {
   uint64_t x = v & 0x1fffffu;
@@ -37,6 +57,11 @@ inline uint64_t MortonEncode(uint32_t x, uint32_t y, uint32_t z) {
 // The key prefix identifying the depth-d cell that contains `key`.
 inline uint64_t KeyPrefix(uint64_t key, uint32_t depth) {
   return depth == 0 ? 0 : key >> (3 * (kMaxOctreeDepth - depth));
+}
+
+inline TreePrefix PrefixAt(uint64_t key, uint32_t rank, uint32_t depth) {
+  if (depth <= kMaxOctreeDepth) return {KeyPrefix(key, depth), 0};
+  return {key, rank >> (3 * (kMaxSplitDepth - depth))};
 }
 
 // Maps positions to keys inside a cube around the bounds, padded so that rounding never pushes

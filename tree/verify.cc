@@ -44,6 +44,18 @@ class Verifier {
     PBGI_RETURN_IF_ERROR(CheckPageCounts());
     NodeRecordRadiance root;
     PBGI_RETURN_IF_ERROR(ReadNode(meta_.root, &root, 1));
+    // The builder records the root's bounds as the store's; a record crafted with other bounds
+    // (and a valid checksum) would have `pbgi info` print a box that does not hold the points.
+    for (int k = 0; k < 3; ++k) {
+      if (root.common.lo[k] != meta_.bounds.lo[k] || root.common.hi[k] != meta_.bounds.hi[k]) {
+        return absl::DataLossError(absl::StrFormat(
+            "the meta record's bounds (%g, %g, %g) .. (%g, %g, %g) are not the root node's "
+            "(%g, %g, %g) .. (%g, %g, %g)",
+            meta_.bounds.lo.x, meta_.bounds.lo.y, meta_.bounds.lo.z, meta_.bounds.hi.x,
+            meta_.bounds.hi.y, meta_.bounds.hi.z, root.common.lo[0], root.common.lo[1],
+            root.common.lo[2], root.common.hi[0], root.common.hi[1], root.common.hi[2]));
+      }
+    }
     PBGI_RETURN_IF_ERROR(Visit(meta_.root, root, 0));
     if (next_point_ != meta_.point_count) {
       return absl::DataLossError(absl::StrFormat(
@@ -182,7 +194,7 @@ class Verifier {
       if (c.child_count != 0) {
         return absl::DataLossError(absl::StrFormat("%s: a leaf with children", where()));
       }
-      if (c.point_count > meta_.leaf_size && depth < kMaxOctreeDepth) {
+      if (c.point_count > meta_.leaf_size && depth < kMaxSplitDepth) {
         return absl::DataLossError(
             absl::StrFormat("%s: a leaf of %d points above the maximum depth (leaf size %d)",
                             where(), c.point_count, meta_.leaf_size));
@@ -217,7 +229,7 @@ class Verifier {
       return absl::DataLossError(
           absl::StrFormat("%s: interior node with %d children", where(), c.child_count));
     }
-    if (depth >= kMaxOctreeDepth) {
+    if (depth >= kMaxSplitDepth) {
       return absl::DataLossError(
           absl::StrFormat("%s: interior node at the maximum depth", where()));
     }

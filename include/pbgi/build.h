@@ -61,7 +61,8 @@ struct BuildOptions {
   uint32_t page_size = kDefaultPageSize;
   Channels channels = Channels::kRadiance;
   Layout layout = Layout::kCoherent;
-  // Directory for the sort's temporary run files; empty: the database's parent directory.
+  // Directory for the sort's temporary run files; empty: the database's parent directory (or
+  // its nearest ancestor that exists, when the build creates the parent too).
   std::string tmp_dir;
   // Count and drop invalid surfels (NaN/Inf, zero normal, radius <= 0) instead of failing.
   bool skip_invalid = false;
@@ -105,6 +106,11 @@ struct BuildStats {
   uint64_t upper_records = 0;
   uint64_t early_upper_writes = 0;
 };
+
+// The smallest memory_bytes within which a build's peak stays: its fixed buffers, the smallest
+// write batch and the smallest sorted run. Smaller budgets are accepted (tests use them to force
+// spilling) but exceeded; `pbgi build` refuses them.
+uint64_t MinimumBuildMemory(const BuildOptions& options);
 
 // Builds a database at `db_path` (a directory, created or replaced) from all surfels of `source`.
 // Errors name the surfel (record number) or page concerned. An empty input is an error.

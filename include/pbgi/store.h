@@ -18,8 +18,20 @@
 //   reader maps the file as it is. Map size is virtual address space, not resident memory.
 // - Verification of page checksums is on by default; turn it off only to measure.
 // - A PageStore must outlive every ReadTxn it began.
-// - One PageWriter per store directory at a time. Readers of the previous store keep reading
-//   it undisturbed while a new one is built and swapped in (the file is replaced by rename).
+// - One PageWriter per store directory at a time, enforced: PageWriter::Create takes the
+//   directory's writer lock (`writer.lock`, an open-file-description lock the kernel drops when
+//   the process dies) and refuses, naming the holder's pid, while another writer has it.
+//   Readers of the previous store keep reading it undisturbed while a new one is built and
+//   swapped in (the file is replaced by rename), and never touch the lock.
+// - Never write, truncate or copy over data.mdb in place while it is open: LMDB maps the file,
+//   and a page that no longer exists faults the reading process with SIGBUS, which no library
+//   can turn into an error. What can be caught is: PageStore::BeginRead() and ReadTxn::Renew()
+//   compare the file's identity, size and modification time with what Open() checked and
+//   return DataLoss when it changed, and with copy_pages a short read is DataLoss. Replace a
+//   store only by building a new one (or by renaming a finished copy over it).
+// - LMDB's own pages (meta pages, B-tree pages) are not covered by the page checksums, so
+//   Open() reads and checks all of its meta, branch and leaf pages before LMDB may touch them
+//   (store/lmdb_check.h): a damaged file is DataLoss naming the LMDB page, never a crash.
 // - A finished store is opened without LMDB's lock file (MDB_NOLOCK): it is never written
 //   again, so readers need no coordination, and read-only media work.
 #ifndef PBGI_STORE_H_
@@ -29,6 +41,7 @@
 #include <map>
 #include <memory>
 #include <string>
+#include <vector>
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
@@ -124,6 +137,25 @@ struct PageView {
 
 class PageStore;
 
+// What a build that did not finish left in a store directory: its data.mdb.tmp (and LMDB's
+// lock file beside it), up to a whole store's size after a kill. The next PageWriter for the
+// directory removes them; `pbgi info` and `pbgi verify` mention them.
+struct StoreLeftovers {
+  std::vector<std::string> files;  // paths that exist
+  uint64_t bytes = 0;              // their total size
+  // Non-empty when a build holds the directory's writer lock now (its pid): the files are its
+  // work in progress, not leftovers.
+  std::string active_writer;
+  bool empty() const { return files.empty() && active_writer.empty(); }
+};
+StoreLeftovers FindStoreLeftovers(const std::string& path);
+
+// OK unless writing the file or directory `output` would put it inside a store directory or
+// replace one (following symbolic links): a store directory belongs to its store and its
+// builds, and `pbgi shade ... -o DB/data.mdb` destroyed a database. FailedPrecondition naming
+// both. Every command of the pbgi tool checks its outputs with it.
+absl::Status CheckOutsideStores(const std::string& output);
+
 // What CheckAllPages() found: per-section counts, and the first inconsistency it can name.
 struct StoreCheckReport {
   struct SectionCounts {
@@ -136,12 +168,14 @@ struct StoreCheckReport {
   SectionCounts nodes;
   SectionCounts points;
   uint64_t bad_pages = 0;    // pages that failed their own check (checksum, kind, number, size)
+  uint64_t lmdb_tree_pages = 0;  // LMDB's branch and leaf pages of both sections, checked again
   absl::Status first_error;  // OK when the store is consistent; else the first problem found
   bool ok() const { return first_error.ok(); }
 };
 
 // Reads every page of both sections (checksums are always verified here, whatever the store's
-// options) and compares the page and record counts with the meta record. Returns an error only
+// options) and compares the page and record counts with the meta record; also checks LMDB's
+// own structure again, with the header of every overflow run. Returns an error only
 // when the check itself cannot run; inconsistencies go into the report.
 absl::StatusOr<StoreCheckReport> CheckAllPages(const PageStore& store);
 

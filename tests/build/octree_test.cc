@@ -78,6 +78,7 @@ struct RefNode {
 struct Reference {
   std::vector<Surfel> sorted;  // input in Morton order, normals normalized
   std::vector<uint64_t> keys;
+  std::vector<uint32_t> ranks;  // rank among the points of the same key (tree/morton.h)
   RefNode root;
   uint64_t nodes = 0;
   uint32_t max_depth = 0;
@@ -94,15 +95,19 @@ RefNode Split(Reference& r, uint64_t lo, uint64_t hi, uint32_t depth, uint32_t l
     n.bounds.Extend(r.sorted[i].position);
     n.area += sh::kPi * double(r.sorted[i].radius) * r.sorted[i].radius;
   }
-  if (n.count <= leaf_size || depth == 21) {
+  if (n.count <= leaf_size || depth == kMaxSplitDepth) {
     n.leaf = true;
     return n;
   }
-  const int shift = 3 * (20 - int(depth));
+  // Above depth 21 by key octant, below by the next octal digit of the rank.
+  auto digit = [&](uint64_t i) -> uint64_t {
+    if (depth < 21) return (r.keys[i] >> (3 * (20 - int(depth)))) & 7;
+    return (r.ranks[i] >> (3 * (kMaxSplitDepth - 1 - depth))) & 7;
+  };
   uint64_t i = lo;
   while (i < hi) {
-    uint64_t oct = (r.keys[i] >> shift) & 7, j = i;
-    while (j < hi && ((r.keys[j] >> shift) & 7) == oct) ++j;
+    uint64_t oct = digit(i), j = i;
+    while (j < hi && digit(j) == oct) ++j;
     n.kids.push_back(Split(r, i, j, depth + 1, leaf_size));
     i = j;
   }
@@ -122,6 +127,8 @@ Reference MakeReference(const std::vector<Surfel>& cloud, uint32_t leaf_size) {
   }
   std::stable_sort(idx.begin(), idx.end(), [&](size_t a, size_t c) { return keys[a] < keys[c]; });
   for (size_t i : idx) {
+    const bool same = !r.keys.empty() && r.keys.back() == keys[i];
+    r.ranks.push_back(same ? std::min(r.ranks.back() + 1, kMaxRank) : 0);
     r.sorted.push_back(cloud[i]);
     r.keys.push_back(keys[i]);
   }
@@ -328,14 +335,17 @@ TEST(BuildEdgeTest, TwoPointsWithLeafSizeOneSplit) {
   CheckAgainstReference(*b, cloud, 1);
 }
 
-TEST(BuildEdgeTest, CoincidentPointsFormOneOversizedLeafAtMaxDepth) {
+// Issue 17: coincident points made one leaf that every nearby receiver gathered whole. Below
+// the last cell they split by rank (tree/morton.h) into leaves of at most the leaf size: 100
+// ranks need three octal digits, so seven single-child levels, then 64 + 36, then leaves of 8.
+TEST(BuildEdgeTest, CoincidentPointsSplitBelowTheLastCellIntoLeavesOfTheLeafSize) {
   ScratchDir dir("coincident");
   std::vector<Surfel> cloud(100, MakeSurfel({5, 5, 5}, {1, 0, 0}, 0.1f, {0.5f, 0.5f, 0.5f}));
   cloud.push_back(MakeSurfel({6, 6, 6}, {1, 0, 0}, 0.1f, {0.5f, 0.5f, 0.5f}));
   auto b = BuildMem(cloud, BuildOptions{}, dir.path());
   ASSERT_TRUE(b.ok()) << b.status();
-  EXPECT_EQ(b->meta.max_depth, kMaxOctreeDepth);
-  EXPECT_EQ(b->stats.max_leaf_points, 100u);
+  EXPECT_EQ(b->meta.max_depth, kMaxSplitDepth - 1);
+  EXPECT_EQ(b->stats.max_leaf_points, 8u);
   EXPECT_TRUE(VerifyTreePages(b->meta, *b->sink).ok()) << VerifyTreePages(b->meta, *b->sink);
   CheckAgainstReference(*b, cloud, 16);
 }
@@ -345,7 +355,7 @@ TEST(BuildEdgeTest, AllCoincidentPoints) {
   std::vector<Surfel> cloud(50, MakeSurfel({-1, 0, 7}, {0, 0, 1}, 0.1f, {1, 2, 3}));
   auto b = BuildMem(cloud, BuildOptions{}, dir.path());
   ASSERT_TRUE(b.ok()) << b.status();
-  EXPECT_EQ(b->stats.max_leaf_points, 50u);
+  EXPECT_EQ(b->stats.max_leaf_points, 8u);
   EXPECT_TRUE(VerifyTreePages(b->meta, *b->sink).ok()) << VerifyTreePages(b->meta, *b->sink);
   CheckAgainstReference(*b, cloud, 16);
 }
@@ -358,7 +368,11 @@ TEST(BuildEdgeTest, PlaneHugeTinyAndFarClouds) {
   clouds.push_back(plane);
   clouds.push_back(UniformCloud(3000, 32, 1e7f));
   clouds.push_back(UniformCloud(3000, 33, 1e-6f));
-  clouds.push_back(UniformCloud(3000, 34, 10.0f, glm::vec3(1e6f, -2e6f, 5e5f)));
+  // Far from the origin: floats there are 0.125 apart, so the disks must span 64 such steps to
+  // be placed at all (build/input_range.h); the cloud's extent is still only 160 steps.
+  auto far = UniformCloud(3000, 34, 10.0f, glm::vec3(1e6f, -2e6f, 5e5f));
+  for (auto& s : far) s.radius = 8.0f + s.radius;
+  clouds.push_back(far);
   for (size_t i = 0; i < clouds.size(); ++i) {
     SCOPED_TRACE(i);
     BuildOptions o;

@@ -2,6 +2,7 @@
 #include <sys/wait.h>
 
 #include <cstdio>
+#include <filesystem>
 #include <fstream>
 #include <string>
 #include <vector>
@@ -103,6 +104,30 @@ TEST(StoreToolsTest, VerifyPassesAGoodStoreAndNamesTheDamagedPage) {
   EXPECT_THAT(bad.output, HasSubstr("damaged pages 1"));
   EXPECT_THAT(bad.output, HasSubstr("points page 11 is corrupt: checksum mismatch"));
   EXPECT_THAT(bad.output, Not(HasSubstr("pages: OK")));
+}
+
+// Issue 17: a killed build's data.mdb.tmp was silent; info and verify now name it.
+TEST(StoreToolsTest, InfoAndVerifyMentionWhatABuildLeftBehind) {
+  ScratchDir dir;
+  const std::string path = dir.Sub("db");
+  MakeStore(path, "unused-marker");
+  {
+    std::ofstream tmp(path + "/data.mdb.tmp", std::ios::binary);
+    tmp << std::string(5000, 'x');
+  }
+  Result info = RunPbgi("info " + path);
+  EXPECT_EQ(info.exit_code, 0) << info.output;
+  EXPECT_THAT(info.output, HasSubstr(path + "/data.mdb.tmp (4.9 KiB) is left over from a build "
+                                            "that did not finish"));
+  Result verify = RunPbgi("verify --pages-only " + path);
+  EXPECT_EQ(verify.exit_code, 0) << verify.output;
+  EXPECT_THAT(verify.output, HasSubstr("is left over from a build that did not finish"));
+  EXPECT_THAT(verify.output, HasSubstr("pages: OK"));
+
+  std::filesystem::remove(path + "/data.mdb");
+  Result incomplete = RunPbgi("info " + path);
+  EXPECT_EQ(incomplete.exit_code, 1);
+  EXPECT_THAT(incomplete.output, HasSubstr("incomplete: the build did not finish"));
 }
 
 }  // namespace
