@@ -1,4 +1,6 @@
-// ShadeBatch (include/pbgi/shade.h): gather + rasterize on a TBB arena of `threads` threads.
+// ShadeBatch (include/pbgi/shade.h): validation, then the mode: kExact shades every receiver on
+// the engine (shade/engine.h), kShared refines over an image (shade/image_sharing.h) or a point
+// set (shade/point_sharing.h).
 #include "pbgi/shade.h"
 
 #include <algorithm>
@@ -11,35 +13,23 @@
 #include <vector>
 
 #include "absl/strings/str_format.h"
-#include "base/stopwatch.h"
-#include "oneapi/tbb/blocked_range.h"
-#include "oneapi/tbb/enumerable_thread_specific.h"
-#include "oneapi/tbb/parallel_for.h"
-#include "oneapi/tbb/task_arena.h"
 #include "pbgi/status.h"
-#include "tree/morton.h"
+#include "shade/engine.h"
+#include "shade/image_sharing.h"
+#include "shade/point_sharing.h"
 
 namespace pbgi {
 namespace {
 
-using internal::Stopwatch;
-
-// Everything one thread needs, made on first use in that thread.
-struct Worker {
-  std::unique_ptr<Reader> reader;
-  MicroBuffer buffer;
-  Gathered gathered;
-  QueryStats query;
-  double gather_seconds = 0;
-  double raster_seconds = 0;
-  absl::Status init;
-};
-
 absl::Status Validate(absl::Span<const ShadeReceiver> receivers, const ShadeOptions& options,
-                      absl::Span<ShadeResult> out) {
+                      absl::Span<ShadeResult> out, absl::Span<uint8_t> shaded) {
   if (out.size() != receivers.size()) {
     return absl::InvalidArgumentError(
         absl::StrFormat("ShadeBatch: %d results for %d receivers", out.size(), receivers.size()));
+  }
+  if (!shaded.empty() && shaded.size() != receivers.size()) {
+    return absl::InvalidArgumentError(absl::StrFormat(
+        "ShadeBatch: %d shaded flags for %d receivers", shaded.size(), receivers.size()));
   }
   if (!(options.cut.max_solid_angle >= 0.0f)) {
     return absl::InvalidArgumentError("max_solid_angle must be >= 0");
@@ -59,6 +49,12 @@ absl::Status Validate(absl::Span<const ShadeReceiver> receivers, const ShadeOpti
           "receiver %d has a %s", i, finite ? "zero normal" : "NaN or infinite coordinate"));
     }
   }
+  if (options.mode == ShadeMode::kShared) {
+    PBGI_RETURN_IF_ERROR(ValidateSharingOptions(options.sharing, receivers.size()));
+  } else if (options.mode != ShadeMode::kExact) {
+    return absl::InvalidArgumentError(
+        absl::StrFormat("ShadeOptions::mode %d is not a ShadeMode", int(options.mode)));
+  }
   return absl::OkStatus();
 }
 
@@ -67,115 +63,102 @@ absl::Status Validate(absl::Span<const ShadeReceiver> receivers, const ShadeOpti
 void ShadeStats::Add(const ShadeStats& o) {
   receivers += o.receivers;
   seconds += o.seconds;
+  cpu_seconds += o.cpu_seconds;
   query.Add(o.query);
   cache.Add(o.cache);
   gather_seconds += o.gather_seconds;
   raster_seconds += o.raster_seconds;
+  shaded += o.shaded;
+  interpolated += o.interpolated;
+  sharing_seconds += o.sharing_seconds;
 }
 
 int DefaultShadeThreads() { return std::max(1u, std::thread::hardware_concurrency()); }
 
-absl::Status ShadeBatch(Database& db, absl::Span<const ShadeReceiver> receivers,
-                        const ShadeOptions& options, absl::Span<ShadeResult> out,
-                        ShadeStats* stats) {
-  PBGI_RETURN_IF_ERROR(Validate(receivers, options, out));
-  const Stopwatch clock;
-  std::fill(out.begin(), out.end(), ShadeResult{});
-  std::vector<uint32_t> order;
-  if (options.z_order) {
-    order =
-        internal::MortonOrder(receivers.size(), [&](size_t i) { return receivers[i].position; });
-  } else {
-    order.resize(receivers.size());
-    for (size_t i = 0; i < order.size(); ++i) order[i] = static_cast<uint32_t>(i);
+absl::Status ValidateSharingOptions(const SharingOptions& s, size_t receivers) {
+  if (s.spacing < 2 || s.spacing > 64 || (s.spacing & (s.spacing - 1)) != 0) {
+    return absl::InvalidArgumentError(
+        absl::StrFormat("SharingOptions::spacing %d: a power of two in [2, 64]", s.spacing));
   }
-
-  const int threads = options.threads > 0 ? options.threads : DefaultShadeThreads();
-  const uint64_t total = receivers.size();
-  tbb::enumerable_thread_specific<Worker> workers;
-  std::atomic<bool> failed{false};
-  std::mutex error_mu;
-  absl::Status first_error;
-  std::atomic<uint64_t> done{0};
-  std::mutex progress_mu;
-  Stopwatch since_progress;
-
-  auto fail = [&](absl::Status s) {
-    std::lock_guard<std::mutex> lock(error_mu);
-    if (first_error.ok()) first_error = std::move(s);
-    failed.store(true, std::memory_order_relaxed);
-  };
-  auto cancelled = [&] {
-    return options.cancel != nullptr && options.cancel->load(std::memory_order_relaxed);
-  };
-
-  // Blocks of consecutive Z-ordered receivers keep each thread's pages coherent; at most 64,
-  // and small enough that every thread gets about 16 of them, so that a small batch does not
-  // wait for one thread's last block (docs/query.md).
-  const size_t grain = std::clamp<size_t>(order.size() / (16 * size_t(threads)), 1, 64);
-  tbb::task_arena arena(threads);
-  arena.execute([&] {
-    tbb::parallel_for(
-        tbb::blocked_range<size_t>(0, order.size(), grain),
-        [&](const tbb::blocked_range<size_t>& range) {
-          if (failed.load(std::memory_order_relaxed)) return;
-          if (cancelled()) {
-            return fail(absl::CancelledError(absl::StrFormat(
-                "shading was cancelled after %d of %d receivers", done.load(), total)));
-          }
-          bool exists = false;
-          Worker& w = workers.local(exists);
-          if (!exists) {
-            auto reader = db.NewReader();
-            if (!reader.ok()) {
-              w.init = reader.status();
-            } else {
-              w.reader = std::move(reader).value();
-              w.init = w.buffer.Prepare(options.raster.resolution);
-            }
-          }
-          if (!w.init.ok()) return fail(w.init);
-          for (size_t k = range.begin(); k != range.end(); ++k) {
-            if (failed.load(std::memory_order_relaxed)) return;
-            const uint32_t i = order[k];
-            const ShadeReceiver& sr = receivers[i];
-            const Stopwatch t;
-            absl::Status s =
-                w.reader->Gather({sr.position, sr.normal}, options.cut, &w.gathered, &w.query);
-            const double gather = t.Seconds();
-            if (!s.ok()) return fail(std::move(s));
-            s = Shade(w.gathered, sr, options.raster, &w.buffer, &out[i]);
-            if (!s.ok()) {
-              return fail(
-                  absl::Status(s.code(), absl::StrFormat("receiver %d: %s", i, s.message())));
-            }
-            w.gather_seconds += gather;
-            w.raster_seconds += t.Seconds() - gather;
-          }
-          const uint64_t now_done = done.fetch_add(range.size()) + range.size();
-          if (options.progress) {
-            std::unique_lock<std::mutex> lock(progress_mu, std::try_to_lock);
-            if (lock.owns_lock() && since_progress.Seconds() >= options.progress_interval_seconds) {
-              since_progress.Restart();
-              options.progress(ShadeProgress{now_done, total});
-            }
-          }
-        });
-  });
-  if (failed.load()) return first_error;
-
-  if (stats != nullptr) {
-    *stats = ShadeStats{};
-    stats->receivers = total;
-    stats->seconds = clock.Seconds();
-    for (Worker& w : workers) {
-      stats->query.Add(w.query);
-      if (w.reader) stats->cache.Add(w.reader->stats());
-      stats->gather_seconds += w.gather_seconds;
-      stats->raster_seconds += w.raster_seconds;
+  if (!(s.tolerance >= 0.0f) || !std::isfinite(s.tolerance)) {
+    return absl::InvalidArgumentError(
+        absl::StrFormat("SharingOptions::tolerance %g: must be finite and >= 0", s.tolerance));
+  }
+  if (!(s.radius_factor >= 0.0f) || !std::isfinite(s.radius_factor)) {
+    return absl::InvalidArgumentError(absl::StrFormat(
+        "SharingOptions::radius_factor %g: must be finite and >= 0", s.radius_factor));
+  }
+  if (!(s.max_normal_angle_degrees >= 0.0f && s.max_normal_angle_degrees <= 180.0f)) {
+    return absl::InvalidArgumentError(
+        absl::StrFormat("SharingOptions::max_normal_angle_degrees %g: must be in [0, 180]",
+                        s.max_normal_angle_degrees));
+  }
+  if (!(s.max_plane_distance >= 0.0f) || !std::isfinite(s.max_plane_distance)) {
+    return absl::InvalidArgumentError(absl::StrFormat(
+        "SharingOptions::max_plane_distance %g: must be finite and >= 0", s.max_plane_distance));
+  }
+  const ImageLayout& im = s.image;
+  if (im.width == 0 && im.height == 0 && im.pixel_of.empty()) {
+    if (!im.surface_id.empty()) {
+      return absl::InvalidArgumentError("ImageLayout: surface_id given without pixel_of");
     }
+    return absl::OkStatus();  // a point set
   }
-  if (options.progress) options.progress(ShadeProgress{total, total});
+  if (im.width <= 0 || im.height <= 0 || uint64_t(im.width) * uint64_t(im.height) > (1ull << 32)) {
+    return absl::InvalidArgumentError(
+        absl::StrFormat("ImageLayout: %dx%d is not an image size", im.width, im.height));
+  }
+  if (im.pixel_of.size() != receivers) {
+    return absl::InvalidArgumentError(
+        absl::StrFormat("ImageLayout: %d pixels for %d receivers", im.pixel_of.size(), receivers));
+  }
+  if (!im.surface_id.empty() && im.surface_id.size() != receivers) {
+    return absl::InvalidArgumentError(absl::StrFormat(
+        "ImageLayout: %d surface ids for %d receivers", im.surface_id.size(), receivers));
+  }
+  const uint64_t pixels = uint64_t(im.width) * uint64_t(im.height);
+  std::vector<uint32_t> owner(pixels, std::numeric_limits<uint32_t>::max());
+  for (size_t i = 0; i < receivers; ++i) {
+    const uint32_t p = im.pixel_of[i];
+    if (p >= pixels) {
+      return absl::InvalidArgumentError(
+          absl::StrFormat("ImageLayout: receiver %d is on pixel %d, outside the %dx%d image", i, p,
+                          im.width, im.height));
+    }
+    if (owner[p] != std::numeric_limits<uint32_t>::max()) {
+      return absl::InvalidArgumentError(
+          absl::StrFormat("ImageLayout: receivers %d and %d are both on pixel %d", owner[p], i, p));
+    }
+    owner[p] = static_cast<uint32_t>(i);
+  }
+  return absl::OkStatus();
+}
+
+absl::Status ShadeBatch(Database& db, absl::Span<const ShadeReceiver> receivers,
+                        const ShadeOptions& options, absl::Span<ShadeResult> out, ShadeStats* stats,
+                        absl::Span<uint8_t> shaded) {
+  PBGI_RETURN_IF_ERROR(Validate(receivers, options, out, shaded));
+  std::fill(out.begin(), out.end(), ShadeResult{});
+  internal::ShadeEngine engine(db, receivers, options, out);
+  internal::SharingCounts sharing;
+  if (options.mode == ShadeMode::kExact || receivers.empty()) {
+    std::vector<uint32_t> all(receivers.size());
+    for (size_t i = 0; i < all.size(); ++i) all[i] = static_cast<uint32_t>(i);
+    PBGI_RETURN_IF_ERROR(engine.Shade(all));
+    std::fill(shaded.begin(), shaded.end(), uint8_t{1});
+  } else if (!options.sharing.image.pixel_of.empty()) {
+    PBGI_RETURN_IF_ERROR(
+        internal::ShadeImageShared(engine, receivers, options, out, shaded, &sharing));
+  } else {
+    PBGI_RETURN_IF_ERROR(
+        internal::ShadePointsShared(engine, receivers, options, out, shaded, &sharing));
+  }
+  if (stats != nullptr) {
+    *stats = engine.Stats();
+    stats->interpolated = sharing.interpolated;
+    stats->sharing_seconds = sharing.seconds;
+  }
+  engine.ReportEnd();
   return absl::OkStatus();
 }
 

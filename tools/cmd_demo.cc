@@ -20,6 +20,7 @@
 #include "tools/command.h"
 #include "tools/progress.h"
 #include "tools/scene_views.h"
+#include "tools/sharing_flags.h"
 
 namespace pbgi::tools {
 namespace {
@@ -34,11 +35,12 @@ struct DemoArgs {
   int height = 540;
   int threads = 0;
   float max_solid_angle = 0.03f;
-  std::string cut = "cosine";  // or "plain"
+  std::string cut = "cosine";        // or "plain"
   std::string footprint = "splats";  // or "polygons" (RasterOptions::footprint)
   float curved_scale = 1.0f;         // Cut::curved_scale
   int raster_res = 12;
   uint64_t seed = 1;
+  SharingFlags sharing;
 };
 
 // What the demo made, for its summary.
@@ -119,6 +121,7 @@ absl::Status ShadeDemoView(const DemoArgs& a, uint64_t cache, DemoRun* run) {
   so.cut.curved_scale = a.curved_scale;
   so.raster.compute_radiance = scene.has_radiance;
   so.threads = ResolveThreads(a.threads);
+  ApplySharingFlags(a.sharing, &so);
   Progress progress("demo: shade", "receivers");  // the total: the pixels whose rays hit
   so.progress = [&](const ShadeProgress& p) { progress.Update(p.done, int64_t(p.total)); };
   const Camera camera = DefaultCamera(scene, a.width, a.height);
@@ -160,6 +163,7 @@ void PrintDemoSummary(const DemoArgs& a, const DemoRun& run, uint64_t memory, ui
       "trace %.2f s\n",
       run.shade_seconds, static_cast<unsigned long long>(view.receivers), a.width, a.height,
       view.shade.seconds * 1e6 / receivers, ResolveThreads(a.threads), view.trace_seconds);
+  std::printf("%s\n", SharingSummary(view.shade).c_str());
   std::printf(
       "  cache          %s cap, reader hits %.2f%%, shared hits %.2f%%, %llu pages read "
       "(%s)\n",
@@ -252,6 +256,7 @@ CommandSetup Setup() {
         ->check(CLI::Range(4, 64))
         ->capture_default_str();
     app->add_option("--seed", a->seed, "Seed of the scene and its sampling")->capture_default_str();
+    AddSharingFlags(app, &a->sharing);
     return [a]() { return RunDemo(*a); };
   };
 }

@@ -66,6 +66,12 @@ struct EvalArgs {
   int width = 960, height = 540;
   std::string hitsides = "front";
   double error_scale = 0.1;
+  // --view: shared rows besides the exact ones (tools/view_eval.h).
+  bool exact = false, shared = false;
+  std::vector<int> spacings = {8};
+  std::vector<float> tolerances = {0.05f};
+  float radius_factor = 0.5f;
+  std::string sharing_layout = "image";
 };
 
 struct Errors {
@@ -704,6 +710,23 @@ CommandSetup Setup() {
                     "--view: |error| at which the heat map saturates (relative to the mean "
                     "irradiance in irradiance mode)")
         ->capture_default_str();
+    app->add_flag("--exact", a->exact,
+                  "--view: only the per-receiver rows (no shared rows, ShadeMode::kShared)");
+    app->add_flag("--shared", a->shared, "--view: only the shared rows");
+    app->add_option("--spacings", a->spacings,
+                    "--view: sparse-set spacings of the shared rows (powers of two)")
+        ->check(CLI::IsMember({2, 4, 8, 16, 32, 64}))
+        ->capture_default_str();
+    app->add_option("--tolerances", a->tolerances,
+                    "--view: sharing tolerances of the shared rows (SharingOptions::tolerance)")
+        ->capture_default_str();
+    app->add_option("--radius-factor", a->radius_factor,
+                    "--view: SharingOptions::radius_factor of the shared rows")
+        ->capture_default_str();
+    app->add_option("--sharing-layout", a->sharing_layout,
+                    "--view: the shared rows see the receivers as an image or as a point set")
+        ->check(CLI::IsMember({"image", "points"}))
+        ->capture_default_str();
     return [a, app]() -> absl::Status {
       if (!a->view) return RunEval(*a);
       ViewEvalArgs v;
@@ -726,6 +749,14 @@ CommandSetup Setup() {
       v.seed = a->seed;
       v.size = a->size;
       v.error_scale = a->error_scale;
+      v.exact_only = a->exact;
+      v.shared_only = a->shared;
+      v.spacings = a->spacings;
+      v.tolerances = a->tolerances;
+      v.radius_factor = a->radius_factor;
+      v.layout = a->sharing_layout;
+      if (app->count("--ray-sweep")) v.ray_sweep = a->ray_sweep;
+      v.repeat = a->repeat;
       return RunViewEval(v);
     };
   };

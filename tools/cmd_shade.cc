@@ -28,11 +28,13 @@
 #include "tools/outputs.h"
 #include "tools/progress.h"
 #include "tools/scene_views.h"
+#include "tools/sharing_flags.h"
 
 namespace pbgi::tools {
 namespace {
 
 struct ShadeArgs {
+  SharingFlags sharing;
   std::string db;
   std::string receivers;
   std::string scene;
@@ -86,6 +88,7 @@ void PrintSummary(const char* what, uint64_t receivers, const ShadeStats& s, int
       lookups ? 100.0 * double(cs.reader.hits) / double(lookups) : 100.0,
       100.0 * cs.shared.HitRate(), static_cast<unsigned long long>(cs.shared.pages_read),
       FormatBytes(cs.shared.bytes_read).c_str(), FormatBytes(internal::PeakRssBytes()).c_str());
+  std::printf("%s\n", SharingSummary(s).c_str());
 }
 
 // Why a receiver cannot be shaded, or nullptr (ShadeBatch refuses the same ones).
@@ -380,6 +383,7 @@ absl::Status RunShade(const ShadeArgs& a) {
     so.raster.lobe = GlossyLobe::kPhong;
     so.raster.phong_exponent = a.phong_exponent;
   }
+  ApplySharingFlags(a.sharing, &so);
   return a.scene.empty() ? ShadePoints(a, *db, so, mode, cache, chunk_receivers)
                          : ShadeCamera(a, *db, so, mode, cache);
 }
@@ -465,6 +469,7 @@ CommandSetup Setup() {
                     "write it with zero results")
         ->check(CLI::IsMember({"fail", "skip", "zero"}))
         ->capture_default_str();
+    AddSharingFlags(app, &a->sharing);
     return [a]() { return RunShade(*a); };
   };
 }

@@ -263,6 +263,8 @@ std::vector<ShadeReceiver> ShadeReceiversOf(absl::Span<const Receiver> receivers
 
 CameraReceivers MakeCameraReceivers(const Tracer& tracer, const Camera& camera) {
   CameraReceivers out;
+  out.width = camera.width;
+  out.height = camera.height;
   out.hits = tracer.TraceCamera(camera);
   out.receivers.reserve(out.hits.size());
   for (size_t p = 0; p < out.hits.size(); ++p) {
@@ -277,8 +279,18 @@ CameraReceivers MakeCameraReceivers(const Tracer& tracer, const Camera& camera) 
     out.receivers.push_back({p_lifted, n});
     out.shade.push_back({p_lifted, n, glm::reflect(d, n)});
     out.pixel_of.push_back(static_cast<uint32_t>(p));
+    out.surface.push_back(out.hits[p].material);
   }
   return out;
+}
+
+ShadeOptions CameraReceivers::WithLayout(const ShadeOptions& options) const {
+  ShadeOptions o = options;
+  o.sharing.image.width = width;
+  o.sharing.image.height = height;
+  o.sharing.image.pixel_of = pixel_of;
+  o.sharing.image.surface_id = surface;
+  return o;
 }
 
 absl::StatusOr<ViewImages> RenderView(const Tracer& tracer, Database& db, const Camera& camera,
@@ -301,7 +313,8 @@ absl::StatusOr<ViewImages> RenderView(const Tracer& tracer, Database& db, const 
   out.receivers = receivers.size();
 
   std::vector<ShadeResult> results(receivers.size());
-  PBGI_RETURN_IF_ERROR(ShadeBatch(db, cr.shade, options, absl::MakeSpan(results), &out.shade));
+  PBGI_RETURN_IF_ERROR(
+      ShadeBatch(db, cr.shade, cr.WithLayout(options), absl::MakeSpan(results), &out.shade));
 
   const bool radiance = HasRadiance(db.meta().channels);
   const glm::vec3 sky = scene.lights.sky;

@@ -64,12 +64,17 @@ absl::StatusOr<glm::vec3> ParseVec3(const std::string& text);
 
 // The receivers of a camera view: one per pixel whose primary ray hits, lifted off the surface
 // by the tracer's epsilon, its normal turned to the side the camera sees; the glossy lobe's
-// centre is the mirrored view direction. pixel_of[i] is receiver i's pixel (row-major).
+// centre is the mirrored view direction. pixel_of[i] is receiver i's pixel (row-major);
+// surface[i] its hit's material (an object edge for ShadeMode::kShared).
 struct CameraReceivers {
+  int width = 0, height = 0;
   std::vector<CameraHit> hits;  // every pixel's primary hit
   std::vector<Receiver> receivers;
   std::vector<ShadeReceiver> shade;  // the same, with the glossy lobe's centre
   std::vector<uint32_t> pixel_of;
+  std::vector<uint32_t> surface;
+  // `options` with these receivers' image layout (for kShared; the spans point into this).
+  ShadeOptions WithLayout(const ShadeOptions& options) const;
 };
 CameraReceivers MakeCameraReceivers(const Tracer& tracer, const Camera& camera);
 
@@ -86,9 +91,10 @@ struct ViewImages {
   ShadeStats shade;
 };
 
-// Traces the camera's primary rays with Embree, shades the hit points from `db` and composes the
-// images. With an occlusion-only database, `indirect` is black and `composite` is direct * (1 -
-// occlusion) plus the sky's ambient term.
+// Traces the camera's primary rays with Embree, shades the hit points from `db` (in
+// options.mode; kShared gets the view's image layout) and composes the images. With an
+// occlusion-only database, `indirect` is black and `composite` is direct * (1 - occlusion) plus the
+// sky's ambient term.
 absl::StatusOr<ViewImages> RenderView(const Tracer& tracer, Database& db, const Camera& camera,
                                       const ShadeOptions& options);
 

@@ -267,62 +267,191 @@ absl::Status RunViewEval(const ViewEvalArgs& a) {
       scene->name.c_str(), a.mode.c_str(), static_cast<unsigned long long>(bs.points), a.width,
       a.height, cr.receivers.size(), 2 * half_rays, ref_noise, a.hitsides.c_str());
   std::string rows_json;
-  for (const std::string& footprint : a.footprints) {
-  for (const std::string& cut : a.cuts) {
-    for (int res : a.resolutions) {
-      for (float msa : a.solid_angles) {
-        ShadeOptions so;
-        so.threads = threads;
-        so.cut.max_solid_angle = msa;
-        so.cut.cosine_weighted = cut == "cosine";
-        so.raster.resolution = res;
-        so.raster.compute_radiance = !occlusion;
-        so.raster.hitsides = sides;
-        so.cut.curved_scale = a.curved_scale;
-        so.raster.footprint =
-            footprint == "polygons" ? Footprint::kPolygons : Footprint::kSplats;
-        std::vector<ShadeResult> results(cr.shade.size());
-        ShadeStats st;
-        Progress progress(absl::StrFormat("eval --view: shade msa %g res %d %s", msa, res, cut),
-                          "receivers", int64_t(cr.shade.size()));
-        so.progress = [&](const ShadeProgress& p) { progress.Update(p.done, int64_t(p.total)); };
-        PBGI_RETURN_IF_ERROR(ShadeBatch(*db, cr.shade, so, absl::MakeSpan(results), &st));
-        progress.Finish(results.size());
-        std::vector<double> got(pixels, 0.0);
-        for (size_t i = 0; i < results.size(); ++i) {
-          got[cr.pixel_of[i]] = occlusion ? results[i].occlusion : Scalar(results[i].irradiance);
-        }
-        const ImageErrors e = CompareImages(a.width, a.height, got, ref, covered);
-        const std::string tag =
-            absl::StrFormat("msa%g_res%d_%s%s", msa, res, cut == "cosine" ? "cos" : "plain",
-                            footprint == "polygons" ? "_poly" : "");
-        const double n = double(std::max<size_t>(1, results.size()));
-        const double us = st.seconds / n * 1e6;
-        PrintErrors(absl::StrFormat("msa %g res %d %s %s:", msa, res, cut, footprint).c_str(), e,
-                    !occlusion);
-        std::printf("%-26s %.2f us/receiver (%d threads), %.1f clusters + %.1f surfels\n", "",
-                    us, threads, double(st.query.clusters) / n, double(st.query.surfels) / n);
-        PBGI_RETURN_IF_ERROR(
-            WritePng(a.out_dir + "/pbgi_" + tag + ".png", picture(got), 1.0f, false));
-        PBGI_RETURN_IF_ERROR(WritePng(a.out_dir + "/error_" + tag + ".png",
-                                      ErrorHeatMap(a.width, a.height, got, ref, covered, scale),
-                                      1.0f, false));
-        // Raw values for other tools: channel 0 PBGI, 1 the reference, 2 the coverage mask.
-        Image raw(a.width, a.height);
-        for (size_t p = 0; p < pixels; ++p) {
-          raw.pixels[p] = glm::vec3(float(got[p]), float(ref[p]), float(covered[p]));
-        }
-        PBGI_RETURN_IF_ERROR(WriteExr(a.out_dir + "/values_" + tag + ".exr", raw));
-        rows_json += absl::StrFormat(
-            "%s    {\"setting\": \"%s\", \"max_solid_angle\": %g, \"raster_res\": %d, "
-            "\"cut\": \"%s\", \"footprint\": \"%s\", \"curved_scale\": %g, "
-            "\"us_per_receiver\": %.4g, \"clusters\": %.4g, \"surfels\": %.4g, "
-            "\"errors\": %s}",
-            rows_json.empty() ? "" : ",\n", tag, msa, res, cut, footprint, a.curved_scale, us,
-            double(st.query.clusters) / n, double(st.query.surfels) / n, ErrorsJson(e));
+  auto add_json = [&](const std::string& row) {
+    rows_json += (rows_json.empty() ? "    " : ",\n    ") + row;
+  };
+  // The reference at fewer rays: its time and error against the converged one, the curve that
+  // PBGI's rows are compared on at equal MAE.
+  std::vector<std::pair<double, double>> ref_curve;  // (log MAE, log seconds per receiver)
+  for (int rays : a.ray_sweep) {
+    std::vector<double> got(pixels, 0.0);
+    std::vector<double> times;
+    for (int rep = 0; rep < a.repeat; ++rep) {
+      const auto t0 = Clock::now();
+      const uint64_t seed = a.seed + 1000 + uint64_t(rays);
+      if (occlusion) {
+        const auto r = tracer->ReferenceOcclusion(cr.receivers, rays,
+                                                  std::numeric_limits<float>::infinity(), seed);
+        for (size_t i = 0; i < r.size(); ++i) got[cr.pixel_of[i]] = r[i];
+      } else {
+        const auto r = tracer->ReferenceIrradiance(cr.receivers, rays, seed);
+        for (size_t i = 0; i < r.size(); ++i) got[cr.pixel_of[i]] = Scalar(r[i]);
+      }
+      times.push_back(Since(t0));
+    }
+    std::sort(times.begin(), times.end());
+    const double us =
+        times[times.size() / 2] / double(std::max<size_t>(1, cr.receivers.size())) * 1e6;
+    const ImageErrors e = CompareImages(a.width, a.height, got, ref, covered);
+    PrintErrors(absl::StrFormat("reference %d rays:", rays).c_str(), e, !occlusion);
+    std::printf("%-26s %.3f us/receiver (%d threads)\n", "", us, threads);
+    if (e.mae > 0) ref_curve.push_back({std::log(e.mae), std::log(us)});
+    const std::string tag = absl::StrFormat("reference_%d", rays);
+    PBGI_RETURN_IF_ERROR(WritePng(a.out_dir + "/error_" + tag + ".png",
+                                  ErrorHeatMap(a.width, a.height, got, ref, covered, scale), 1.0f,
+                                  false));
+    add_json(
+        absl::StrFormat("{\"setting\": \"%s\", \"method\": \"reference\", \"rays\": %d, "
+                        "\"us_per_receiver\": %.4g, \"errors\": %s}",
+                        tag, rays, us, ErrorsJson(e)));
+  }
+  std::sort(ref_curve.begin(), ref_curve.end());
+  // The reference's time at `mae`, interpolated in log-log on its sweep (0 outside it).
+  auto reference_us_at = [&](double mae) {
+    if (ref_curve.size() < 2 || !(mae > 0)) return 0.0;
+    const double x = std::log(mae);
+    if (x < ref_curve.front().first || x > ref_curve.back().first) return 0.0;
+    for (size_t i = 1; i < ref_curve.size(); ++i) {
+      if (x <= ref_curve[i].first) {
+        const auto& [x0, y0] = ref_curve[i - 1];
+        const auto& [x1, y1] = ref_curve[i];
+        return std::exp(y0 + (x1 > x0 ? (x - x0) / (x1 - x0) : 0.0) * (y1 - y0));
       }
     }
+    return 0.0;
+  };
+
+  struct ModeRow {
+    bool shared = false;
+    int spacing = 0;
+    float tolerance = 0;
+  };
+  std::vector<ModeRow> modes;
+  if (!a.shared_only) modes.push_back({});
+  if (!a.exact_only) {
+    for (int sp : a.spacings) {
+      for (float tol : a.tolerances) modes.push_back({true, sp, tol});
+    }
   }
+  for (const std::string& footprint : a.footprints) {
+    for (const std::string& cut : a.cuts) {
+      for (int res : a.resolutions) {
+        for (float msa : a.solid_angles) {
+          for (const ModeRow& m : modes) {
+            ShadeOptions so;
+            so.threads = threads;
+            so.cut.max_solid_angle = msa;
+            so.cut.cosine_weighted = cut == "cosine";
+            so.raster.resolution = res;
+            so.raster.compute_radiance = !occlusion;
+            so.raster.hitsides = sides;
+            so.cut.curved_scale = a.curved_scale;
+            so.raster.footprint =
+                footprint == "polygons" ? Footprint::kPolygons : Footprint::kSplats;
+            if (m.shared) {
+              so.mode = ShadeMode::kShared;
+              if (a.layout == "image") so = cr.WithLayout(so);
+              so.sharing.spacing = m.spacing;
+              so.sharing.tolerance = m.tolerance;
+              so.sharing.radius_factor = a.radius_factor;
+            }
+            std::vector<ShadeResult> results(cr.shade.size());
+            std::vector<uint8_t> shaded(cr.shade.size());
+            std::vector<ShadeStats> runs;
+            Progress progress(absl::StrFormat("eval --view: shade msa %g res %d %s", msa, res, cut),
+                              "receivers", int64_t(cr.shade.size()) * a.repeat);
+            int64_t done_before = 0;
+            so.progress = [&](const ShadeProgress& p) {
+              progress.Update(done_before + int64_t(p.done), int64_t(cr.shade.size()) * a.repeat);
+            };
+            for (int rep = 0; rep < a.repeat; ++rep) {
+              ShadeStats st;
+              PBGI_RETURN_IF_ERROR(ShadeBatch(*db, cr.shade, so, absl::MakeSpan(results), &st,
+                                              absl::MakeSpan(shaded)));
+              runs.push_back(st);
+              done_before += int64_t(cr.shade.size());
+            }
+            progress.Finish(int64_t(cr.shade.size()) * a.repeat);
+            std::sort(runs.begin(), runs.end(), [](const ShadeStats& x, const ShadeStats& y) {
+              return x.seconds < y.seconds;
+            });
+            const ShadeStats& st = runs[runs.size() / 2];
+            std::vector<double> got(pixels, 0.0);
+            for (size_t i = 0; i < results.size(); ++i) {
+              got[cr.pixel_of[i]] =
+                  occlusion ? results[i].occlusion : Scalar(results[i].irradiance);
+            }
+            const ImageErrors e = CompareImages(a.width, a.height, got, ref, covered);
+            std::string tag =
+                absl::StrFormat("msa%g_res%d_%s", msa, res, cut == "cosine" ? "cos" : "plain");
+            std::string label = absl::StrFormat("msa %g res %d %s", msa, res, cut);
+            if (footprint == "polygons") {
+              // The splats' tags stay the setting alone (older outputs keep their names).
+              tag += "_poly";
+              label += " polygons";
+              if (a.curved_scale != 1.0f) label += absl::StrFormat(" curved %g", a.curved_scale);
+            }
+            if (m.shared) {
+              tag += absl::StrFormat("_shared%s_s%d_t%g", a.layout == "image" ? "" : "pts",
+                                     m.spacing, m.tolerance);
+              label += absl::StrFormat(" shared%s s%d t%g", a.layout == "image" ? "" : " (points)",
+                                       m.spacing, m.tolerance);
+            } else {
+              label += " exact";  // the tag of the reference mode stays the setting alone
+            }
+            const double n = double(std::max<size_t>(1, results.size()));
+            const double us = st.seconds / n * 1e6;
+            const double thread_us =
+                (st.gather_seconds + st.raster_seconds + st.sharing_seconds) / n * 1e6;
+            const double cpu_us = st.cpu_seconds / n * 1e6;
+            const double ref_us = reference_us_at(e.mae);
+            PrintErrors((label + ":").c_str(), e, !occlusion);
+            std::printf(
+                "%-26s %.2f us/receiver (%d threads), %.2f thread-us/receiver (%.2f CPU us), "
+                "%.1f%% "
+                "shaded, %.1f clusters + %.1f surfels per shaded receiver",
+                "", us, threads, thread_us, cpu_us, 100.0 * double(st.shaded) / n,
+                double(st.query.clusters) / double(std::max<uint64_t>(1, st.shaded)),
+                double(st.query.surfels) / double(std::max<uint64_t>(1, st.shaded)));
+            if (ref_us > 0) std::printf(", %.3gx the reference at equal MAE", ref_us / us);
+            std::printf("\n");
+            PBGI_RETURN_IF_ERROR(
+                WritePng(a.out_dir + "/pbgi_" + tag + ".png", picture(got), 1.0f, false));
+            PBGI_RETURN_IF_ERROR(WritePng(a.out_dir + "/error_" + tag + ".png",
+                                          ErrorHeatMap(a.width, a.height, got, ref, covered, scale),
+                                          1.0f, false));
+            // Raw values for other tools: channel 0 PBGI, 1 the reference, 2 the coverage mask.
+            Image raw(a.width, a.height);
+            for (size_t p = 0; p < pixels; ++p) {
+              raw.pixels[p] = glm::vec3(float(got[p]), float(ref[p]), float(covered[p]));
+            }
+            PBGI_RETURN_IF_ERROR(WriteExr(a.out_dir + "/values_" + tag + ".exr", raw));
+            if (m.shared) {
+              // Which receivers were shaded (black) and which interpolated (white).
+              Image mask(a.width, a.height);
+              for (size_t p = 0; p < pixels; ++p) mask.pixels[p] = glm::vec3(0.35f);
+              for (size_t i = 0; i < shaded.size(); ++i) {
+                mask.pixels[cr.pixel_of[i]] = glm::vec3(shaded[i] ? 0.0f : 1.0f);
+              }
+              PBGI_RETURN_IF_ERROR(
+                  WritePng(a.out_dir + "/shaded_" + tag + ".png", mask, 1.0f, false));
+            }
+            add_json(absl::StrFormat(
+                "{\"setting\": \"%s\", \"method\": \"pbgi\", \"mode\": \"%s\", "
+                "\"max_solid_angle\": %g, \"raster_res\": %d, \"cut\": \"%s\", "
+                "\"footprint\": \"%s\", \"curved_scale\": %g, "
+                "\"spacing\": %d, \"tolerance\": %g, \"us_per_receiver\": %.4g, "
+                "\"thread_us_per_receiver\": %.4g, \"cpu_us_per_receiver\": %.4g, \"shaded\": %d, "
+                "\"interpolated\": %d, "
+                "\"clusters\": %.4g, \"surfels\": %.4g, \"speed_ratio\": %.4g, \"errors\": %s}",
+                tag, m.shared ? (a.layout == "image" ? "shared" : "shared_points") : "exact", msa,
+                res, cut, footprint, a.curved_scale, m.spacing, m.tolerance, us, thread_us, cpu_us,
+                st.shaded, st.interpolated, double(st.query.clusters) / n,
+                double(st.query.surfels) / n, ref_us > 0 ? ref_us / us : 0.0, ErrorsJson(e)));
+          }
+        }
+      }
+    }
   }
   const std::string json_path = a.out_dir + "/view.json";
   PBGI_RETURN_IF_ERROR(WriteFileAtomically(

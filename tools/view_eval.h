@@ -18,7 +18,7 @@ namespace pbgi::tools {
 
 // Errors of an image against a reference over its covered pixels.
 struct ImageErrors {
-  uint64_t pixels = 0;  // covered pixels compared
+  uint64_t pixels = 0;                 // covered pixels compared
   double mae = 0, rmse = 0, bias = 0;  // bias: mean signed error (got - reference)
   double p99 = 0;                      // 99th percentile of |error|
   double max = 0;
@@ -61,6 +61,19 @@ struct ViewEvalArgs {
   uint64_t seed = 1;
   int size = 0;
   double error_scale = 0.1;  // the heat map saturates at this |error| (occlusion units)
+  // Modes: every setting per receiver (ShadeMode::kExact) and, unless exact_only, shared
+  // (kShared) at every spacing x tolerance, seeing the receivers as an image ("image") or as a
+  // point set ("points").
+  bool exact_only = false;
+  bool shared_only = false;
+  std::vector<int> spacings = {8};
+  std::vector<float> tolerances = {0.05f};
+  float radius_factor = 0.5f;
+  std::string layout = "image";
+  // The reference at these rays per pixel, timed and compared like PBGI, for the speed ratio at
+  // equal image MAE (none: no ratio).
+  std::vector<int> ray_sweep;
+  int repeat = 1;  // time every row this many times, keep the median (the results repeat)
 };
 
 absl::Status RunViewEval(const ViewEvalArgs& args);

@@ -9,8 +9,19 @@
 //   pbgi::ShadeOptions options;                 // cut, raster options, threads, ...
 //   absl::Status s = pbgi::ShadeBatch(**db, receivers, options, absl::MakeSpan(out));
 //
-// Each result depends only on its receiver, the database and the options: not on the thread
-// count, the order or the other receivers of the batch.
+// Two modes (ShadeOptions::mode):
+//  - kExact (the default, the reference): every receiver is gathered and rasterized on its own.
+//    Each result depends only on its receiver, the database and the options: not on the thread
+//    count, the order or the other receivers of the batch.
+//  - kShared: neighbouring receivers share the work. A sparse set is shaded exactly and the
+//    others are interpolated from it where that is safe, refining where it is not (see
+//    SharingOptions and docs/shade.md). A receiver is interpolated only from shaded receivers of
+//    the same surface: never across a depth or normal discontinuity, an object edge (given ids)
+//    or a missing neighbour, never over a cell larger than a fraction of the distance to the
+//    nearest geometry its micro-buffers saw (the split-sphere rule of irradiance caching), and
+//    only where the shaded receivers around it agree within a tolerance. The results depend on
+//    the batch (which receivers are neighbours) but not on the thread count or the order; the
+//    receivers that are shaded give exactly what kExact gives them.
 //
 // Thread safety: ShadeBatch may run concurrently on one Database (each call makes its own
 // Readers; mind the cache budget rule of pbgi/query.h: readers * reader_cache_bytes <=
@@ -18,7 +29,8 @@
 // the worker threads, never on two at once.
 //
 // Memory: the batch's receivers and results (the caller's), one order index per receiver, and
-// per thread a Reader (its share of the cache budget), a MicroBuffer and a Gathered.
+// per thread a Reader (its share of the cache budget), a MicroBuffer and a Gathered; kShared
+// adds about 30 bytes per pixel of the image (image mode) or 70 per receiver (point sets).
 #ifndef PBGI_SHADE_H_
 #define PBGI_SHADE_H_
 
@@ -39,8 +51,52 @@ struct ShadeProgress {
   uint64_t total = 0;  // receivers in the batch
 };
 
-// How to shade a batch. New ways of shading (e.g. sharing work between neighbouring receivers)
-// come as new fields whose defaults keep today's behaviour.
+enum class ShadeMode : uint8_t {
+  kExact,   // every receiver shaded on its own: the reference
+  kShared,  // a sparse set shaded, the rest interpolated under error control (SharingOptions)
+};
+
+// Where the receivers of a camera view lie in its image: receiver i is pixel pixel_of[i]
+// (row-major, y * width + x) of a width x height image; pixels without a receiver (sky) are
+// simply absent. Pixels next to each other are the neighbours that share work.
+struct ImageLayout {
+  int width = 0, height = 0;
+  absl::Span<const uint32_t> pixel_of;  // one distinct pixel per receiver
+  // Optional (empty, or one per receiver): an id of each receiver's surface (object, material):
+  // receivers with different ids are never interpolated from each other (an object edge that
+  // position and normal do not show, e.g. two coplanar objects).
+  absl::Span<const uint32_t> surface_id;
+};
+
+// How kShared shares work. With an image layout, the image is cut into square cells of
+// `spacing` pixels whose corners are shaded; a cell is interpolated (bilinearly, from its four
+// corners) when every test below passes, else it is split into four with its five midpoints
+// shaded, down to single pixels, which are all shaded. Without a layout, the receivers are
+// treated as a point set: the same hierarchy over a grid of cells in space (docs/shade.md).
+struct SharingOptions {
+  ImageLayout image;
+  // Pixels between the sparse set's receivers, a power of two in [2, 64]; point sets: the
+  // receivers per coarsest cell are about spacing^2.
+  int spacing = 8;
+  // The shaded corners of an interpolated cell agree within this: max - min of occlusion (and
+  // coverage), and of each channel of irradiance and glossy over the mean of that channel in
+  // the sparse set (a relative tolerance, so that it has the same meaning in any unit). The
+  // default keeps a camera view's error against a ray-traced reference at kExact's
+  // (docs/shade.md).
+  float tolerance = 0.05f;
+  // The split-sphere rule: a cell is interpolated only if its extent in space is at most
+  // radius_factor times the smallest harmonic-mean distance that its corners' micro-buffers saw
+  // (the distance at which occlusion and irradiance change: Ward's R_i).
+  float radius_factor = 0.5f;
+  // Every receiver of the cell has a normal within this angle of each corner's (a crease) ...
+  float max_normal_angle_degrees = 20.0f;
+  // ... and lies within this fraction of the cell's extent off the corners' surface (a depth
+  // step, a surface seen through a gap).
+  float max_plane_distance = 0.05f;
+};
+
+// How to shade a batch. New ways of shading come as new fields whose defaults keep the
+// behaviour of the fields before them.
 struct ShadeOptions {
   Cut cut;
   RasterOptions raster;
@@ -53,29 +109,43 @@ struct ShadeOptions {
   // When set and it becomes true (a renderer's abort, a SIGINT handler), the batch stops at the
   // next block of receivers with a Cancelled error; the results are then incomplete.
   const std::atomic<bool>* cancel = nullptr;
+  ShadeMode mode = ShadeMode::kExact;
+  SharingOptions sharing;  // kShared only
 };
 
 // What a batch cost.
 struct ShadeStats {
   uint64_t receivers = 0;
-  double seconds = 0;         // wall time
-  QueryStats query;           // summed over threads
-  CacheStats cache;           // the batch's Readers' counters, summed
-  double gather_seconds = 0;  // summed over threads (thread time in Gather)
-  double raster_seconds = 0;  // summed over threads (thread time in Shade)
+  double seconds = 0;  // wall time
+  // CPU time of the process during the batch (all threads; a busy machine's waits excluded).
+  double cpu_seconds = 0;
+  QueryStats query;            // summed over threads
+  CacheStats cache;            // the batch's Readers' counters, summed
+  double gather_seconds = 0;   // summed over threads (thread time in Gather)
+  double raster_seconds = 0;   // summed over threads (thread time in Shade)
+  uint64_t shaded = 0;         // receivers gathered and rasterized (all of them in kExact)
+  uint64_t interpolated = 0;   // kShared: receivers interpolated from shaded ones
+  double sharing_seconds = 0;  // kShared: thread time deciding cells and interpolating
   // Sums another batch's figures into these.
   void Add(const ShadeStats& o);
 };
 
 // Shades every receiver: out[i] belongs to receivers[i] (out.size() must equal
 // receivers.size()). Errors: InvalidArgument naming the receiver for a non-finite position or
-// a zero or non-finite normal, and for invalid options (before anything is shaded); the first
-// error of any thread otherwise (a damaged page, ...), after which the other threads stop at
-// their next receiver; Cancelled when options.cancel is raised. On error `out` is incomplete.
-// `stats`, when not null, is overwritten with what the batch cost.
+// a zero or non-finite normal, and for invalid options or layout (before anything is shaded);
+// the first error of any thread otherwise (a damaged page, ...), after which the other threads
+// stop at their next receiver; Cancelled when options.cancel is raised. On error `out` is
+// incomplete. `stats`, when not null, is overwritten with what the batch cost. `shaded`, when
+// not empty (size = receivers.size()), is set to 1 for each receiver that was shaded on its own
+// and 0 for each that was interpolated (kShared; all 1 in kExact). An interpolated result has
+// zero element counts (clusters_drawn, ...).
 absl::Status ShadeBatch(Database& db, absl::Span<const ShadeReceiver> receivers,
                         const ShadeOptions& options, absl::Span<ShadeResult> out,
-                        ShadeStats* stats = nullptr);
+                        ShadeStats* stats = nullptr, absl::Span<uint8_t> shaded = {});
+
+// OK, or InvalidArgument naming the field of SharingOptions (or of its layout) that is wrong for
+// a batch of `receivers` receivers.
+absl::Status ValidateSharingOptions(const SharingOptions& sharing, size_t receivers);
 
 // The default thread count: the number of cores.
 int DefaultShadeThreads();

@@ -64,9 +64,16 @@ awk -v p="$plain" -v c="$cosine" 'BEGIN {exit !(p > 0 && c > 0 && c < p)}' && ok
 # eval --view: the reference, PBGI and error images and the figures, for a small view.
 run eval_view "$pbgi" eval --view cornell -o "$dir/eval_view" --points 30000 --width 48 \
   --height 32 --rays 256
-for f in reference.png pbgi_msa0.03_res12_cos.png error_msa0.03_res12_cos.png view.json; do
+for f in reference.png pbgi_msa0.03_res12_cos.png error_msa0.03_res12_cos.png view.json \
+  pbgi_msa0.03_res12_cos_shared_s8_t0.05.png shaded_msa0.03_res12_cos_shared_s8_t0.05.png; do
   [ -s "$dir/eval_view/$f" ] && ok || fail "eval --view wrote no $f"
 done
+grep -q '"mode": "shared"' "$dir/eval_view/view.json" && ok || fail "view.json lacks the shared row"
+# The reference mode: demo --exact shades every receiver on its own; the default shares.
+run demo_exact "$pbgi" demo -o "$dir/demo_exact" --scene cornell --points 40000 --width 48 \
+  --height 32 --memory 64M --cache 16M --exact
+grep -q 'sharing        none' "$dir/demo_exact.out" && ok || fail "demo --exact shared work"
+grep -q 'interpolated' "$dir/demo.out" && ok || fail "demo prints no sharing line"
 grep -q '"worst_tile"' "$dir/eval_view/view.json" && grep -q '"p99"' "$dir/eval_view/view.json" &&
   ok || fail "view.json lacks the tile and tail figures"
 # The figures are a real comparison: PBGI's MAE against the reference is small but not zero.
@@ -74,6 +81,7 @@ mae=$(awk '/^msa/ {for (i = 1; i < NF; ++i) if ($i == "MAE") {print $(i + 1); ex
 awk -v m="$mae" 'BEGIN {exit !(m > 0 && m < 0.1)}' && ok || fail "eval --view MAE '$mae' not in (0, 0.1)"
 run shade_plain "$pbgi" shade "$dir/c.pbgi" --receivers "$dir/c.ply" -o "$dir/shaded_plain.ply" \
   --mode occlusion --raster-res 8 --cut plain
+refuse bad_spacing "spacing" "$pbgi" shade "$dir/c.pbgi" --receivers "$dir/c.ply" -o "$dir/x.ply" --spacing 3
 refuse bad_cut "cut" "$pbgi" shade "$dir/c.pbgi" --receivers "$dir/c.ply" -o "$dir/x.ply" --cut sideways
 
 # Errors: what and where.
