@@ -405,7 +405,8 @@ absl::Status Reader::Impl::Gather(const Receiver& receiver, const Cut& cut, Gath
 #else  // clang 14: no parenthesized aggregate initialization, the same Cluster by braces
       out->clusters.push_back(Cluster{Bounds{node.lo, node.hi}, area, node.sh_area,
                                       page->power ? page->power[slot] : std::array<Sh9, 3>{},
-                                      uint32_t{node.depth}, node.first_point, node.point_count});
+                                      uint32_t{node.depth}, node.first_point, node.point_count,
+                                      cube.CellOf(node.lo, node.depth)});
 #endif
       ++q.clusters;
       continue;
