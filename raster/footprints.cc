@@ -95,6 +95,10 @@ float FlatFootprint(const Bounds& centres, const Bounds& cell, float spacing,
         box.lo[k] = std::max(box.lo[k], cell.lo[k]);
         box.hi[k] = std::min(box.hi[k], cell.hi[k]);
       }
+      // No farther than a surfel's disk reaches past the outermost centres: a plane that cuts
+      // its box obliquely (the mean plane of a curved patch) is not grown across the cell.
+      box.lo[k] = std::max(box.lo[k], centres.lo[k] - spacing);
+      box.hi[k] = std::min(box.hi[k], centres.hi[k] + spacing);
     }
     Polygon q;
     PlaneBoxPolygon(normal, offset, box.lo - origin, box.hi - origin, &q);
