@@ -36,8 +36,8 @@ struct DemoArgs {
   int threads = 0;
   float max_solid_angle = 0.03f;
   std::string cut = "cosine";        // or "plain"
-  std::string footprint = "splats";  // or "polygons" (RasterOptions::footprint)
-  float curved_scale = 1.0f;         // Cut::curved_scale
+  std::string footprint = "polygons";  // or "splats" (RasterOptions::footprint)
+  float curved_scale = 0.3f;           // Cut::curved_scale
   int raster_res = 12;
   uint64_t seed = 1;
   SharingFlags sharing;

@@ -50,8 +50,8 @@ struct EvalArgs {
   std::vector<int> resolutions = {8, 12, 16};
   // Cut criteria to sweep: "cosine" (Cut::cosine_weighted, the default) and/or "plain".
   std::vector<std::string> cuts = {"cosine"};
-  std::vector<std::string> footprints = {"splats"};  // RasterOptions::footprint
-  float curved_scale = 1.0f;                         // Cut::curved_scale
+  std::vector<std::string> footprints = {"polygons"};  // RasterOptions::footprint
+  float curved_scale = 0.3f;                          // Cut::curved_scale
   std::string memory = "auto";
   std::string cache = "auto";
   int threads = 0;

@@ -44,8 +44,8 @@ struct ShadeArgs {
   int threads = 0;
   float max_solid_angle = 0.03f;
   std::string cut = "cosine";  // or "plain"; glossy always uses the plain cut
-  std::string footprint = "splats";  // or "polygons" (RasterOptions::footprint)
-  float curved_scale = 1.0f;         // Cut::curved_scale
+  std::string footprint = "polygons";  // or "splats" (RasterOptions::footprint)
+  float curved_scale = 0.3f;           // Cut::curved_scale
   float max_distance = std::numeric_limits<float>::infinity();
   int raster_res = 12;
   float bias = 0.0f;

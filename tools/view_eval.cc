@@ -385,12 +385,12 @@ absl::Status RunViewEval(const ViewEvalArgs& a) {
             std::string tag =
                 absl::StrFormat("msa%g_res%d_%s", msa, res, cut == "cosine" ? "cos" : "plain");
             std::string label = absl::StrFormat("msa %g res %d %s", msa, res, cut);
-            if (footprint == "polygons") {
-              // The splats' tags stay the setting alone (older outputs keep their names).
-              tag += "_poly";
-              label += " polygons";
-              if (a.curved_scale != 1.0f) label += absl::StrFormat(" curved %g", a.curved_scale);
+            if (footprint == "splats") {
+              // The default footprints' tags are the setting alone.
+              tag += "_splat";
+              label += " splats";
             }
+            if (a.curved_scale != 1.0f) label += absl::StrFormat(" curved %g", a.curved_scale);
             if (m.shared) {
               tag += absl::StrFormat("_shared%s_s%d_t%g", a.layout == "image" ? "" : "pts",
                                      m.spacing, m.tolerance);
