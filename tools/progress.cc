@@ -39,7 +39,10 @@ std::string ShortCount(double v) {
     ++s;
   }
   if (s == 0) return absl::StrFormat("%.0f", v);
-  return absl::StrFormat(v < 9.995 ? "%.2f%s" : v < 99.95 ? "%.1f%s" : "%.0f%s", v, suffix[s]);
+  // Constant formats (clang checks them at compile time).
+  if (v < 9.995) return absl::StrFormat("%.2f%s", v, suffix[s]);
+  if (v < 99.95) return absl::StrFormat("%.1f%s", v, suffix[s]);
+  return absl::StrFormat("%.0f%s", v, suffix[s]);
 }
 
 std::string Clocklike(double seconds) {
