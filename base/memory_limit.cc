@@ -29,8 +29,8 @@ const char* Env(const char* name) {
 
 // The smallest limit along `path` and its parents under `root`, with the usage of the cgroup
 // that sets it.
-void Walk(const std::string& root, std::string path, const char* limit_name,
-          const char* usage_name, MemoryLimit* out) {
+void Walk(const std::string& root, std::string path, const char* limit_name, const char* usage_name,
+          MemoryLimit* out) {
   for (;;) {
     const std::string dir = root + path;
     const uint64_t limit = ReadNumber(dir + "/" + limit_name);

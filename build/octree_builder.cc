@@ -163,7 +163,7 @@ absl::Status OctreeBuilder::CloseTop() {
 }
 
 absl::Status OctreeBuilder::Process(const SortRecord& r, uint32_t rank, bool have_ahead,
-                                   uint64_t ahead_key, uint32_t ahead_rank) {
+                                    uint64_t ahead_key, uint32_t ahead_rank) {
   if (leaf_open_) {
     if (PrefixAt(r.key, rank, leaf_.depth) == leaf_.prefix) {
       ++leaf_.count;
@@ -173,8 +173,7 @@ absl::Status OctreeBuilder::Process(const SortRecord& r, uint32_t rank, bool hav
     }
     PBGI_RETURN_IF_ERROR(CloseLeaf());
   }
-  while (!stack_.empty() &&
-         PrefixAt(r.key, rank, stack_.back().depth) != stack_.back().prefix) {
+  while (!stack_.empty() && PrefixAt(r.key, rank, stack_.back().depth) != stack_.back().prefix) {
     PBGI_RETURN_IF_ERROR(CloseTop());
   }
   if (stack_.empty() && have_root_) {

@@ -221,9 +221,8 @@ struct Reader::Impl {
                          const DecodedPage** out);
   absl::Status Gather(const Receiver& receiver, const Cut& cut, Gathered* out);
   absl::Status EmitLeafPoints(uint64_t first, uint64_t count, const Bounds& cell,
-                              const glm::vec3& p,
-                              const glm::vec3& n, float max_distance, bool check_distance,
-                              Gathered* out);
+                              const glm::vec3& p, const glm::vec3& n, float max_distance,
+                              bool check_distance, Gathered* out);
 
   // A few pages this gather already found in the front cache, so that going back and forth
   // between a parent's page and its children's pages skips the hash lookup and the LRU relink.
@@ -296,8 +295,7 @@ absl::Status Reader::Impl::FetchSlow(Section section, uint64_t page_no, uint64_t
 
 absl::Status Reader::Impl::EmitLeafPoints(uint64_t first, uint64_t count, const Bounds& cell,
                                           const glm::vec3& p, const glm::vec3& n,
-                                          float max_distance, bool check_distance,
-                                          Gathered* out) {
+                                          float max_distance, bool check_distance, Gathered* out) {
   uint64_t i = first;
   const uint64_t end = first + count;
   const uint32_t leaf = static_cast<uint32_t>(out->leaf_cells.size());

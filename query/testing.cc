@@ -12,9 +12,9 @@ namespace pbgi::testing {
 namespace {
 
 using internal::BelowCut;
-using internal::NodeCut;
 using internal::NearSphere;
 using internal::NodeBeyond;
+using internal::NodeCut;
 using internal::NodeCutCosine;
 using internal::NodeNearField;
 using internal::NodeNearSphere;
@@ -108,8 +108,7 @@ absl::Status CheckValidCut(const Gathered& result, absl::Span<const Surfel> surf
     const float sa = ClusterSolidAngle(cl, receiver);
     const NearSphere near = NodeNearSphere(cl.bounds.lo, cl.bounds.hi, reach);
     const Cut node_cut = NodeCut(cut, cl.sh_area.data());
-    if (!BelowCut(sa, node_cut,
-                  [&] { return NodeCutCosine(near.centre, near.radius2, p, nrm); })) {
+    if (!BelowCut(sa, node_cut, [&] { return NodeCutCosine(near.centre, near.radius2, p, nrm); })) {
       return fail(absl::StrFormat("%s subtends %g sr (cosine weight %g), not below the cut", name,
                                   sa, NodeCutCosine(near.centre, near.radius2, p, nrm)));
     }

@@ -133,8 +133,8 @@ void Rasterizer::BuildClusterFootprints(const Gathered& g) {
   for (uint32_t i = 0; i < count_; ++i) {
     PreparedSplat& s = splats[i];
     const Cluster& c = g.clusters[s.source];
-    const float spacing =
-        std::sqrt(std::max(0.0f, c.area) / static_cast<float>(std::max<uint64_t>(1, c.point_count)));
+    const float spacing = std::sqrt(std::max(0.0f, c.area) /
+                                    static_cast<float>(std::max<uint64_t>(1, c.point_count)));
     // The projected area toward the receiver, as the cut and the splat measured it.
     const float seen = s.omega * s.depth * s.depth;
     const glm::vec3 mean_world = s.normal.x * t_ + s.normal.y * b_ + s.normal.z * n_;
@@ -146,8 +146,8 @@ void Rasterizer::BuildClusterFootprints(const Gathered& g) {
       const float cosw = std::fabs(glm::dot(s.normal, s.dir));
       if (!(cosw > 0.0f)) continue;  // keeps the cone splat
       Polygon p;
-      const float alpha = FlatFootprint(c.bounds, c.cell, spacing, mean_world, s.plane, origin_,
-                                        seen / cosw, &p);
+      const float alpha =
+          FlatFootprint(c.bounds, c.cell, spacing, mean_world, s.plane, origin_, seen / cosw, &p);
       if (p.n < 3) continue;  // keeps the cone splat
       s.alpha = alpha;
       AddPolygon(p, &s);
@@ -175,8 +175,8 @@ void Rasterizer::BuildClusterFootprints(const Gathered& g) {
         if (at == 0.0f) continue;
         const int k1 = (k + 1) % 3, k2 = (k + 2) % 3;
         const float h = std::fabs(at);
-        faces += corner(hi[k1], hi[k2], h) - corner(lo[k1], hi[k2], h) -
-                 corner(hi[k1], lo[k2], h) + corner(lo[k1], lo[k2], h);
+        faces += corner(hi[k1], hi[k2], h) - corner(lo[k1], hi[k2], h) - corner(hi[k1], lo[k2], h) +
+                 corner(lo[k1], lo[k2], h);
       }
       (void)seen;
       if (!(faces > 0.0f)) continue;  // keeps the cone splat
@@ -209,8 +209,7 @@ void Rasterizer::BuildClusterFootprints(const Gathered& g) {
 void Rasterizer::PrepareSurfelGroups(const Gathered& g, ShadeResult* out) {
   const size_t n = g.surfels.size();
   if (n == 0) return;
-  const bool leaves =
-      g.surfel_leaf.size() == n && !g.leaf_cells.empty();
+  const bool leaves = g.surfel_leaf.size() == n && !g.leaf_cells.empty();
   // Order: by leaf (the gather emits a leaf's surfels together), or by a cell of a grid of
   // about seven mean radii (four spacings) aligned to the surfels' own bounds, so that the
   // grouping moves, scales and turns with the scene.
@@ -260,8 +259,7 @@ void Rasterizer::PrepareSurfelGroups(const Gathered& g, ShadeResult* out) {
     if (leaves) return g.leaf_cells[g.surfel_leaf[i]];
     const uint64_t k = keys[i];
     const float size = std::ldexp(base, static_cast<int>(k >> 57) - kLevels);
-    const glm::vec3 q(float((k >> 38) & 0x7ffff), float((k >> 19) & 0x7ffff),
-                      float(k & 0x7ffff));
+    const glm::vec3 q(float((k >> 38) & 0x7ffff), float((k >> 19) & 0x7ffff), float(k & 0x7ffff));
     Bounds cell;
     cell.lo = grid_lo + q * size;
     cell.hi = grid_lo + (q + 1.0f) * size;

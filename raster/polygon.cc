@@ -55,8 +55,7 @@ void Clip(Polygon* p, Side&& side) {
 // extent d (signed by the edge's direction) and mean x xm adds d * (1 - (xm - m)) to cell m and
 // d * (xm - m) to cell m + 1: the running sum of a row is then the exact area covered in each
 // cell (the integral over the row of clamp(m + 1 - x_edge(y), 0, 1), summed over edges).
-void Accumulate(const float* xs, const float* ys, int n, int x0, int y0, int w, int h,
-                float* acc) {
+void Accumulate(const float* xs, const float* ys, int n, int x0, int y0, int w, int h, float* acc) {
   for (int i = 0; i < n; ++i) {
     const int j = i + 1 == n ? 0 : i + 1;
     float ax = xs[i], ay = ys[i], bx = xs[j], by = ys[j];
@@ -375,8 +374,7 @@ void RasterizePolygon(const Polygon& p, int res, std::vector<float>* acc,
         sum += row[c];
         const float cov = std::min(1.0f, std::fabs(sum));
         if (cov > 1e-6f) {
-          out->push_back(
-              {base + static_cast<uint32_t>((y0 + r) * res + x0 + c), cov});
+          out->push_back({base + static_cast<uint32_t>((y0 + r) * res + x0 + c), cov});
         }
       }
     }

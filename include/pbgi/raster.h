@@ -246,11 +246,11 @@ class MicroBuffer {
   std::vector<internal::PreparedSplat> splats_;
   std::vector<uint64_t> order_, order_tmp_;            // (depth key << 32) | splat index
   std::vector<std::pair<uint32_t, float>> fragments_;  // one splat's pixels and coverages
-  std::vector<internal::Polygon> polygons_;             // the splats' footprints
-  std::vector<float> accumulation_;                     // scratch of RasterizePolygon
-  std::vector<internal::PixelCoverage> coverage_;       // one polygon's pixels
-  std::vector<uint32_t> groups_;                        // scratch of the surfel groups
-  std::vector<uint64_t> group_keys_;                    // their grid cells
+  std::vector<internal::Polygon> polygons_;            // the splats' footprints
+  std::vector<float> accumulation_;                    // scratch of RasterizePolygon
+  std::vector<internal::PixelCoverage> coverage_;      // one polygon's pixels
+  std::vector<uint32_t> groups_;                       // scratch of the surfel groups
+  std::vector<uint64_t> group_keys_;                   // their grid cells
   bool free_layer_ = true;  // the last Shade()'s first layer summed freely (kSplats)
 };
 

@@ -12,9 +12,7 @@
 namespace pbgi::internal {
 namespace {
 
-void Write(const std::string& file, const std::string& text) {
-  std::ofstream(file) << text;
-}
+void Write(const std::string& file, const std::string& text) { std::ofstream(file) << text; }
 
 class MemoryLimitTest : public ::testing::Test {
  protected:
