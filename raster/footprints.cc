@@ -135,9 +135,6 @@ void Rasterizer::BuildClusterFootprints(const Gathered& g) {
     const Cluster& c = g.clusters[s.source];
     const float spacing = std::sqrt(std::max(0.0f, c.area) /
                                     static_cast<float>(std::max<uint64_t>(1, c.point_count)));
-    // The projected area toward the receiver, as the cut and the splat measured it.
-    const float seen = s.omega * s.depth * s.depth;
-    const glm::vec3 mean_world = s.normal.x * t_ + s.normal.y * b_ + s.normal.z * n_;
     const uint32_t first = poly_count_;
     s.poly_count = 0;
     s.poly_first = first;
@@ -145,6 +142,9 @@ void Rasterizer::BuildClusterFootprints(const Gathered& g) {
       // The mean plane (through the box centre, s.plane in the receiver's frame), cut by the box.
       const float cosw = std::fabs(glm::dot(s.normal, s.dir));
       if (!(cosw > 0.0f)) continue;  // keeps the cone splat
+      // The projected area toward the receiver, as the cut and the splat measured it.
+      const float seen = s.omega * s.depth * s.depth;
+      const glm::vec3 mean_world = s.normal.x * t_ + s.normal.y * b_ + s.normal.z * n_;
       Polygon p;
       const float alpha =
           FlatFootprint(c.bounds, c.cell, spacing, mean_world, s.plane, origin_, seen / cosw, &p);
@@ -156,12 +156,9 @@ void Rasterizer::BuildClusterFootprints(const Gathered& g) {
       const Bounds box = FootprintBox(c.bounds, c.cell, spacing, glm::vec3(0.0f), nullptr);
       const glm::vec3 lo = box.lo - origin_, hi = box.hi - origin_;
       const glm::vec3 ext = hi - lo;
-      const glm::vec3 w = -(s.dir.x * t_ + s.dir.y * b_ + s.dir.z * n_);  // towards the receiver
-      const float projected = ext.y * ext.z * std::fabs(w.x) + ext.x * ext.z * std::fabs(w.y) +
-                              ext.x * ext.y * std::fabs(w.z);
       bool inside = true;
       for (int k = 0; k < 3; ++k) inside &= lo[k] <= 0.0f && hi[k] >= 0.0f;
-      if (inside || !(projected > 0.0f)) continue;  // keeps the cone splat
+      if (inside) continue;  // keeps the cone splat
       // Opacity: the cluster's solid angle over the faces' (exact, for each face the signed
       // sum of the four rectangles from the receiver's foot point), so that a receiver close
       // to the box, whose near faces subtend far more than the content behind them, is not
@@ -172,26 +169,12 @@ void Rasterizer::BuildClusterFootprints(const Gathered& g) {
       float faces = 0.0f;
       for (int k = 0; k < 3; ++k) {
         const float at = lo[k] > 0.0f ? lo[k] : hi[k] < 0.0f ? hi[k] : 0.0f;
-        if (at == 0.0f) continue;
         const int k1 = (k + 1) % 3, k2 = (k + 2) % 3;
+        // A face of zero extent subtends nothing and draws nothing.
+        if (at == 0.0f || !(ext[k1] > 0.0f) || !(ext[k2] > 0.0f)) continue;
         const float h = std::fabs(at);
         faces += corner(hi[k1], hi[k2], h) - corner(lo[k1], hi[k2], h) - corner(hi[k1], lo[k2], h) +
                  corner(lo[k1], lo[k2], h);
-      }
-      (void)seen;
-      if (!(faces > 0.0f)) continue;  // keeps the cone splat
-      s.alpha = std::min(1.0f, s.omega / faces);
-      for (int k = 0; k < 3; ++k) {
-        float at;
-        if (lo[k] > 0.0f) {
-          at = lo[k];
-        } else if (hi[k] < 0.0f) {
-          at = hi[k];
-        } else {
-          continue;
-        }
-        const int k1 = (k + 1) % 3, k2 = (k + 2) % 3;
-        if (!(ext[k1] > 0.0f) || !(ext[k2] > 0.0f)) continue;
         Polygon q;
         q.n = 4;
         for (int j = 0; j < 4; ++j) {
@@ -201,6 +184,12 @@ void Rasterizer::BuildClusterFootprints(const Gathered& g) {
         }
         AddPolygon(q, &s);
       }
+      if (!(faces > 0.0f)) {  // keeps the cone splat
+        poly_count_ = first;
+        s.poly_count = 0;
+        continue;
+      }
+      s.alpha = std::min(1.0f, s.omega / faces);
     }
     s.near = 2;
   }
