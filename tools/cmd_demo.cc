@@ -18,6 +18,7 @@
 #include "tools/args.h"
 #include "tools/budget.h"
 #include "tools/command.h"
+#include "tools/footprint_flags.h"
 #include "tools/progress.h"
 #include "tools/scene_views.h"
 #include "tools/sharing_flags.h"
@@ -35,9 +36,8 @@ struct DemoArgs {
   int height = 540;
   int threads = 0;
   float max_solid_angle = 0.03f;
-  std::string cut = "cosine";        // or "plain"
-  std::string footprint = "polygons";  // or "splats" (RasterOptions::footprint)
-  float curved_scale = 0.3f;           // Cut::curved_scale
+  std::string cut = "cosine";  // or "plain"
+  FootprintFlags footprint;
   int raster_res = 12;
   uint64_t seed = 1;
   SharingFlags sharing;
@@ -117,8 +117,7 @@ absl::Status ShadeDemoView(const DemoArgs& a, uint64_t cache, DemoRun* run) {
   so.cut.max_solid_angle = a.max_solid_angle;
   so.cut.cosine_weighted = a.cut == "cosine";
   so.raster.resolution = a.raster_res;
-  so.raster.footprint = a.footprint == "polygons" ? Footprint::kPolygons : Footprint::kSplats;
-  so.cut.curved_scale = a.curved_scale;
+  ApplyFootprintFlags(a.footprint, &so);
   so.raster.compute_radiance = scene.has_radiance;
   so.threads = ResolveThreads(a.threads);
   ApplySharingFlags(a.sharing, &so);
@@ -243,15 +242,7 @@ CommandSetup Setup() {
     app->add_option("--cut", a->cut, "cosine (solid angle weighted by the cosine) or plain")
         ->check(CLI::IsMember({"cosine", "plain"}))
         ->capture_default_str();
-    app->add_option("--footprint", a->footprint,
-                    "splats (round splats, first layer summed freely) or polygons (footprints "
-                    "that tile, exact area coverage; see pbgi/raster.h)")
-        ->check(CLI::IsMember({"splats", "polygons"}))
-        ->capture_default_str();
-    app->add_option("--curved-scale", a->curved_scale,
-                    "Curved nodes are taken whole only below this times the max solid angle")
-        ->check(CLI::Range(1e-3f, 1.0f))
-        ->capture_default_str();
+    AddFootprintFlags(app, &a->footprint);
     app->add_option("--raster-res", a->raster_res, "Micro-buffer pixels per cube face edge")
         ->check(CLI::Range(4, 64))
         ->capture_default_str();

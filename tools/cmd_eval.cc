@@ -30,6 +30,7 @@
 #include "tools/budget.h"
 #include "tools/chart.h"
 #include "tools/command.h"
+#include "tools/footprint_flags.h"
 #include "tools/progress.h"
 #include "tools/report.h"
 #include "tools/scene_views.h"
@@ -51,7 +52,7 @@ struct EvalArgs {
   // Cut criteria to sweep: "cosine" (Cut::cosine_weighted, the default) and/or "plain".
   std::vector<std::string> cuts = {"cosine"};
   std::vector<std::string> footprints = {"polygons"};  // RasterOptions::footprint
-  float curved_scale = 0.3f;                          // Cut::curved_scale
+  float curved_scale = 0.3f;                           // Cut::curved_scale
   std::string memory = "auto";
   std::string cache = "auto";
   int threads = 0;
@@ -299,8 +300,7 @@ ShadeOptions EvalShadeOptions(const EvalArgs& a, const EvalSetup& e, float msa, 
                               bool cosine) {
   ShadeOptions so;
   so.cut.curved_scale = a.curved_scale;
-  so.raster.footprint =
-      a.footprints.front() == "polygons" ? Footprint::kPolygons : Footprint::kSplats;
+  so.raster.footprint = ParseFootprint(a.footprints.front());
   so.threads = e.threads;
   so.cut.max_solid_angle = msa;
   so.cut.cosine_weighted = cosine;

@@ -25,6 +25,7 @@
 #include "tools/args.h"
 #include "tools/budget.h"
 #include "tools/command.h"
+#include "tools/footprint_flags.h"
 #include "tools/outputs.h"
 #include "tools/progress.h"
 #include "tools/scene_views.h"
@@ -44,8 +45,7 @@ struct ShadeArgs {
   int threads = 0;
   float max_solid_angle = 0.03f;
   std::string cut = "cosine";  // or "plain"; glossy always uses the plain cut
-  std::string footprint = "polygons";  // or "splats" (RasterOptions::footprint)
-  float curved_scale = 0.3f;           // Cut::curved_scale
+  FootprintFlags footprint;
   float max_distance = std::numeric_limits<float>::infinity();
   int raster_res = 12;
   float bias = 0.0f;
@@ -371,8 +371,7 @@ absl::Status RunShade(const ShadeArgs& a) {
   // The cosine weight suits integrals against the cosine (occlusion, irradiance), not a lobe.
   so.cut.cosine_weighted = a.cut == "cosine" && mode != Mode::kGlossy;
   so.raster.resolution = a.raster_res;
-  so.raster.footprint = a.footprint == "polygons" ? Footprint::kPolygons : Footprint::kSplats;
-  so.cut.curved_scale = a.curved_scale;
+  ApplyFootprintFlags(a.footprint, &so);
   so.raster.bias = a.bias;
   so.raster.max_distance = a.max_distance;
   so.raster.compute_radiance = mode != Mode::kOcclusion;
@@ -417,15 +416,7 @@ CommandSetup Setup() {
                     "near the horizon; occlusion and irradiance only), or plain")
         ->check(CLI::IsMember({"cosine", "plain"}))
         ->capture_default_str();
-    app->add_option("--footprint", a->footprint,
-                    "splats (round splats, first layer summed freely) or polygons (footprints "
-                    "that tile, exact area coverage; see pbgi/raster.h)")
-        ->check(CLI::IsMember({"splats", "polygons"}))
-        ->capture_default_str();
-    app->add_option("--curved-scale", a->curved_scale,
-                    "Curved nodes are taken whole only below this times the max solid angle")
-        ->check(CLI::Range(1e-3f, 1.0f))
-        ->capture_default_str();
+    AddFootprintFlags(app, &a->footprint);
     app->add_option("--max-solid-angle", a->max_solid_angle,
                     "Accept a node as a cluster below this solid angle (sr): smaller is finer")
         ->check(CLI::Range(0.0f, 10.0f))

@@ -19,6 +19,7 @@
 #include "pbgi/status.h"
 #include "pbgi/store.h"
 #include "tools/args.h"
+#include "tools/footprint_flags.h"
 #include "tools/outputs.h"
 #include "tools/progress.h"
 #include "tools/scene_views.h"
@@ -346,8 +347,7 @@ absl::Status RunViewEval(const ViewEvalArgs& a) {
             so.raster.compute_radiance = !occlusion;
             so.raster.hitsides = sides;
             so.cut.curved_scale = a.curved_scale;
-            so.raster.footprint =
-                footprint == "polygons" ? Footprint::kPolygons : Footprint::kSplats;
+            so.raster.footprint = ParseFootprint(footprint);
             if (m.shared) {
               so.mode = ShadeMode::kShared;
               if (a.layout == "image") so = cr.WithLayout(so);

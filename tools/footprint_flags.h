@@ -1,0 +1,44 @@
+// The flags that choose how `pbgi shade`, `demo` and `eval` draw the gathered elements
+// (RasterOptions::footprint) and how finely the cut takes curved nodes (Cut::curved_scale).
+// The commands default to footprints that tile with curved_scale 0.3 (docs/eval.md, "Session 4").
+#ifndef PBGI_TOOLS_FOOTPRINT_FLAGS_H_
+#define PBGI_TOOLS_FOOTPRINT_FLAGS_H_
+
+#include <string>
+
+#include "CLI/CLI.hpp"
+#include "pbgi/raster.h"
+#include "pbgi/shade.h"
+
+namespace pbgi::tools {
+
+// "polygons" or "splats", as the flags spell them (CLI checks the spelling).
+inline Footprint ParseFootprint(const std::string& name) {
+  return name == "polygons" ? Footprint::kPolygons : Footprint::kSplats;
+}
+
+struct FootprintFlags {
+  std::string footprint = "polygons";  // or "splats"
+  float curved_scale = 0.3f;
+};
+
+inline void AddFootprintFlags(CLI::App* app, FootprintFlags* f) {
+  app->add_option("--footprint", f->footprint,
+                  "splats (round splats, first layer summed freely) or polygons (footprints "
+                  "that tile, exact area coverage; see pbgi/raster.h)")
+      ->check(CLI::IsMember({"splats", "polygons"}))
+      ->capture_default_str();
+  app->add_option("--curved-scale", f->curved_scale,
+                  "Curved nodes are taken whole only below this times the max solid angle")
+      ->check(CLI::Range(1e-3f, 1.0f))
+      ->capture_default_str();
+}
+
+inline void ApplyFootprintFlags(const FootprintFlags& f, ShadeOptions* options) {
+  options->raster.footprint = ParseFootprint(f.footprint);
+  options->cut.curved_scale = f.curved_scale;
+}
+
+}  // namespace pbgi::tools
+
+#endif  // PBGI_TOOLS_FOOTPRINT_FLAGS_H_
