@@ -23,6 +23,10 @@
 namespace pbgi::internal {
 namespace {
 
+// A flat footprint whose polygon holds at most this many surfels' areas fills its cell whenever
+// it reaches the cell's sides (see FlatFootprint).
+constexpr double kSmallCell = 9.0;
+
 // Whether `cell` is a usable octree cell for content with box `b` (the gather sets it; a
 // caller-built cluster may not).
 bool CellHolds(const Bounds& cell, const Bounds& b) {
@@ -42,8 +46,13 @@ Bounds FootprintBox(const Bounds& centres, const Bounds& cell, float spacing,
   const bool has_cell = CellHolds(cell, centres);
   for (int k = 0; k < 3; ++k) {
     const bool in_plane = std::fabs(plane_normal[k]) < 0.9f;
-    const bool snap_lo = has_cell && in_plane && centres.lo[k] - cell.lo[k] < 1.5f * spacing;
-    const bool snap_hi = has_cell && in_plane && cell.hi[k] - centres.hi[k] < 1.5f * spacing;
+    // A cell less than two spacings across cannot tell a surface's edge from sampling noise
+    // (bug: sparse_full_cell_leak): its sides always snap.
+    const bool small = cell.hi[k] - cell.lo[k] < 2.0f * spacing;
+    const bool snap_lo =
+        has_cell && in_plane && (small || centres.lo[k] - cell.lo[k] < 1.5f * spacing);
+    const bool snap_hi =
+        has_cell && in_plane && (small || cell.hi[k] - centres.hi[k] < 1.5f * spacing);
     b.lo[k] = snap_lo ? cell.lo[k] : centres.lo[k] - 0.5f * spacing;
     b.hi[k] = snap_hi ? cell.hi[k] : centres.hi[k] + 0.5f * spacing;
     mask |= (snap_lo ? 1 : 0) << (2 * k);
@@ -71,8 +80,14 @@ float FlatFootprint(const Bounds& centres, const Bounds& cell, float spacing,
   }
   // A surface that reaches every side of its cell fills it, unless it clearly lacks the area
   // (a corner cut off): the sum of surfel areas is a noisy estimate of the surface's area, and
-  // a coverage clamped at 1 would lose the noise's excess.
-  if (full && area >= 0.7 * poly) return 1.0f;
+  // a coverage clamped at 1 would lose the noise's excess. In a cell at most kSmallCell
+  // surfels' areas wide the count says nothing ("full" already needs the surface within 1.5
+  // spacings of every side, which an edge through the middle is not): a cell that holds two
+  // surfels where three were expected would get a coverage of 2/3, which leaks wherever the
+  // cell is seen, the more the finer the raster (bug: sparse_full_cell_leak).
+  const double m = poly / std::max(1e-30, double(spacing) * spacing);
+  const double lacks = m <= kSmallCell ? 0.0 : 0.7;
+  if (full && area >= lacks * poly) return 1.0f;
   const bool has_cell = CellHolds(cell, centres);
   for (int iter = 0; iter < 2 && area > poly * 1.0001; ++iter) {
     // Grow the free in-plane axes by the missing factor, shared among them.
@@ -296,9 +311,24 @@ void Rasterizer::PrepareSurfelGroups(const Gathered& g, ShadeResult* out) {
       }
       next = end;
       if (count == 1) {
-        // A lone surfel is its own disk (exact near the receiver).
-        PrepareSurfel(g.surfels[order[end - 1]], out);
-        continue;
+        // A lone surfel is its own disk (exact near the receiver), unless it fills a leaf cell
+        // a few spacings wide: then it is the cell's piece of its surface like a group, or the
+        // gaps around its disk would leak (bug: sparse_full_cell_leak).
+        const Surfel& lone = g.surfels[order[end - 1]];
+        bool fills = false;
+        if (leaves) {
+          const float sp = std::sqrt(static_cast<float>(area));
+          Bounds c;
+          c.Extend(lone.position);
+          const Bounds box = FootprintBox(c, cell, sp, n0, &fills);
+          const glm::vec3 e = box.hi - box.lo;
+          const float face = std::max({e.x * e.y, e.y * e.z, e.x * e.z});
+          fills = fills && face <= kSmallCell * sp * sp;
+        }
+        if (!fills) {
+          PrepareSurfel(lone, out);
+          continue;
+        }
       }
       const double nl = glm::length(nsum);
       if (!(area > 0.0) || !(nl > 0.0)) continue;

@@ -77,6 +77,7 @@ struct EvalArgs {
 
 struct Errors {
   double mae = 0, rmse = 0, max = 0;
+  double bias = 0;  // mean signed error (PBGI - truth): > 0 over-occludes
 };
 
 // The short name of a --cuts value in a row's setting and the chart's series.
@@ -87,11 +88,13 @@ Errors Compare(const std::vector<double>& got, const std::vector<double>& truth)
   Errors e;
   for (size_t i = 0; i < got.size(); ++i) {
     const double d = std::abs(got[i] - truth[i]);
+    e.bias += got[i] - truth[i];
     e.mae += d;
     e.rmse += d * d;
     e.max = std::max(e.max, d);
   }
   e.mae /= double(std::max<size_t>(1, got.size()));
+  e.bias /= double(std::max<size_t>(1, got.size()));
   e.rmse = std::sqrt(e.rmse / double(std::max<size_t>(1, got.size())));
   return e;
 }
@@ -409,18 +412,18 @@ void PrintEval(const EvalArgs& a, const EvalSetup& e, const std::vector<Row>& ro
       "rays (its own MAE ~%.2g), times = median of %d\n",
       e.scene->name.c_str(), a.mode.c_str(), static_cast<unsigned long long>(e.build.points),
       e.receivers.size(), e.threads, a.truth_rays, s.truth_noise, a.repeat);
-  std::printf("%-10s %-20s %12s %10s %10s %10s %9s %9s %9s %9s %9s\n", "method", "setting",
-              "us/receiver", "MAE", "RMSE", "max", "clusters", "surfels", "gather_us", "raster_us",
-              "speedup");
+  std::printf("%-10s %-20s %12s %10s %10s %10s %10s %9s %9s %9s %9s %9s\n", "method", "setting",
+              "us/receiver", "MAE", "bias", "RMSE", "max", "clusters", "surfels", "gather_us",
+              "raster_us", "speedup");
   for (const Row& r : rows) {
     const bool pbgi = r.method == Method::kPbgi;
-    std::printf("%-10s %-20s %12.2f %10.5f %10.5f %10.5f %9s %9s %9s %9s %9s\n",
-                MethodName(r.method), r.setting.c_str(), r.seconds_per_receiver * 1e6, r.err.mae,
-                r.err.rmse, r.err.max, pbgi ? absl::StrFormat("%.1f", r.clusters).c_str() : "",
-                pbgi ? absl::StrFormat("%.1f", r.surfels).c_str() : "",
-                pbgi ? absl::StrFormat("%.1f", r.gather_us).c_str() : "",
-                pbgi ? absl::StrFormat("%.1f", r.raster_us).c_str() : "",
-                pbgi ? RatioText(r).c_str() : "");
+    std::printf(
+        "%-10s %-20s %12.2f %10.5f %+10.5f %10.5f %10.5f %9s %9s %9s %9s %9s\n",
+        MethodName(r.method), r.setting.c_str(), r.seconds_per_receiver * 1e6, r.err.mae,
+        r.err.bias, r.err.rmse, r.err.max, pbgi ? absl::StrFormat("%.1f", r.clusters).c_str() : "",
+        pbgi ? absl::StrFormat("%.1f", r.surfels).c_str() : "",
+        pbgi ? absl::StrFormat("%.1f", r.gather_us).c_str() : "",
+        pbgi ? absl::StrFormat("%.1f", r.raster_us).c_str() : "", pbgi ? RatioText(r).c_str() : "");
   }
   std::printf(
       "(us/receiver: wall time over %d threads; gather_us, raster_us: thread time per receiver "
@@ -493,6 +496,7 @@ absl::Status WriteEvalJson(const std::string& path, const EvalArgs& a, const Eva
     row["setting"] = r.setting;
     row["seconds_per_receiver"] = r.seconds_per_receiver;
     row["mae"] = r.err.mae;
+    row["bias"] = r.err.bias;
     row["rmse"] = r.err.rmse;
     row["max"] = r.err.max;
     row["clusters"] = r.clusters;
