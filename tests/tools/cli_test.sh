@@ -57,8 +57,8 @@ grep -q '"speedup_at_equal_error"' "$dir/eval/eval.json" && ok || fail "eval.jso
 # Both cut criteria in one sweep; the cosine-weighted cut gathers fewer clusters at equal msa.
 run eval_cuts "$pbgi" eval cornell -o "$dir/eval_cuts" --points 30000 --receivers 40 --rays 256 \
   --ray-sweep 16 --solid-angles 0.03 --raster-res 8 --cuts plain cosine
-plain=$(awk '$1 == "pbgi" && $6 == "plain" {print $11}' "$dir/eval_cuts.out")
-cosine=$(awk '$1 == "pbgi" && $6 == "cos" {print $11}' "$dir/eval_cuts.out")
+plain=$(awk '$1 == "pbgi" && $6 == "plain" {print $12}' "$dir/eval_cuts.out")
+cosine=$(awk '$1 == "pbgi" && $6 == "cos" {print $12}' "$dir/eval_cuts.out")
 awk -v p="$plain" -v c="$cosine" 'BEGIN {exit !(p > 0 && c > 0 && c < p)}' && ok ||
   fail "eval --cuts: cosine clusters '$cosine' not fewer than plain '$plain'"
 # eval --view: the reference, PBGI and error images and the figures, for a small view.
