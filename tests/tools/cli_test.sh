@@ -166,6 +166,27 @@ run o3d_radius_export "$pbgi" export "$dir/o3r.pbgi" -o "$dir/o3r.ply"
 check radius "$dir/o3r.ply" 0.0199 0.0201 >/dev/null && ok || fail "--radius 0.02 not used"
 run o3d_receivers "$pbgi" shade "$dir/o3n.pbgi" --receivers "$fixtures/open3d_normals.ply" -o "$dir/o3_shaded.ply" --raster-res 8
 check count "$dir/o3_shaded.ply" 1500 && ok || fail "receivers without radius not all shaded"
+# Point clouds written by PCL (tests/tools/fixtures/make_pcl_fixtures.sh): an empty face element
+# and a camera element after the vertices; binary with normals (voxel-averaged, not unit length)
+# and curvature, and ascii with positions only. 6739 points on an area of 6.50 spread
+# sqrt(6.50 / (pi 6739)) = 0.0175 apart.
+run pcl_normals "$pbgi" build "$fixtures/pcl_normals.ply" -o "$dir/pn.pbgi" --memory 64M
+grep -q "estimating each surfel's radius" "$dir/pcl_normals.err" && ok || fail "build (PCL) does not say it estimates radii"
+run pcl_export "$pbgi" export "$dir/pn.pbgi" -o "$dir/pn.ply"
+check count "$dir/pn.ply" 6739 && ok || fail "export of pn.pbgi does not hold 6739 surfels"
+check radius "$dir/pn.ply" 0.015 0.020 >/dev/null && ok || fail "estimated radius (PCL): $(check radius "$dir/pn.ply" 0 1)"
+check normals "$dir/pn.ply" "$fixtures/pcl_normals.ply" 0.9999 1.0 >/dev/null && ok ||
+  fail "build changed PCL's normals: $(check normals "$dir/pn.ply" "$fixtures/pcl_normals.ply" 0.9999 1.0)"
+run pcl_xyz "$pbgi" build "$fixtures/pcl_xyz.ply" -o "$dir/px.pbgi" --memory 64M
+grep -q "no normals" "$dir/pcl_xyz.err" && ok || fail "build (PCL xyz) does not say it estimates normals"
+run pcl_xyz_export "$pbgi" export "$dir/px.pbgi" -o "$dir/px.ply"
+check normals "$dir/px.ply" "$fixtures/pcl_normals.ply" 0.9 0.8 >/dev/null && ok ||
+  fail "estimated normals (PCL): $(check normals "$dir/px.ply" "$fixtures/pcl_normals.ply" 0.9 0.8)"
+# Every receiver of the closed room is enclosed: occlusion 1 (PBGI within 5%).
+run pcl_receivers "$pbgi" shade "$dir/pn.pbgi" --receivers "$fixtures/pcl_normals.ply" -o "$dir/pn_shaded.ply" --raster-res 8
+check count "$dir/pn_shaded.ply" 6739 && ok || fail "PCL receivers not all shaded"
+check mean "$dir/pn_shaded.ply" occlusion 0.95 1.0 >/dev/null && ok ||
+  fail "PCL room: $(check mean "$dir/pn_shaded.ply" occlusion 0 1)"
 # Big-endian: the same points read alike.
 check big_endian "$fixtures/open3d_normals.ply" "$dir/o3_be.ply" && ok || fail "could not write a big-endian copy"
 run be_build "$pbgi" build "$dir/o3_be.ply" -o "$dir/o3be.pbgi" --memory 64M

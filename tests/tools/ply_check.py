@@ -4,6 +4,7 @@
   ply_check.py count FILE N                   N vertices
   ply_check.py props FILE NAME...             these vertex properties exist
   ply_check.py radius FILE LO HI              median radius in [LO, HI]
+  ply_check.py mean FILE NAME LO HI           mean of property NAME in [LO, HI]
   ply_check.py normals FILE REF MIN FRACTION  at least FRACTION of FILE's points, matched to REF's
                                               by position, have |dot(n, n_ref)| >= MIN
   ply_check.py differ FILE A B                properties A and B differ somewhere
@@ -70,6 +71,11 @@ def main(argv):
         med = r[len(r) // 2]
         print(f"median radius {med:.4g}")
         return float(argv[3]) <= med <= float(argv[4])
+    if what == "mean":
+        c = column(names, values, argv[3])
+        mean = sum(c) / max(1, len(c))
+        print(f"mean {argv[3]} {mean:.4g}")
+        return float(argv[4]) <= mean <= float(argv[5])
     if what == "big_endian":
         with open(path, "rb") as f:
             data = f.read()
