@@ -414,7 +414,9 @@ absl::StatusOr<size_t> PbgiRows(const EvalArgs& a, const EvalSetup& e, Database&
         r.clusters = double(st.query.clusters) / n;
         r.surfels = double(st.query.surfels) / n;
         rows->push_back(r);
-        const bool is_default = res == 12 && std::abs(msa - 0.03f) < 1e-6f && cut == "cosine";
+        // Glossy's default cut is the plain one (as `pbgi shade`'s: the lobe is not the cosine).
+        const bool is_default =
+            res == 12 && std::abs(msa - 0.03f) < 1e-6f && cut == (e.glossy ? "plain" : "cosine");
         if (!found_default && (is_default || (*rows)[default_row].method != Method::kPbgi)) {
           default_row = rows->size() - 1;
           found_default = is_default;
@@ -895,7 +897,15 @@ CommandSetup Setup() {
         ->check(CLI::IsMember({"image", "points"}))
         ->capture_default_str();
     return [a, app]() -> absl::Status {
+      // The cosine-weighted cut suits integrals against the cosine, not a glossy lobe (see
+      // Cut::cosine_weighted): glossy sweeps the plain cut unless --cuts says otherwise.
+      if (a->mode == "glossy" && !app->count("--cuts")) a->cuts = {"plain"};
       if (!a->view) return RunEval(*a);
+      if (a->mode == "glossy") {
+        return absl::InvalidArgumentError(
+            "eval --view has no glossy mode: run eval --mode glossy (receivers on the surfaces "
+            "or --receivers-from camera)");
+      }
       ViewEvalArgs v;
       v.scene = app->count("scene") ? a->scene : std::string("city");
       v.out_dir = app->count("--output") ? a->out_dir : std::string("out/eval-view");
