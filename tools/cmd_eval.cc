@@ -469,19 +469,19 @@ void PrintEval(const EvalArgs& a, const EvalSetup& e, const std::vector<Row>& ro
       e.glossy ? absl::StrFormat(" %s", LobeTag(e.lobe)).c_str() : "",
       static_cast<unsigned long long>(e.build.points), e.receivers.size(), e.threads, a.truth_rays,
       s.truth_noise, e.truth_mean, a.repeat);
-  std::printf("%-10s %-20s %12s %10s %8s %10s %10s %9s %9s %9s %9s %9s\n", "method", "setting",
-              "us/receiver", "MAE", "rel", "RMSE", "max", "clusters", "surfels", "gather_us",
-              "raster_us", "speedup");
+  // "rel" (MAE over the truth's mean) last: scripts read the columns before it by position.
+  std::printf("%-10s %-20s %12s %10s %10s %10s %9s %9s %9s %9s %9s %8s\n", "method", "setting",
+              "us/receiver", "MAE", "RMSE", "max", "clusters", "surfels", "gather_us", "raster_us",
+              "speedup", "rel");
   for (const Row& r : rows) {
     const bool pbgi = r.method == Method::kPbgi;
-    std::printf("%-10s %-20s %12.2f %10.5f %7.2f%% %10.5f %10.5f %9s %9s %9s %9s %9s\n",
+    std::printf("%-10s %-20s %12.2f %10.5f %10.5f %10.5f %9s %9s %9s %9s %9s %7.2f%%\n",
                 MethodName(r.method), r.setting.c_str(), r.seconds_per_receiver * 1e6, r.err.mae,
-                100.0 * r.err.relative, r.err.rmse, r.err.max,
-                pbgi ? absl::StrFormat("%.1f", r.clusters).c_str() : "",
+                r.err.rmse, r.err.max, pbgi ? absl::StrFormat("%.1f", r.clusters).c_str() : "",
                 pbgi ? absl::StrFormat("%.1f", r.surfels).c_str() : "",
                 pbgi ? absl::StrFormat("%.1f", r.gather_us).c_str() : "",
                 pbgi ? absl::StrFormat("%.1f", r.raster_us).c_str() : "",
-                pbgi ? RatioText(r).c_str() : "");
+                pbgi ? RatioText(r).c_str() : "", 100.0 * r.err.relative);
   }
   std::printf(
       "(us/receiver: wall time over %d threads; gather_us, raster_us: thread time per receiver "
