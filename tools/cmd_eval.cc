@@ -901,12 +901,24 @@ CommandSetup Setup() {
       // Cut::cosine_weighted): glossy sweeps the plain cut unless --cuts says otherwise.
       if (a->mode == "glossy" && !app->count("--cuts")) a->cuts = {"plain"};
       if (!a->view) return RunEval(*a);
-      if (a->mode == "glossy") {
-        return absl::InvalidArgumentError(
-            "eval --view has no glossy mode: run eval --mode glossy (receivers on the surfaces "
-            "or --receivers-from camera)");
-      }
       ViewEvalArgs v;
+      if (a->mode == "glossy") {
+        // One lobe per view (the reference of a view is its costly part).
+        const std::vector<GlossyParams> lobes = GlossySettings(*a);
+        if (lobes.size() != 1) {
+          return absl::InvalidArgumentError(
+              absl::StrFormat("eval --view --mode glossy takes one lobe setting, got %d (--lobes, "
+                              "--phong-exponents, --ggx-roughnesses)",
+                              lobes.size()));
+        }
+        RasterOptions ro;
+        ro.lobe = lobes[0].lobe;
+        ro.phong_exponent = lobes[0].phong_exponent;
+        ro.ggx_roughness = lobes[0].ggx_roughness;
+        PBGI_RETURN_IF_ERROR(ValidateRasterOptions(ro));
+        v.lobe = lobes[0];
+        v.cuts = a->cuts;  // the plain cut unless --cuts says otherwise (above)
+      }
       v.scene = app->count("scene") ? a->scene : std::string("city");
       v.out_dir = app->count("--output") ? a->out_dir : std::string("out/eval-view");
       v.mode = a->mode;
