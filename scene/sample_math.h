@@ -85,6 +85,47 @@ inline glm::vec3 CosineDirection(const glm::vec3& n, const glm::vec3& t, const g
   return glm::normalize(t * (r * std::cos(phi)) + b * (r * std::sin(phi)) + n * z);
 }
 
+// The glossy lobes of pbgi/raster.h as distributions of x = cos(a), a the angle to the lobe's
+// axis, over the axis's hemisphere (x in [0, 1], phi uniform). Solid angle is dx dphi, so the
+// density of x is D(x) / integral_0^1 D: no cos factor, unlike a microfacet half-vector pdf.
+// Phong, D = x^e: the CDF is x^(e + 1), so x = u^(1 / (e + 1)).
+inline double PhongLobeCosine(double u, double exponent) {
+  return std::pow(std::clamp(u, 0.0, 1.0), 1.0 / (exponent + 1.0));
+}
+
+// GGX as pbgi/raster.h defines it, D(x) = alpha^2 / (pi (1 + k x^2)^2), k = alpha^2 - 1 in
+// (-1, 0]: the integral of 1 / (1 + k t^2)^2 over [0, x] is
+//   x / (2 (1 + k x^2)) + atanh(m x) / (2 m),  m = sqrt(-k) = sqrt(1 - alpha^2)
+// (the second term tends to x / 2 as m -> 0, the uniform lobe of alpha = 1).
+inline double GgxLobeIntegral(double x, double alpha) {
+  const double k = alpha * alpha - 1.0;
+  const double m = std::sqrt(std::max(0.0, -k));
+  const double at = m > 1e-8 ? std::atanh(m * x) / m : x;
+  return 0.5 * (x / (1.0 + k * x * x) + at);
+}
+
+// The inverse of GgxLobeIntegral(x) / GgxLobeIntegral(1): Newton's method on the monotone CDF,
+// kept inside a shrinking bracket (a bisection step whenever Newton would leave it).
+inline double GgxLobeCosine(double u, double alpha) {
+  const double k = alpha * alpha - 1.0;
+  const double target = std::clamp(u, 0.0, 1.0) * GgxLobeIntegral(1.0, alpha);
+  double lo = 0.0, hi = 1.0, x = std::clamp(u, 0.0, 1.0);
+  for (int i = 0; i < 100; ++i) {
+    const double f = GgxLobeIntegral(x, alpha) - target;
+    if (f > 0.0) {
+      hi = x;
+    } else {
+      lo = x;
+    }
+    const double q = 1.0 + k * x * x;
+    double next = x - f * q * q;  // d/dx of the integral is 1 / q^2
+    if (!(next > lo && next < hi)) next = 0.5 * (lo + hi);
+    if (std::abs(next - x) <= 1e-15 || hi - lo <= 1e-15) return next;
+    x = next;
+  }
+  return x;
+}
+
 inline glm::vec3 TransformPoint(const glm::mat4& m, const glm::vec3& p) {
   return glm::vec3(m[0]) * p.x + glm::vec3(m[1]) * p.y + glm::vec3(m[2]) * p.z + glm::vec3(m[3]);
 }

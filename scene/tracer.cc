@@ -522,6 +522,46 @@ glm::vec3 Tracer::ReferenceIrradiance(const glm::vec3& p, const glm::vec3& n, in
   return sum * (internal::kPiFloat / static_cast<float>(rays));
 }
 
+glm::vec3 Tracer::ReferenceGlossy(const glm::vec3& p, const glm::vec3& n,
+                                  const glm::vec3& reflection, const GlossyParams& lobe, int rays,
+                                  uint64_t seed) const {
+  const float rl = glm::length(reflection);
+  if (rays <= 0 || !(rl > 0.0f) || !std::isfinite(rl)) return glm::vec3(0.0f);
+  const glm::vec3 r = reflection / rl;
+  glm::vec3 t, b;
+  internal::OrthonormalBasis(r, &t, &b);
+  const float r0 = internal::Random(seed, 0), r1 = internal::Random(seed, 1);
+  const glm::vec3 origin = p + n * impl_->eps;
+  std::vector<glm::vec3> points, normals, radiance;
+  std::vector<uint32_t> materials;
+  int kept = 0;
+  for (int i = 0; i < rays; ++i) {
+    const glm::vec2 u = internal::RotatedHammersley(i, rays, r0, r1);
+    const double x = lobe.lobe == GlossyLobe::kGgx
+                         ? internal::GgxLobeCosine(u.x, lobe.ggx_roughness)
+                         : internal::PhongLobeCosine(u.x, lobe.phong_exponent);
+    const float c = static_cast<float>(x);
+    const float s = std::sqrt(std::max(0.0f, 1.0f - c * c));
+    const float phi = 2.0f * internal::kPiFloat * u.y;
+    const glm::vec3 d = glm::normalize(t * (s * std::cos(phi)) + b * (s * std::sin(phi)) + r * c);
+    // The rasterizer's glossy sums only the pixels above the receiver's horizon.
+    if (!(glm::dot(d, n) > 0.0f)) continue;
+    ++kept;
+    Hit h = Intersect(origin, d, impl_->far);
+    if (!h.hit || !h.front) continue;  // a surfel radiates from its front side only
+    points.push_back(h.position);
+    normals.push_back(h.normal);
+    materials.push_back(h.material);
+  }
+  if (kept == 0) return glm::vec3(0.0f);
+  radiance.resize(points.size());
+  SurfaceRadiance(points, normals, materials, internal::HashCombine(seed, 2),
+                  absl::MakeSpan(radiance));
+  glm::vec3 sum(0.0f);
+  for (const glm::vec3& l : radiance) sum += l;
+  return sum / static_cast<float>(kept);
+}
+
 std::vector<float> Tracer::ReferenceOcclusion(absl::Span<const Receiver> receivers, int rays,
                                               float max_distance, uint64_t seed) const {
   std::vector<float> out(receivers.size());
@@ -544,6 +584,21 @@ std::vector<glm::vec3> Tracer::ReferenceIrradiance(absl::Span<const Receiver> re
                       for (size_t i = r.begin(); i < r.end(); ++i) {
                         out[i] = ReferenceIrradiance(receivers[i].position, receivers[i].normal,
                                                      rays, internal::HashCombine(seed, i));
+                      }
+                    });
+  return out;
+}
+
+std::vector<glm::vec3> Tracer::ReferenceGlossy(absl::Span<const ShadeReceiver> receivers,
+                                               const GlossyParams& lobe, int rays,
+                                               uint64_t seed) const {
+  std::vector<glm::vec3> out(receivers.size());
+  tbb::parallel_for(tbb::blocked_range<size_t>(0, receivers.size(), 4),
+                    [&](const tbb::blocked_range<size_t>& r) {
+                      for (size_t i = r.begin(); i < r.end(); ++i) {
+                        const ShadeReceiver& s = receivers[i];
+                        out[i] = ReferenceGlossy(s.position, glm::normalize(s.normal), s.reflection,
+                                                 lobe, rays, internal::HashCombine(seed, i));
                       }
                     });
   return out;

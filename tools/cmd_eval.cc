@@ -73,29 +73,45 @@ struct EvalArgs {
   std::vector<float> tolerances = {0.05f};
   float radius_factor = 0.5f;
   std::string sharing_layout = "image";
+  // --mode glossy: the lobes to sweep, each with each of its parameters (one eval per setting).
+  std::vector<std::string> lobes = {"phong", "ggx"};
+  std::vector<float> phong_exponents = {32.0f};
+  std::vector<float> ggx_roughnesses = {0.3f};
 };
 
 struct Errors {
   double mae = 0, rmse = 0, max = 0;
-  double bias = 0;  // mean signed error (PBGI - truth): > 0 over-occludes
+  double bias = 0;          // mean signed error (PBGI - truth): > 0 over-occludes
+  glm::dvec3 mae_rgb{0.0};  // per channel (occlusion: the same in all three)
+  double relative = 0;      // mae over the truth's mean (0 when the mean is 0)
 };
 
 // The short name of a --cuts value in a row's setting and the chart's series.
 const char* CutTag(const std::string& cut) { return cut == "cosine" ? "cos" : "plain"; }
 
-// One scalar per receiver: occlusion, or the mean of the irradiance's channels.
-Errors Compare(const std::vector<double>& got, const std::vector<double>& truth) {
+// A receiver's value: occlusion in all three channels, or irradiance or glossy radiance per
+// channel. The scalar errors are those of the mean of the channels.
+double Scalar(const glm::dvec3& v) { return (v.x + v.y + v.z) / 3.0; }
+
+Errors Compare(const std::vector<glm::dvec3>& got, const std::vector<glm::dvec3>& truth) {
   Errors e;
+  double mean = 0;
   for (size_t i = 0; i < got.size(); ++i) {
-    const double d = std::abs(got[i] - truth[i]);
-    e.bias += got[i] - truth[i];
+    const double d = std::abs(Scalar(got[i]) - Scalar(truth[i]));
+    e.bias += Scalar(got[i]) - Scalar(truth[i]);
     e.mae += d;
     e.rmse += d * d;
     e.max = std::max(e.max, d);
+    e.mae_rgb += glm::abs(got[i] - truth[i]);
+    mean += Scalar(truth[i]);
   }
-  e.mae /= double(std::max<size_t>(1, got.size()));
-  e.bias /= double(std::max<size_t>(1, got.size()));
-  e.rmse = std::sqrt(e.rmse / double(std::max<size_t>(1, got.size())));
+  const double n = double(std::max<size_t>(1, got.size()));
+  e.mae /= n;
+  e.bias /= n;
+  e.rmse = std::sqrt(e.rmse / n);
+  e.mae_rgb /= n;
+  mean /= n;
+  e.relative = mean > 0 ? e.mae / mean : 0.0;
   return e;
 }
 
@@ -161,10 +177,42 @@ struct EvalSetup {
   BuildStats build;
   double build_seconds = 0;  // sampling, baking (shadow rays) and the build
   std::vector<Receiver> receivers;
-  std::vector<double> truth;  // the converged reference per receiver
+  // The same with their glossy lobes' centres (--mode glossy: see GlossyReflections).
+  std::vector<ShadeReceiver> shade_receivers;
+  std::vector<glm::dvec3> truth;  // the converged reference per receiver
+  double truth_mean = 0;          // the mean over receivers of the truth's mean channel
   int threads = 1;
   bool occlusion = true;
+  bool glossy = false;
+  GlossyParams lobe;  // --mode glossy: the current setting
 };
+
+// The short name of a glossy setting: "phong32", "ggx0.3".
+std::string LobeTag(const GlossyParams& l) {
+  return l.lobe == GlossyLobe::kPhong ? absl::StrFormat("phong%g", l.phong_exponent)
+                                      : absl::StrFormat("ggx%g", l.ggx_roughness);
+}
+
+// The glossy lobes' centres: the mirror, about the receiver's normal, of the direction from the
+// receiver to the eye of the scene's default camera (a viewer's reflection direction). A
+// receiver that faces away from the eye takes the eye's mirror image in its tangent plane (the
+// direction's component along the normal flipped), so that every lobe's centre lies above its
+// receiver's horizon, as for a receiver the camera sees.
+std::vector<ShadeReceiver> GlossyReceivers(const Scene& scene, const std::vector<Receiver>& in) {
+  const glm::vec3 eye = DefaultCamera(scene, 960, 540).eye;
+  std::vector<ShadeReceiver> out = ShadeReceiversOf(in);
+  for (ShadeReceiver& r : out) {
+    const glm::vec3 n = glm::normalize(r.normal);
+    glm::vec3 v = eye - r.position;
+    const float len = glm::length(v);
+    if (!(len > 0.0f)) continue;  // at the eye: the lobe stays on the normal
+    v /= len;
+    const float vn = glm::dot(v, n);
+    if (vn < 0.0f) v -= 2.0f * vn * n;
+    r.reflection = glm::normalize(2.0f * glm::dot(v, n) * n - v);
+  }
+  return out;
+}
 
 // The database: what PBGI pays once per scene.
 absl::Status BuildEvalDatabase(const EvalArgs& a, uint64_t memory, EvalSetup* e) {
@@ -245,17 +293,19 @@ absl::StatusOr<std::vector<Receiver>> MakeEvalReceivers(const EvalArgs& a, const
   return receivers;
 }
 
-// One scalar per receiver from the Embree reference: occlusion, or the mean of the irradiance's
-// channels.
-std::vector<double> Reference(const EvalSetup& e, int rays, uint64_t seed) {
-  std::vector<double> v(e.receivers.size());
+// Each receiver's value from the Embree reference (see Scalar).
+std::vector<glm::dvec3> Reference(const EvalSetup& e, int rays, uint64_t seed) {
+  std::vector<glm::dvec3> v(e.receivers.size());
   if (e.occlusion) {
     auto r = e.tracer->ReferenceOcclusion(e.receivers, rays, std::numeric_limits<float>::infinity(),
                                           seed);
-    for (size_t i = 0; i < v.size(); ++i) v[i] = r[i];
+    for (size_t i = 0; i < v.size(); ++i) v[i] = glm::dvec3(r[i]);
+  } else if (e.glossy) {
+    auto r = e.tracer->ReferenceGlossy(e.shade_receivers, e.lobe, rays, seed);
+    for (size_t i = 0; i < v.size(); ++i) v[i] = glm::dvec3(r[i]);
   } else {
     auto r = e.tracer->ReferenceIrradiance(e.receivers, rays, seed);
-    for (size_t i = 0; i < v.size(); ++i) v[i] = (r[i].x + r[i].y + r[i].z) / 3.0;
+    for (size_t i = 0; i < v.size(); ++i) v[i] = glm::dvec3(r[i]);
   }
   return v;
 }
@@ -267,7 +317,8 @@ std::vector<Row> ReferenceRows(const EvalArgs& a, const EvalSetup& e,
   const double n = double(std::max<size_t>(1, e.receivers.size()));
   std::vector<Row> rows;
   for (int rays : a.ray_sweep) {
-    std::vector<double> v, times;
+    std::vector<glm::dvec3> v;
+    std::vector<double> times;
     for (int k = 0; k < a.repeat; ++k) {
       const internal::Stopwatch t;
       v = Reference(e, rays, a.seed + 2);
@@ -309,6 +360,11 @@ ShadeOptions EvalShadeOptions(const EvalArgs& a, const EvalSetup& e, float msa, 
   so.cut.cosine_weighted = cosine;
   so.raster.resolution = res;
   so.raster.compute_radiance = !e.occlusion;
+  if (e.glossy) {
+    so.raster.lobe = e.lobe.lobe;
+    so.raster.phong_exponent = e.lobe.phong_exponent;
+    so.raster.ggx_roughness = e.lobe.ggx_roughness;
+  }
   return so;
 }
 
@@ -318,7 +374,7 @@ ShadeOptions EvalShadeOptions(const EvalArgs& a, const EvalSetup& e, float msa, 
 absl::StatusOr<size_t> PbgiRows(const EvalArgs& a, const EvalSetup& e, Database& db,
                                 const std::function<void()>& step, std::vector<Row>* rows) {
   const double n = double(std::max<size_t>(1, e.receivers.size()));
-  const std::vector<ShadeReceiver> shade_receivers = ShadeReceiversOf(e.receivers);
+  const std::vector<ShadeReceiver>& shade_receivers = e.shade_receivers;
   // One untimed pass at the finest plain cut first (it touches every page the others do), so
   // that every timed row finds the pages decoded in the cache, as they are for all but the
   // first of a frame's receivers (the database is built for this run and fits the cache).
@@ -345,11 +401,11 @@ absl::StatusOr<size_t> PbgiRows(const EvalArgs& a, const EvalSetup& e, Database&
           raster.push_back(st.raster_seconds / n * 1e6);
           step();
         }
-        std::vector<double> v(results.size());
+        std::vector<glm::dvec3> v(results.size());
         for (size_t i = 0; i < v.size(); ++i) {
           const ShadeResult& s = results[i];
-          v[i] =
-              e.occlusion ? s.occlusion : (s.irradiance.x + s.irradiance.y + s.irradiance.z) / 3.0;
+          v[i] = e.occlusion ? glm::dvec3(s.occlusion)
+                             : glm::dvec3(e.glossy ? s.glossy : s.irradiance);
         }
         Row r;
         r.method = Method::kPbgi;
@@ -361,7 +417,9 @@ absl::StatusOr<size_t> PbgiRows(const EvalArgs& a, const EvalSetup& e, Database&
         r.clusters = double(st.query.clusters) / n;
         r.surfels = double(st.query.surfels) / n;
         rows->push_back(r);
-        const bool is_default = res == 12 && std::abs(msa - 0.03f) < 1e-6f && cut == "cosine";
+        // Glossy's default cut is the plain one (as `pbgi shade`'s: the lobe is not the cosine).
+        const bool is_default =
+            res == 12 && std::abs(msa - 0.03f) < 1e-6f && cut == (e.glossy ? "plain" : "cosine");
         if (!found_default && (is_default || (*rows)[default_row].method != Method::kPbgi)) {
           default_row = rows->size() - 1;
           found_default = is_default;
@@ -408,22 +466,26 @@ std::string RatioText(const Row& r) {
 void PrintEval(const EvalArgs& a, const EvalSetup& e, const std::vector<Row>& rows,
                const EvalSummary& s) {
   std::printf(
-      "pbgi eval: scene %s, %s, %llu surfels, %zu receivers, %d threads, truth = %d "
-      "rays (its own MAE ~%.2g), times = median of %d\n",
-      e.scene->name.c_str(), a.mode.c_str(), static_cast<unsigned long long>(e.build.points),
-      e.receivers.size(), e.threads, a.truth_rays, s.truth_noise, a.repeat);
-  std::printf("%-10s %-20s %12s %10s %10s %10s %10s %9s %9s %9s %9s %9s\n", "method", "setting",
+      "pbgi eval: scene %s, %s%s, %llu surfels, %zu receivers, %d threads, truth = %d "
+      "rays (its own MAE ~%.2g, mean %.5g), times = median of %d\n",
+      e.scene->name.c_str(), a.mode.c_str(),
+      e.glossy ? absl::StrFormat(" %s", LobeTag(e.lobe)).c_str() : "",
+      static_cast<unsigned long long>(e.build.points), e.receivers.size(), e.threads, a.truth_rays,
+      s.truth_noise, e.truth_mean, a.repeat);
+  // "rel" (MAE over the truth's mean) last: scripts read the columns before it by position.
+  std::printf("%-10s %-20s %12s %10s %10s %10s %10s %9s %9s %9s %9s %9s %8s\n", "method", "setting",
               "us/receiver", "MAE", "bias", "RMSE", "max", "clusters", "surfels", "gather_us",
-              "raster_us", "speedup");
+              "raster_us", "speedup", "rel");
   for (const Row& r : rows) {
     const bool pbgi = r.method == Method::kPbgi;
-    std::printf(
-        "%-10s %-20s %12.2f %10.5f %+10.5f %10.5f %10.5f %9s %9s %9s %9s %9s\n",
-        MethodName(r.method), r.setting.c_str(), r.seconds_per_receiver * 1e6, r.err.mae,
-        r.err.bias, r.err.rmse, r.err.max, pbgi ? absl::StrFormat("%.1f", r.clusters).c_str() : "",
-        pbgi ? absl::StrFormat("%.1f", r.surfels).c_str() : "",
-        pbgi ? absl::StrFormat("%.1f", r.gather_us).c_str() : "",
-        pbgi ? absl::StrFormat("%.1f", r.raster_us).c_str() : "", pbgi ? RatioText(r).c_str() : "");
+    std::printf("%-10s %-20s %12.2f %10.5f %+10.5f %10.5f %10.5f %9s %9s %9s %9s %9s %7.2f%%\n",
+                MethodName(r.method), r.setting.c_str(), r.seconds_per_receiver * 1e6, r.err.mae,
+                r.err.bias, r.err.rmse, r.err.max,
+                pbgi ? absl::StrFormat("%.1f", r.clusters).c_str() : "",
+                pbgi ? absl::StrFormat("%.1f", r.surfels).c_str() : "",
+                pbgi ? absl::StrFormat("%.1f", r.gather_us).c_str() : "",
+                pbgi ? absl::StrFormat("%.1f", r.raster_us).c_str() : "",
+                pbgi ? RatioText(r).c_str() : "", 100.0 * r.err.relative);
   }
   std::printf(
       "(us/receiver: wall time over %d threads; gather_us, raster_us: thread time per receiver "
@@ -446,6 +508,13 @@ void PrintEval(const EvalArgs& a, const EvalSetup& e, const std::vector<Row>& ro
   }
   const Row& def = rows[s.default_row];
   const Row& best = rows[s.best_row];
+  if (!e.occlusion) {
+    std::printf(
+        "default (%s): MAE per channel %.5f %.5f %.5f, relative MAE %.2f%% of the mean %s "
+        "%.5g\n",
+        def.setting.c_str(), def.err.mae_rgb.x, def.err.mae_rgb.y, def.err.mae_rgb.z,
+        100.0 * def.err.relative, e.glossy ? "glossy radiance" : "irradiance", e.truth_mean);
+  }
   if (s.ratio > 0) {
     std::printf(
         "default (%s): MAE %.5f at %.2f us/receiver; the reference needs %.3gx that time for the "
@@ -464,8 +533,8 @@ void PrintEval(const EvalArgs& a, const EvalSetup& e, const std::vector<Row>& ro
   }
 }
 
-absl::Status WriteEvalJson(const std::string& path, const EvalArgs& a, const EvalSetup& e,
-                           const std::vector<Row>& rows, const EvalSummary& s) {
+Json EvalJson(const EvalArgs& a, const EvalSetup& e, const std::vector<Row>& rows,
+              const EvalSummary& s) {
   const Row& def = rows[s.default_row];
   const Row& best = rows[s.best_row];
   Json j;
@@ -489,6 +558,18 @@ absl::Status WriteEvalJson(const std::string& path, const EvalArgs& a, const Eva
   j["repeat"] = a.repeat;
   j["truth_noise_mae"] = s.truth_noise;
   j["default_extrapolated"] = def.extrapolated;
+  j["truth_mean"] = e.truth_mean;
+  j["default_relative_mae"] = def.err.relative;
+  j["default_mae_rgb"] = {def.err.mae_rgb.x, def.err.mae_rgb.y, def.err.mae_rgb.z};
+  if (e.glossy) {
+    j["lobe"] = e.lobe.lobe == GlossyLobe::kPhong ? "phong" : "ggx";
+    if (e.lobe.lobe == GlossyLobe::kPhong) {
+      j["phong_exponent"] = e.lobe.phong_exponent;
+    } else {
+      j["ggx_roughness"] = e.lobe.ggx_roughness;
+    }
+    j["reflection"] = "mirror of the direction to the default camera's eye";
+  }
   j["rows"] = Json::array();
   for (const Row& r : rows) {
     Json row;
@@ -505,8 +586,14 @@ absl::Status WriteEvalJson(const std::string& path, const EvalArgs& a, const Eva
     row["raster_us"] = r.raster_us;
     row["speedup"] = r.speedup;
     row["extrapolated"] = r.extrapolated;
+    row["relative_mae"] = r.err.relative;
+    row["mae_rgb"] = {r.err.mae_rgb.x, r.err.mae_rgb.y, r.err.mae_rgb.z};
     j["rows"].push_back(row);
   }
+  return j;
+}
+
+absl::Status WriteJsonFile(const std::string& path, const Json& j) {
   std::ofstream js(path);
   js << DumpJson(j);
   if (!js.good()) return absl::UnavailableError(absl::StrFormat("cannot write %s", path));
@@ -549,11 +636,16 @@ absl::Status WriteEvalChart(const std::string& path, const EvalArgs& a, const Ev
     }
   }
   ChartOptions o;
-  o.title = absl::StrFormat("%s, %s: error against time (%zu receivers, %d threads)", e.scene->name,
-                            a.mode, e.receivers.size(), e.threads);
+  o.title =
+      absl::StrFormat("%s, %s%s: error against time (%zu receivers, %d threads)", e.scene->name,
+                      a.mode, e.glossy ? absl::StrFormat(" %s", LobeTag(e.lobe)) : std::string(),
+                      e.receivers.size(), e.threads);
   o.legend_title = "labels: rays, max solid angle (sr)";
   o.x_label = absl::StrFormat("mean absolute error of %s against %d rays (log scale)",
-                              e.occlusion ? "occlusion" : "irradiance", a.truth_rays);
+                              e.occlusion ? "occlusion"
+                              : e.glossy  ? "glossy radiance"
+                                          : "irradiance",
+                              a.truth_rays);
   o.y_label = "wall time per receiver, seconds (log scale)";
   const Row& def = rows[summary.default_row];
   if (def.method == Method::kPbgi) {
@@ -575,29 +667,17 @@ absl::StatusOr<std::pair<uint64_t, uint64_t>> EvalBudgets(const EvalArgs& a) {
   return std::make_pair(memory, cache);
 }
 
-absl::Status RunEval(const EvalArgs& a) {
-  PBGI_RETURN_IF_ERROR(CheckOutsideStores(a.out_dir));
-  EvalSetup e;
-  e.occlusion = a.mode == "occlusion";
-  PBGI_ASSIGN_OR_RETURN(const auto budgets, EvalBudgets(a));
-  const auto [memory, cache] = budgets;
-  std::error_code ec;
-  std::filesystem::create_directories(a.out_dir, ec);
-  if (ec) return absl::UnavailableError(absl::StrFormat("cannot create %s", a.out_dir));
-  e.threads = ResolveThreads(a.threads);
-  tbb::global_control limit(tbb::global_control::max_allowed_parallelism, e.threads);
-
-  PBGI_ASSIGN_OR_RETURN(e.scene, LoadScene(a.scene, a.seed, a.size));
-  if (!e.occlusion && !e.scene->has_radiance) {
-    return absl::FailedPreconditionError(
-        absl::StrFormat("scene %s has no radiance: use --mode occlusion", e.scene->name));
-  }
-  PBGI_RETURN_IF_ERROR(BuildEvalDatabase(a, memory, &e));
-  PBGI_ASSIGN_OR_RETURN(e.tracer, Tracer::Create(*e.scene));
-  PBGI_ASSIGN_OR_RETURN(e.receivers, MakeEvalReceivers(a, e));
+// The truth, both sweeps and the outputs for the setup's current mode (and lobe); returns the
+// JSON it wrote to `stem`.json (beside `stem`.png).
+absl::StatusOr<Json> EvalOneSetting(const EvalArgs& a, uint64_t cache, const std::string& stem,
+                                    EvalSetup& e) {
   const internal::Stopwatch t;
   e.truth = Reference(e, a.truth_rays, a.seed + 1);
-  std::fprintf(stderr, "eval: converged reference, %d rays x %zu receivers, %.1f s\n", a.truth_rays,
+  e.truth_mean = 0;
+  for (const glm::dvec3& v : e.truth) e.truth_mean += Scalar(v);
+  e.truth_mean /= double(std::max<size_t>(1, e.truth.size()));
+  std::fprintf(stderr, "eval: converged reference%s, %d rays x %zu receivers, %.1f s\n",
+               e.glossy ? absl::StrFormat(" (%s)", LobeTag(e.lobe)).c_str() : "", a.truth_rays,
                e.receivers.size(), t.Seconds());
 
   Progress sweeps(
@@ -616,15 +696,94 @@ absl::Status RunEval(const EvalArgs& a) {
   const EvalSummary summary = Summarize(a, e, default_row, truth_noise, &rows);
   PrintEval(a, e, rows, summary);
 
-  const std::string json_path = a.out_dir + "/eval.json";
-  PBGI_RETURN_IF_ERROR(WriteEvalJson(json_path, a, e, rows, summary));
-  const std::string chart_path = a.out_dir + "/eval.png";
+  const Json j = EvalJson(a, e, rows, summary);
+  const std::string json_path = stem + ".json";
+  PBGI_RETURN_IF_ERROR(WriteJsonFile(json_path, j));
+  const std::string chart_path = stem + ".png";
   PBGI_RETURN_IF_ERROR(WriteEvalChart(chart_path, a, e, rows, summary));
   std::printf(
       "wrote %s and %s (log-log chart of MAE against seconds per receiver: the reference, "
       "then PBGI by raster resolution %s and cut %s, the default ringed)\n",
       json_path.c_str(), chart_path.c_str(), absl::StrJoin(a.resolutions, ", ").c_str(),
       absl::StrJoin(a.cuts, ", ").c_str());
+  return j;
+}
+
+// --mode glossy: every lobe with each of its parameters, in the order given.
+std::vector<GlossyParams> GlossySettings(const EvalArgs& a) {
+  std::vector<GlossyParams> out;
+  for (const std::string& lobe : a.lobes) {
+    if (lobe == "phong") {
+      for (float e : a.phong_exponents) out.push_back({GlossyLobe::kPhong, e, 0.2f});
+    } else {
+      for (float r : a.ggx_roughnesses) out.push_back({GlossyLobe::kGgx, 32.0f, r});
+    }
+  }
+  return out;
+}
+
+absl::Status RunEval(const EvalArgs& a) {
+  PBGI_RETURN_IF_ERROR(CheckOutsideStores(a.out_dir));
+  EvalSetup e;
+  e.occlusion = a.mode == "occlusion";
+  e.glossy = a.mode == "glossy";
+  std::vector<GlossyParams> lobes;
+  if (e.glossy) {
+    lobes = GlossySettings(a);
+    if (lobes.empty()) {
+      return absl::InvalidArgumentError(
+          "eval --mode glossy: no lobe to evaluate (--lobes, --phong-exponents, "
+          "--ggx-roughnesses are empty)");
+    }
+    for (const GlossyParams& l : lobes) {
+      RasterOptions ro;
+      ro.lobe = l.lobe;
+      ro.phong_exponent = l.phong_exponent;
+      ro.ggx_roughness = l.ggx_roughness;
+      PBGI_RETURN_IF_ERROR(ValidateRasterOptions(ro));
+    }
+  }
+  PBGI_ASSIGN_OR_RETURN(const auto budgets, EvalBudgets(a));
+  const auto [memory, cache] = budgets;
+  std::error_code ec;
+  std::filesystem::create_directories(a.out_dir, ec);
+  if (ec) return absl::UnavailableError(absl::StrFormat("cannot create %s", a.out_dir));
+  e.threads = ResolveThreads(a.threads);
+  tbb::global_control limit(tbb::global_control::max_allowed_parallelism, e.threads);
+
+  PBGI_ASSIGN_OR_RETURN(e.scene, LoadScene(a.scene, a.seed, a.size));
+  if (!e.occlusion && !e.scene->has_radiance) {
+    return absl::FailedPreconditionError(
+        absl::StrFormat("scene %s has no radiance: use --mode occlusion", e.scene->name));
+  }
+  PBGI_RETURN_IF_ERROR(BuildEvalDatabase(a, memory, &e));
+  PBGI_ASSIGN_OR_RETURN(e.tracer, Tracer::Create(*e.scene));
+  PBGI_ASSIGN_OR_RETURN(e.receivers, MakeEvalReceivers(a, e));
+  e.shade_receivers =
+      e.glossy ? GlossyReceivers(*e.scene, e.receivers) : ShadeReceiversOf(e.receivers);
+  if (!e.glossy) {
+    return EvalOneSetting(a, cache, a.out_dir + "/eval", e).status();
+  }
+  // One eval per lobe setting (eval-<lobe>.json, .png), and eval.json with all of them.
+  Json all;
+  all["scene"] = e.scene->name;
+  all["mode"] = a.mode;
+  all["lobes"] = Json::array();
+  std::vector<std::string> lines;
+  for (const GlossyParams& l : lobes) {
+    e.lobe = l;
+    PBGI_ASSIGN_OR_RETURN(Json j, EvalOneSetting(a, cache, a.out_dir + "/eval-" + LobeTag(l), e));
+    lines.push_back(absl::StrFormat(
+        "  %-10s default %s: MAE %.5f = %.2f%% of the mean %.5g", LobeTag(l),
+        j["default_setting"].get<std::string>(), j["default_mae"].get<double>(),
+        100.0 * j["default_relative_mae"].get<double>(), j["truth_mean"].get<double>()));
+    all["lobes"].push_back(std::move(j));
+  }
+  std::printf("glossy summary (%s, %zu receivers):\n%s\n", e.scene->name.c_str(),
+              e.receivers.size(), absl::StrJoin(lines, "\n").c_str());
+  const std::string json_path = a.out_dir + "/eval.json";
+  PBGI_RETURN_IF_ERROR(WriteJsonFile(json_path, all));
+  std::printf("wrote %s (every lobe's eval)\n", json_path.c_str());
   return absl::OkStatus();
 }
 
@@ -634,8 +793,19 @@ CommandSetup Setup() {
     app->add_option("scene", a->scene, "Procedural scene or mesh file")->capture_default_str();
     app->add_option("-o,--output", a->out_dir, "Output directory (database, eval.json, eval.png)")
         ->capture_default_str();
-    app->add_option("--mode", a->mode, "occlusion or irradiance")
-        ->check(CLI::IsMember({"occlusion", "irradiance"}))
+    app->add_option("--mode", a->mode,
+                    "occlusion, irradiance or glossy (the lobes of --lobes around the mirror of "
+                    "the direction to the default camera's eye)")
+        ->check(CLI::IsMember({"occlusion", "irradiance", "glossy"}))
+        ->capture_default_str();
+    app->add_option("--lobes", a->lobes, "--mode glossy: phong and/or ggx (pbgi/raster.h)")
+        ->check(CLI::IsMember({"phong", "ggx"}))
+        ->capture_default_str();
+    app->add_option("--phong-exponents", a->phong_exponents,
+                    "--mode glossy: Phong exponents, one eval each")
+        ->capture_default_str();
+    app->add_option("--ggx-roughnesses", a->ggx_roughnesses,
+                    "--mode glossy: GGX roughnesses (alpha), one eval each")
         ->capture_default_str();
     app->add_option("--points", a->points, "Surfels in the database (e.g. 500k, 1M)")
         ->transform(CountValidator(1, int64_t{1} << 36))
@@ -732,8 +902,28 @@ CommandSetup Setup() {
         ->check(CLI::IsMember({"image", "points"}))
         ->capture_default_str();
     return [a, app]() -> absl::Status {
+      // The cosine-weighted cut suits integrals against the cosine, not a glossy lobe (see
+      // Cut::cosine_weighted): glossy sweeps the plain cut unless --cuts says otherwise.
+      if (a->mode == "glossy" && !app->count("--cuts")) a->cuts = {"plain"};
       if (!a->view) return RunEval(*a);
       ViewEvalArgs v;
+      if (a->mode == "glossy") {
+        // One lobe per view (the reference of a view is its costly part).
+        const std::vector<GlossyParams> lobes = GlossySettings(*a);
+        if (lobes.size() != 1) {
+          return absl::InvalidArgumentError(
+              absl::StrFormat("eval --view --mode glossy takes one lobe setting, got %d (--lobes, "
+                              "--phong-exponents, --ggx-roughnesses)",
+                              lobes.size()));
+        }
+        RasterOptions ro;
+        ro.lobe = lobes[0].lobe;
+        ro.phong_exponent = lobes[0].phong_exponent;
+        ro.ggx_roughness = lobes[0].ggx_roughness;
+        PBGI_RETURN_IF_ERROR(ValidateRasterOptions(ro));
+        v.lobe = lobes[0];
+        v.cuts = a->cuts;  // the plain cut unless --cuts says otherwise (above)
+      }
       v.scene = app->count("scene") ? a->scene : std::string("city");
       v.out_dir = app->count("--output") ? a->out_dir : std::string("out/eval-view");
       v.mode = a->mode;

@@ -135,6 +135,7 @@ std::string ErrorsJson(const ImageErrors& e) {
 
 absl::Status RunViewEval(const ViewEvalArgs& a) {
   const bool occlusion = a.mode == "occlusion";
+  const bool glossy = a.mode == "glossy";
   const uint64_t memory = a.memory_bytes, cache = a.cache_bytes;
   PBGI_RETURN_IF_ERROR(CheckOutsideStores(a.out_dir));
   std::error_code ec;
@@ -195,9 +196,26 @@ absl::Status RunViewEval(const ViewEvalArgs& a) {
   // The reference depends only on the scene, the view and the rays: it is kept in the output
   // directory and reused by the next run with the same ones (a reference of a 960x540 view with
   // 4096 rays per pixel takes minutes).
+  // (a glossy reference also on its lobe)
+  const std::string mode_tag = !glossy ? a.mode
+                               : a.lobe.lobe == GlossyLobe::kPhong
+                                   ? absl::StrFormat("glossy-phong%g", a.lobe.phong_exponent)
+                                   : absl::StrFormat("glossy-ggx%g", a.lobe.ggx_roughness);
   const std::string ref_cache =
-      absl::StrFormat("%s/reference_%s_%s_s%d_size%d_%dx%d_%d.bin", a.out_dir, scene->name, a.mode,
-                      a.seed, a.size, a.width, a.height, 2 * half_rays);
+      absl::StrFormat("%s/reference_%s_%s_s%d_size%d_%dx%d_%d.bin", a.out_dir, scene->name,
+                      mode_tag, a.seed, a.size, a.width, a.height, 2 * half_rays);
+  // Every pixel's reference value (see Scalar) with `rays` rays from `seed`.
+  auto reference = [&](int rays, uint64_t seed, std::vector<double>* dst) {
+    if (occlusion) {
+      const auto r = tracer->ReferenceOcclusion(cr.receivers, rays,
+                                                std::numeric_limits<float>::infinity(), seed);
+      for (size_t i = 0; i < r.size(); ++i) (*dst)[cr.pixel_of[i]] = r[i];
+    } else {
+      const auto r = glossy ? tracer->ReferenceGlossy(cr.shade, a.lobe, rays, seed)
+                            : tracer->ReferenceIrradiance(cr.receivers, rays, seed);
+      for (size_t i = 0; i < r.size(); ++i) (*dst)[cr.pixel_of[i]] = Scalar(r[i]);
+    }
+  };
   bool cached = false;
   {
     std::ifstream in(ref_cache, std::ios::binary);
@@ -208,16 +226,7 @@ absl::Status RunViewEval(const ViewEvalArgs& a) {
     }
   }
   for (int k = 0; k < 2 && !cached; ++k) {
-    std::vector<double>& dst = k == 0 ? ref_a : ref_b;
-    const uint64_t seed = a.seed + 101 + uint64_t(k);
-    if (occlusion) {
-      const auto r = tracer->ReferenceOcclusion(cr.receivers, half_rays,
-                                                std::numeric_limits<float>::infinity(), seed);
-      for (size_t i = 0; i < r.size(); ++i) dst[cr.pixel_of[i]] = r[i];
-    } else {
-      const auto r = tracer->ReferenceIrradiance(cr.receivers, half_rays, seed);
-      for (size_t i = 0; i < r.size(); ++i) dst[cr.pixel_of[i]] = Scalar(r[i]);
-    }
+    reference(half_rays, a.seed + 101 + uint64_t(k), k == 0 ? &ref_a : &ref_b);
   }
   if (!cached) {
     const std::string tmp = ref_cache + ".tmp";
@@ -265,7 +274,7 @@ absl::Status RunViewEval(const ViewEvalArgs& a) {
   std::printf(
       "pbgi eval --view: scene %s, %s, %llu surfels, %dx%d, %zu receivers, reference %d rays "
       "(own MAE ~%.2g), hitsides %s\n",
-      scene->name.c_str(), a.mode.c_str(), static_cast<unsigned long long>(bs.points), a.width,
+      scene->name.c_str(), mode_tag.c_str(), static_cast<unsigned long long>(bs.points), a.width,
       a.height, cr.receivers.size(), 2 * half_rays, ref_noise, a.hitsides.c_str());
   std::string rows_json;
   auto add_json = [&](const std::string& row) {
@@ -279,15 +288,7 @@ absl::Status RunViewEval(const ViewEvalArgs& a) {
     std::vector<double> times;
     for (int rep = 0; rep < a.repeat; ++rep) {
       const auto t0 = Clock::now();
-      const uint64_t seed = a.seed + 1000 + uint64_t(rays);
-      if (occlusion) {
-        const auto r = tracer->ReferenceOcclusion(cr.receivers, rays,
-                                                  std::numeric_limits<float>::infinity(), seed);
-        for (size_t i = 0; i < r.size(); ++i) got[cr.pixel_of[i]] = r[i];
-      } else {
-        const auto r = tracer->ReferenceIrradiance(cr.receivers, rays, seed);
-        for (size_t i = 0; i < r.size(); ++i) got[cr.pixel_of[i]] = Scalar(r[i]);
-      }
+      reference(rays, a.seed + 1000 + uint64_t(rays), &got);
       times.push_back(Since(t0));
     }
     std::sort(times.begin(), times.end());
@@ -348,6 +349,11 @@ absl::Status RunViewEval(const ViewEvalArgs& a) {
             so.raster.hitsides = sides;
             so.cut.curved_scale = a.curved_scale;
             so.raster.footprint = ParseFootprint(footprint);
+            if (glossy) {
+              so.raster.lobe = a.lobe.lobe;
+              so.raster.phong_exponent = a.lobe.phong_exponent;
+              so.raster.ggx_roughness = a.lobe.ggx_roughness;
+            }
             if (m.shared) {
               so.mode = ShadeMode::kShared;
               if (a.layout == "image") so = cr.WithLayout(so);
@@ -379,7 +385,8 @@ absl::Status RunViewEval(const ViewEvalArgs& a) {
             std::vector<double> got(pixels, 0.0);
             for (size_t i = 0; i < results.size(); ++i) {
               got[cr.pixel_of[i]] =
-                  occlusion ? results[i].occlusion : Scalar(results[i].irradiance);
+                  occlusion ? results[i].occlusion
+                            : Scalar(glossy ? results[i].glossy : results[i].irradiance);
             }
             const ImageErrors e = CompareImages(a.width, a.height, got, ref, covered);
             std::string tag =

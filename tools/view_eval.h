@@ -12,6 +12,7 @@
 
 #include "absl/status/status.h"
 #include "glm/vec3.hpp"
+#include "pbgi/scene.h"
 #include "tools/image_io.h"
 
 namespace pbgi::tools {
@@ -45,7 +46,10 @@ Image ErrorHeatMap(int width, int height, const std::vector<double>& got,
 struct ViewEvalArgs {
   std::string scene = "city";
   std::string out_dir = "out/eval-view";
-  std::string mode = "occlusion";  // occlusion | irradiance
+  std::string mode = "occlusion";  // occlusion | irradiance | glossy
+  // glossy: the lobe around each pixel's mirrored view direction (CameraReceivers::shade),
+  // against Tracer::ReferenceGlossy of the same lobe.
+  GlossyParams lobe;
   int64_t points = 4'000'000;
   int width = 960, height = 540;
   int rays = 4096;  // reference rays per pixel (two independent halves estimate its own error)
@@ -53,7 +57,7 @@ struct ViewEvalArgs {
   std::vector<int> resolutions = {12};
   std::vector<std::string> cuts = {"cosine"};
   std::vector<std::string> footprints = {"polygons"};  // swept: polygons | splats
-  float curved_scale = 0.3f;                          // Cut::curved_scale
+  float curved_scale = 0.3f;                           // Cut::curved_scale
   std::string hitsides = "front";
   uint64_t memory_bytes = uint64_t{512} << 20;  // the build's cap
   uint64_t cache_bytes = uint64_t{256} << 20;   // the shading cache

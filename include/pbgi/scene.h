@@ -30,6 +30,7 @@
 #include "absl/types/span.h"
 #include "glm/mat4x4.hpp"
 #include "glm/vec3.hpp"
+#include "pbgi/raster.h"
 #include "pbgi/surfel.h"
 
 namespace pbgi {
@@ -120,6 +121,13 @@ Scene MakeDiskScene(float radius = 1.0f, int segments = 256, glm::vec3 emission 
 // point at distance d from the center facing it sees the sphere with form factor (R/d)^2.
 Scene MakeSphereInBoxScene(const SceneOptions& options);
 
+// The glossy lobe of ReferenceGlossy(): the same D as RasterOptions' (pbgi/raster.h).
+struct GlossyParams {
+  GlossyLobe lobe = GlossyLobe::kPhong;  // kPhong or kGgx
+  float phong_exponent = 32.0f;          // >= 0
+  float ggx_roughness = 0.2f;            // (0, 1]
+};
+
 // ---- Embree -----------------------------------------------------------------------------------
 
 // A pinhole camera. Pixel (x, y) has y = 0 at the top row.
@@ -207,6 +215,19 @@ class Tracer {
                            uint64_t seed = 1) const;
   glm::vec3 ReferenceIrradiance(const glm::vec3& p, const glm::vec3& n, int rays,
                                 uint64_t seed = 1) const;
+  // Glossy radiance as pbgi/raster.h defines it for ShadeResult::glossy: the lobe-weighted
+  // mean radiance over the directions w above both the receiver's tangent plane (n.w > 0) and
+  // the lobe's (r.w > 0), r = normalize(reflection),
+  //   integral L(w) D(angle(w, r)) dw / integral D(angle(w, r)) dw,
+  // with L the same one-bounce radiance as ReferenceIrradiance (SurfaceRadiance() on front
+  // sides, 0 on back sides and misses). `rays` stratified directions are drawn from D itself over
+  // r's hemisphere (each lobe's own inverse CDF in cos(angle to r), see scene/sample_math.h);
+  // those below n's horizon are dropped, so the estimate is the mean L of the rest: both
+  // integrals of the ratio estimated with the same samples (consistent; its bias is O(1/rays)).
+  // 0 when no direction is left or the reflection is zero. REQUIRES: a valid lobe (GlossyLobe
+  // kPhong or kGgx, the ranges of GlossyParams).
+  glm::vec3 ReferenceGlossy(const glm::vec3& p, const glm::vec3& n, const glm::vec3& reflection,
+                            const GlossyParams& lobe, int rays, uint64_t seed = 1) const;
   // ReferenceOcclusion with the same rays traced as Embree 16-wide packets (rtcOccluded16) instead
   // of one rtcOccluded1 per ray: the same answer; bench/scene compares their speed.
   float ReferenceOcclusionPackets(const glm::vec3& p, const glm::vec3& n, int rays,
@@ -216,6 +237,9 @@ class Tracer {
                                         float max_distance, uint64_t seed = 1) const;
   std::vector<glm::vec3> ReferenceIrradiance(absl::Span<const Receiver> receivers, int rays,
                                              uint64_t seed = 1) const;
+  std::vector<glm::vec3> ReferenceGlossy(absl::Span<const ShadeReceiver> receivers,
+                                         const GlossyParams& lobe, int rays,
+                                         uint64_t seed = 1) const;
 
  private:
   struct Impl;

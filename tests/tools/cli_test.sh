@@ -61,6 +61,29 @@ plain=$(awk '$1 == "pbgi" && $6 == "plain" {print $12}' "$dir/eval_cuts.out")
 cosine=$(awk '$1 == "pbgi" && $6 == "cos" {print $12}' "$dir/eval_cuts.out")
 awk -v p="$plain" -v c="$cosine" 'BEGIN {exit !(p > 0 && c > 0 && c < p)}' && ok ||
   fail "eval --cuts: cosine clusters '$cosine' not fewer than plain '$plain'"
+# eval --mode glossy: one eval per lobe setting against the reference of the same lobe.
+run eval_glossy "$pbgi" eval cornell --mode glossy -o "$dir/eval_glossy" --points 30000 \
+  --receivers 40 --rays 256 --ray-sweep 64 --solid-angles 0.03 --raster-res 12 \
+  --lobes phong ggx --phong-exponents 8 32 --ggx-roughnesses 0.3
+for f in eval-phong8 eval-phong32 eval-ggx0.3; do
+  [ -s "$dir/eval_glossy/$f.json" ] && [ -s "$dir/eval_glossy/$f.png" ] && ok ||
+    fail "eval --mode glossy wrote no $f.json/png"
+done
+grep -q '"ggx_roughness"' "$dir/eval_glossy/eval.json" && grep -q '"default_relative_mae"' \
+  "$dir/eval_glossy/eval.json" && ok || fail "eval.json lacks the glossy lobes' figures"
+rel=$(awk '$1 == "pbgi" && $6 == "plain" {sub("%", "", $NF); print $NF; exit}' "$dir/eval_glossy.out")
+awk -v r="$rel" 'BEGIN {exit !(r > 0 && r < 40)}' && ok ||
+  fail "eval --mode glossy: relative MAE '$rel'% not in (0, 40)"
+# eval --view --mode glossy: one lobe per view, each pixel's lobe on its mirrored view direction.
+run eval_view_glossy "$pbgi" eval --view cornell --mode glossy --lobes phong -o "$dir/evg" \
+  --points 30000 --width 32 --height 24 --rays 128 --exact
+[ -s "$dir/evg/pbgi_msa0.03_res12_plain.png" ] && [ -s "$dir/evg/view.json" ] && ok ||
+  fail "eval --view --mode glossy wrote no image or view.json"
+grep -q '"mode": "glossy"' "$dir/evg/view.json" && ok || fail "view.json is not glossy"
+refuse eval_glossy_view_two "one lobe setting" "$pbgi" eval --view cornell --mode glossy \
+  -o "$dir/egv"
+refuse eval_glossy_bad "ggx_roughness" "$pbgi" eval cornell --mode glossy -o "$dir/egb" \
+  --points 1000 --lobes ggx --ggx-roughnesses 1.5
 # eval --view: the reference, PBGI and error images and the figures, for a small view.
 run eval_view "$pbgi" eval --view cornell -o "$dir/eval_view" --points 30000 --width 48 \
   --height 32 --rays 256
