@@ -32,79 +32,6 @@ bool CellHolds(const Bounds& cell, const Bounds& b) {
          glm::all(glm::lessThanEqual(b.hi, cell.hi + tol));
 }
 
-// The outline of the faces of the box [lo, hi] (relative to the receiver, which lies outside it)
-// across the axes in `faces` (bit k: the face at lo[k] if lo[k] > 0, else at hi[k]), in order
-// around it: the box's silhouette seen from the origin when `faces` holds every axis whose face
-// is seen. Its edges are the box's edges between a face in `faces` and one not in it, so the
-// polygon's cone from the origin is the union of the faces' cones, and it is convex (the
-// faces seen from a point outside a box make up its silhouette, a convex outline).
-// Consecutive equal vertices (a box flat along an axis) are dropped.
-void BoxSilhouette(const glm::vec3& lo, const glm::vec3& hi, int faces, Polygon* out) {
-  out->n = 0;
-  int axes[3], count = 0, others[3], other_count = 0;
-  for (int k = 0; k < 3; ++k) {
-    if (faces & (1 << k)) {
-      axes[count++] = k;
-    } else {
-      others[other_count++] = k;
-    }
-  }
-  if (count == 0) return;
-  // near[k]: the coordinate of the seen face across axis k; far[k]: the opposite side.
-  glm::vec3 near_side, far_side;
-  for (int k = 0; k < 3; ++k) {
-    const bool at_lo = lo[k] > 0.0f;
-    near_side[k] = at_lo ? lo[k] : hi[k];
-    far_side[k] = at_lo ? hi[k] : lo[k];
-  }
-  glm::vec3 v[6];
-  int n = 0;
-  auto put = [&](const glm::vec3& p) { v[n++] = p; };
-  if (count == 1) {
-    // One face: its rectangle.
-    const int k = axes[0], k1 = (k + 1) % 3, k2 = (k + 2) % 3;
-    for (int j = 0; j < 4; ++j) {
-      glm::vec3 p;
-      p[k] = near_side[k];
-      p[k1] = (j == 1 || j == 2) ? hi[k1] : lo[k1];
-      p[k2] = (j >= 2) ? hi[k2] : lo[k2];
-      put(p);
-    }
-  } else if (count == 2) {
-    // Two faces a and b sharing the edge along c: each face's far edge, joined along c.
-    const int a = axes[0], b = axes[1], c = others[0];
-    glm::vec3 p;
-    p[a] = near_side[a], p[b] = far_side[b], p[c] = lo[c];
-    put(p);
-    p[b] = near_side[b];
-    put(p);
-    p[a] = far_side[a];
-    put(p);
-    p[c] = hi[c];
-    put(p);
-    p[a] = near_side[a];
-    put(p);
-    p[b] = far_side[b];
-    put(p);
-  } else {
-    // Three faces around the nearest corner: the six corners that differ from it along one or
-    // two axes, alternately.
-    for (int j = 0; j < 6; ++j) {
-      const int k = j / 2;
-      glm::vec3 p = near_side;
-      p[k] = far_side[k];
-      if (j % 2 == 1) p[(k + 1) % 3] = far_side[(k + 1) % 3];
-      put(p);
-    }
-  }
-  for (int i = 0; i < n; ++i) {
-    if (out->n > 0 && v[i] == out->v[out->n - 1]) continue;
-    out->v[out->n++] = v[i];
-  }
-  if (out->n > 1 && out->v[0] == out->v[out->n - 1]) --out->n;
-  if (out->n < 3) out->n = 0;
-}
-
 }  // namespace
 
 Bounds FootprintBox(const Bounds& centres, const Bounds& cell, float spacing,
@@ -234,29 +161,19 @@ void Rasterizer::BuildClusterFootprints(const Gathered& g) {
       bool inside = true;
       for (int k = 0; k < 3; ++k) inside &= lo[k] <= 0.0f && hi[k] >= 0.0f;
       if (inside) continue;  // keeps the cone splat
-      // Opacity: the cluster's solid angle over the faces' (exact, for each face the signed
-      // sum of the four rectangles from the receiver's foot point), so that a receiver close
-      // to the box, whose near faces subtend far more than the content behind them, is not
-      // over-occluded by a parallel projection's ratio.
-      auto corner = [](float a, float b, float h) {
-        return std::atan(a * b / (h * std::sqrt(h * h + a * a + b * b)));
-      };
-      float faces = 0.0f;
+      // Opacity: the cluster's solid angle over the faces' (exact: the silhouette's), so that a
+      // receiver close to the box, whose near faces subtend far more than the content behind
+      // them, is not over-occluded by a parallel projection's ratio.
       int drawn = 0;  // bit k: the face across axis k faces the receiver and has an area
       for (int k = 0; k < 3; ++k) {
-        const float at = lo[k] > 0.0f ? lo[k] : hi[k] < 0.0f ? hi[k] : 0.0f;
-        const int k1 = (k + 1) % 3, k2 = (k + 2) % 3;
+        const bool seen = lo[k] > 0.0f || hi[k] < 0.0f;
         // A face of zero extent subtends nothing and draws nothing.
-        if (at == 0.0f || !(ext[k1] > 0.0f) || !(ext[k2] > 0.0f)) continue;
-        const float h = std::fabs(at);
-        faces += corner(hi[k1], hi[k2], h) - corner(lo[k1], hi[k2], h) - corner(hi[k1], lo[k2], h) +
-                 corner(lo[k1], lo[k2], h);
-        drawn |= 1 << k;
+        if (seen && ext[(k + 1) % 3] > 0.0f && ext[(k + 2) % 3] > 0.0f) drawn |= 1 << k;
       }
-      if (!(faces > 0.0f)) continue;  // keeps the cone splat
       Polygon q;
       BoxSilhouette(lo, hi, drawn, &q);
-      if (q.n < 3) continue;  // keeps the cone splat
+      const float faces = q.n >= 3 ? ConeSolidAngle(q) : 0.0f;
+      if (!(faces > 0.0f)) continue;  // keeps the cone splat
       AddPolygon(q, &s);
       s.alpha = std::min(1.0f, s.omega / faces);
     }

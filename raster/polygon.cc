@@ -135,6 +135,108 @@ double PolygonArea(const Polygon& p) {
   return 0.5 * glm::length(s);
 }
 
+// The outline's edges are the box's edges between a face in `faces` and one not in it, so its
+// cone from the origin is the union of the faces' cones; consecutive equal vertices (a box flat
+// along an axis) are dropped.
+void BoxSilhouette(const glm::vec3& lo, const glm::vec3& hi, int faces, Polygon* out) {
+  out->n = 0;
+  int axes[3], count = 0, others[3], other_count = 0;
+  for (int k = 0; k < 3; ++k) {
+    if (faces & (1 << k)) {
+      axes[count++] = k;
+    } else {
+      others[other_count++] = k;
+    }
+  }
+  if (count == 0) return;
+  // near[k]: the coordinate of the seen face across axis k; far[k]: the opposite side.
+  glm::vec3 near_side, far_side;
+  for (int k = 0; k < 3; ++k) {
+    const bool at_lo = lo[k] > 0.0f;
+    near_side[k] = at_lo ? lo[k] : hi[k];
+    far_side[k] = at_lo ? hi[k] : lo[k];
+  }
+  glm::vec3 v[6];
+  int n = 0;
+  auto put = [&](const glm::vec3& p) { v[n++] = p; };
+  if (count == 1) {
+    // One face: its rectangle.
+    const int k = axes[0], k1 = (k + 1) % 3, k2 = (k + 2) % 3;
+    for (int j = 0; j < 4; ++j) {
+      glm::vec3 p;
+      p[k] = near_side[k];
+      p[k1] = (j == 1 || j == 2) ? hi[k1] : lo[k1];
+      p[k2] = (j >= 2) ? hi[k2] : lo[k2];
+      put(p);
+    }
+  } else if (count == 2) {
+    // Two faces a and b sharing the edge along c: each face's far edge, joined along c.
+    const int a = axes[0], b = axes[1], c = others[0];
+    glm::vec3 p;
+    p[a] = near_side[a], p[b] = far_side[b], p[c] = lo[c];
+    put(p);
+    p[b] = near_side[b];
+    put(p);
+    p[a] = far_side[a];
+    put(p);
+    p[c] = hi[c];
+    put(p);
+    p[a] = near_side[a];
+    put(p);
+    p[b] = far_side[b];
+    put(p);
+  } else {
+    // Three faces around the nearest corner: the six corners that differ from it along one or
+    // two axes, alternately.
+    for (int j = 0; j < 6; ++j) {
+      const int k = j / 2;
+      glm::vec3 p = near_side;
+      p[k] = far_side[k];
+      if (j % 2 == 1) p[(k + 1) % 3] = far_side[(k + 1) % 3];
+      put(p);
+    }
+  }
+  for (int i = 0; i < n; ++i) {
+    if (out->n > 0 && v[i] == out->v[out->n - 1]) continue;
+    out->v[out->n++] = v[i];
+  }
+  if (out->n > 1 && out->v[0] == out->v[out->n - 1]) --out->n;
+  if (out->n < 3) out->n = 0;
+}
+
+float ConeSolidAngle(const Polygon& p) {
+  if (p.n < 3) return 0.0f;
+  // A fan of triangles from vertex 0, each tan(omega / 2) = N / D (Van Oosterom and Strackee):
+  // N = a . (b x c), from the edges b - a and c - a so that a small far polygon keeps its
+  // digits, D = |a||b||c| + (a.b)|c| + (a.c)|b| + (b.c)|a|. The half angles add up, so the
+  // product of the complex numbers D + iN has the total's half angle as its argument: one atan2
+  // for the polygon. Each factor is scaled to a largest part of 1 (no overflow).
+  float len[kMaxPolygonVertices];
+  for (int i = 0; i < p.n; ++i) len[i] = glm::length(p.v[i]);
+  const glm::vec3& a = p.v[0];
+  float re = 1.0f, im = 0.0f, orient = 0.0f;
+  for (int i = 1; i + 1 < p.n; ++i) {
+    const glm::vec3& b = p.v[i];
+    const glm::vec3& c = p.v[i + 1];
+    const float num = glm::dot(a, glm::cross(b - a, c - a));
+    const float den = len[0] * len[i] * len[i + 1] + glm::dot(a, b) * len[i + 1] +
+                      glm::dot(a, c) * len[i] + glm::dot(b, c) * len[0];
+    const float big = std::max(std::fabs(num), std::fabs(den));
+    if (!(big > 0.0f)) continue;
+    const float zr = den / big, zi = num / big;
+    const float r = re * zr - im * zi;
+    im = re * zi + im * zr;
+    re = r;
+    orient += num;
+  }
+  if (orient < 0.0f) im = -im;  // the vertices turn clockwise seen from the origin
+  float half = std::atan2(im, re);
+  // The total is below 2 pi (a convex cone): a negative argument is a half angle just below pi
+  // that rounding took past it, or a rounding error around 0.
+  if (half < 0.0f) half = re < 0.0f ? half + 2.0f * kPiFloat : 0.0f;
+  return 2.0f * half;
+}
+
 void RasterizePolygon(const Polygon& p, int res, std::vector<float>* acc,
                       std::vector<PixelCoverage>* out) {
   RasterizePolygonTo(p, res, acc,
