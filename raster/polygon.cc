@@ -239,8 +239,9 @@ float ConeSolidAngle(const Polygon& p) {
 
 void RasterizePolygon(const Polygon& p, int res, std::vector<float>* acc,
                       std::vector<PixelCoverage>* out) {
-  RasterizePolygonTo(p, res, acc,
-                     [out](uint32_t pixel, float cov) { out->push_back({pixel, cov}); });
+  RasterizePolygonTo(p, res, acc, [out](uint32_t pixel, float cov) {
+    out->push_back({pixel, cov});
+  });
 }
 
 }  // namespace pbgi::internal

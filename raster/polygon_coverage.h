@@ -29,7 +29,8 @@ inline int CeilPos(float x) {
 // extent d (signed by the edge's direction) and mean x xm adds d * (1 - (xm - m)) to cell m and
 // d * (xm - m) to cell m + 1: the running sum of a row is then the exact area covered in each
 // cell (the integral over the row of clamp(m + 1 - x_edge(y), 0, 1), summed over edges).
-inline void Accumulate(const float* xs, const float* ys, int n, int x0, int y0, int w, int h, float* acc) {
+inline void Accumulate(const float* xs, const float* ys, int n, int x0, int y0, int w, int h,
+                       float* acc) {
   for (int i = 0; i < n; ++i) {
     const int j = i + 1 == n ? 0 : i + 1;
     float ax = xs[i], ay = ys[i], bx = xs[j], by = ys[j];
@@ -109,7 +110,6 @@ inline void Split(const Poly2& p, int coord, float at, Poly2* below, Poly2* abov
     }
   }
 }
-
 
 // Clips the homogeneous polygon (a, b, w) of a face to |a| <= w, |b| <= w (its pyramid),
 // ping-ponging between two buffers; returns the vertex count (0 when nothing is left).

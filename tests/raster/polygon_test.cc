@@ -34,8 +34,8 @@ TEST(PolygonTest, PixelAlignedSquareCoversItsPixelsExactly) {
   // On the plane z = 1 (face +z, res 8: pixel edges at x = -1 + k / 4), the square
   // [-0.5, 0.25] x [0, 0.5] covers columns 2..4 and rows 4..5 exactly.
   const int res = 8;
-  const Polygon p = Quad({-0.5f, 0.0f, 1.0f}, {0.25f, 0.0f, 1.0f}, {0.25f, 0.5f, 1.0f},
-                         {-0.5f, 0.5f, 1.0f});
+  const Polygon p =
+      Quad({-0.5f, 0.0f, 1.0f}, {0.25f, 0.0f, 1.0f}, {0.25f, 0.5f, 1.0f}, {-0.5f, 0.5f, 1.0f});
   const auto m = Coverage(p, res);
   const uint32_t base = 4 * res * res;
   EXPECT_EQ(m.size(), 6u);
@@ -78,8 +78,8 @@ TEST(PolygonTest, CoverageSumsToTheAreaOfAnyConvexPolygon) {
 TEST(PolygonTest, PolygonsSharingAnEdgeTileTheirUnion) {
   // A quad cut by a line into two polygons: per pixel, the two coverages add up to the quad's.
   const int res = 12;
-  const Polygon whole = Quad({-0.7f, -0.6f, 1.0f}, {0.5f, -0.4f, 1.0f}, {0.6f, 0.55f, 1.0f},
-                             {-0.5f, 0.7f, 1.0f});
+  const Polygon whole =
+      Quad({-0.7f, -0.6f, 1.0f}, {0.5f, -0.4f, 1.0f}, {0.6f, 0.55f, 1.0f}, {-0.5f, 0.7f, 1.0f});
   Polygon left = whole, right = whole;
   const glm::vec3 m(1.0f, 0.3f, 0.05f);  // the cutting plane through the origin
   ClipHalfSpace(m, &left);
@@ -100,8 +100,8 @@ TEST(PolygonTest, APolygonAcrossFacesKeepsItsSolidAngle) {
   MicroBuffer mb;
   ASSERT_TRUE(mb.Prepare(32).ok());
   const int res = 32;
-  const Polygon p = Quad({-3.0f, -3.0f, 0.4f}, {3.0f, -3.0f, 0.4f}, {3.0f, 3.0f, 0.4f},
-                         {-3.0f, 3.0f, 0.4f});
+  const Polygon p =
+      Quad({-3.0f, -3.0f, 0.4f}, {3.0f, -3.0f, 0.4f}, {3.0f, 3.0f, 0.4f}, {-3.0f, 3.0f, 0.4f});
   const auto m = Coverage(p, res);
   double omega = 0;
   for (const auto& [pixel, c] : m) omega += c * mb.PixelSolidAngle(int(pixel));
@@ -119,8 +119,8 @@ TEST(PolygonTest, PlaneBoxPolygonIsTheCrossSection) {
   EXPECT_NEAR(PolygonArea(p), 1.0, 1e-5);
   // The diagonal plane x + y + z = 1.5 cuts the unit cube in a regular hexagon of side
   // sqrt(2) / 2: area 3 sqrt(3) / 2 * s^2 = 3 sqrt(3) / 4.
-  PlaneBoxPolygon(glm::normalize(glm::vec3(1, 1, 1)), 1.5f / std::sqrt(3.0f), {0, 0, 0},
-                  {1, 1, 1}, &p);
+  PlaneBoxPolygon(glm::normalize(glm::vec3(1, 1, 1)), 1.5f / std::sqrt(3.0f), {0, 0, 0}, {1, 1, 1},
+                  &p);
   EXPECT_EQ(p.n, 6);
   EXPECT_NEAR(PolygonArea(p), 3.0 * std::sqrt(3.0) / 4.0, 1e-4);
   // A flat box (a wall's cluster) and its own plane.
@@ -212,8 +212,8 @@ TEST(PolygonTest, ConeSolidAngleOfNearAndFarSquares) {
   // sqrt(h^2 + 2 a^2))).
   for (const double h : {1e-3, 0.1, 1.0, 10.0, 1e3}) {
     const double a = 1.0;
-    const Polygon p = Quad({-1, -1, float(h)}, {1, -1, float(h)}, {1, 1, float(h)},
-                           {-1, 1, float(h)});
+    const Polygon p =
+        Quad({-1, -1, float(h)}, {1, -1, float(h)}, {1, 1, float(h)}, {-1, 1, float(h)});
     const double exact = 4.0 * std::atan(a * a / (h * std::sqrt(h * h + 2 * a * a)));
     EXPECT_NEAR(ConeSolidAngle(p), exact, 1e-5 * exact) << h;
   }
