@@ -167,43 +167,29 @@ void Rasterizer::BuildClusterFootprints(const Gathered& g) {
       s.alpha = alpha;
       AddPolygon(p, &s);
     } else {
-      // The box's faces that face the receiver (at the origin).
+      // The box's faces that face the receiver (at the origin), drawn as one polygon: their
+      // silhouette (BoxSilhouette). The faces tile it, so a pixel's coverage is the same sum,
+      // for one polygon's cost instead of up to three.
       const Bounds box = FootprintBox(c.bounds, c.cell, spacing, glm::vec3(0.0f), nullptr);
       const glm::vec3 lo = box.lo - origin_, hi = box.hi - origin_;
       const glm::vec3 ext = hi - lo;
       bool inside = true;
       for (int k = 0; k < 3; ++k) inside &= lo[k] <= 0.0f && hi[k] >= 0.0f;
       if (inside) continue;  // keeps the cone splat
-      // Opacity: the cluster's solid angle over the faces' (exact, for each face the signed
-      // sum of the four rectangles from the receiver's foot point), so that a receiver close
-      // to the box, whose near faces subtend far more than the content behind them, is not
-      // over-occluded by a parallel projection's ratio.
-      auto corner = [](float a, float b, float h) {
-        return std::atan(a * b / (h * std::sqrt(h * h + a * a + b * b)));
-      };
-      float faces = 0.0f;
+      // Opacity: the cluster's solid angle over the faces' (exact: the silhouette's), so that a
+      // receiver close to the box, whose near faces subtend far more than the content behind
+      // them, is not over-occluded by a parallel projection's ratio.
+      int drawn = 0;  // bit k: the face across axis k faces the receiver and has an area
       for (int k = 0; k < 3; ++k) {
-        const float at = lo[k] > 0.0f ? lo[k] : hi[k] < 0.0f ? hi[k] : 0.0f;
-        const int k1 = (k + 1) % 3, k2 = (k + 2) % 3;
+        const bool seen = lo[k] > 0.0f || hi[k] < 0.0f;
         // A face of zero extent subtends nothing and draws nothing.
-        if (at == 0.0f || !(ext[k1] > 0.0f) || !(ext[k2] > 0.0f)) continue;
-        const float h = std::fabs(at);
-        faces += corner(hi[k1], hi[k2], h) - corner(lo[k1], hi[k2], h) - corner(hi[k1], lo[k2], h) +
-                 corner(lo[k1], lo[k2], h);
-        Polygon q;
-        q.n = 4;
-        for (int j = 0; j < 4; ++j) {
-          q.v[j][k] = at;
-          q.v[j][k1] = (j == 1 || j == 2) ? hi[k1] : lo[k1];
-          q.v[j][k2] = (j >= 2) ? hi[k2] : lo[k2];
-        }
-        AddPolygon(q, &s);
+        if (seen && ext[(k + 1) % 3] > 0.0f && ext[(k + 2) % 3] > 0.0f) drawn |= 1 << k;
       }
-      if (!(faces > 0.0f)) {  // keeps the cone splat
-        poly_count_ = first;
-        s.poly_count = 0;
-        continue;
-      }
+      Polygon q;
+      BoxSilhouette(lo, hi, drawn, &q);
+      const float faces = q.n >= 3 ? ConeSolidAngle(q) : 0.0f;
+      if (!(faces > 0.0f)) continue;  // keeps the cone splat
+      AddPolygon(q, &s);
       s.alpha = std::min(1.0f, s.omega / faces);
     }
     s.near = 2;

@@ -36,6 +36,17 @@ void ClipHalfSpace(const glm::vec3& m, Polygon* p);
 // Area of a planar polygon (any orientation).
 double PolygonArea(const Polygon& p);
 
+// The outline of the faces of the box [lo, hi] (given relative to a point outside it, the
+// origin) across the axes in `faces` (bit k: the face at lo[k] if lo[k] > 0, else the face at
+// hi[k]), its vertices in order around it; n = 0 when `faces` is empty. With every axis whose
+// face the origin sees, it is the box's silhouette from the origin: the faces tile it, so its
+// coverage and its solid angle are theirs summed.
+void BoxSilhouette(const glm::vec3& lo, const glm::vec3& hi, int faces, Polygon* out);
+
+// The solid angle of the cone from the origin over a convex polygon that does not surround the
+// origin (less than 2 pi), either orientation.
+float ConeSolidAngle(const Polygon& p);
+
 // Rasterizes a polygon given in the micro-buffer's frame (relative to the receiver; the
 // caller clips it to the upper hemisphere first) onto the cube faces of a res x res buffer
 // (pixel numbering of MicroBuffer). Appends to `out`; `acc` is scratch.

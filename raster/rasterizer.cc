@@ -13,6 +13,7 @@
 #include "raster/cluster_prep.h"
 #include "raster/cube.h"
 #include "raster/polygon.h"
+#include "raster/polygon_coverage.h"
 
 namespace pbgi::internal {
 namespace {
@@ -145,11 +146,11 @@ template <bool kClamp, bool kRad>
 void Rasterizer::SplatPolygons(const PreparedSplat& s) {
   const Frag fr = FragOf(s);
   const Polygon* polys = mb_.polygons_.data() + s.poly_first;
-  auto& cov = mb_.coverage_;
+  const float alpha = s.alpha;
   for (uint32_t k = 0; k < s.poly_count; ++k) {
-    cov.clear();
-    RasterizePolygon(polys[k], res_, &mb_.accumulation_, &cov);
-    for (const PixelCoverage& c : cov) Emit<kClamp, kRad>(c.pixel, s.alpha * c.coverage, fr);
+    RasterizePolygonTo(polys[k], res_, &mb_.accumulation_, [&](uint32_t pixel, float cov) {
+      Emit<kClamp, kRad>(pixel, alpha * cov, fr);
+    });
   }
 }
 

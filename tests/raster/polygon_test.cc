@@ -34,8 +34,8 @@ TEST(PolygonTest, PixelAlignedSquareCoversItsPixelsExactly) {
   // On the plane z = 1 (face +z, res 8: pixel edges at x = -1 + k / 4), the square
   // [-0.5, 0.25] x [0, 0.5] covers columns 2..4 and rows 4..5 exactly.
   const int res = 8;
-  const Polygon p = Quad({-0.5f, 0.0f, 1.0f}, {0.25f, 0.0f, 1.0f}, {0.25f, 0.5f, 1.0f},
-                         {-0.5f, 0.5f, 1.0f});
+  const Polygon p =
+      Quad({-0.5f, 0.0f, 1.0f}, {0.25f, 0.0f, 1.0f}, {0.25f, 0.5f, 1.0f}, {-0.5f, 0.5f, 1.0f});
   const auto m = Coverage(p, res);
   const uint32_t base = 4 * res * res;
   EXPECT_EQ(m.size(), 6u);
@@ -78,8 +78,8 @@ TEST(PolygonTest, CoverageSumsToTheAreaOfAnyConvexPolygon) {
 TEST(PolygonTest, PolygonsSharingAnEdgeTileTheirUnion) {
   // A quad cut by a line into two polygons: per pixel, the two coverages add up to the quad's.
   const int res = 12;
-  const Polygon whole = Quad({-0.7f, -0.6f, 1.0f}, {0.5f, -0.4f, 1.0f}, {0.6f, 0.55f, 1.0f},
-                             {-0.5f, 0.7f, 1.0f});
+  const Polygon whole =
+      Quad({-0.7f, -0.6f, 1.0f}, {0.5f, -0.4f, 1.0f}, {0.6f, 0.55f, 1.0f}, {-0.5f, 0.7f, 1.0f});
   Polygon left = whole, right = whole;
   const glm::vec3 m(1.0f, 0.3f, 0.05f);  // the cutting plane through the origin
   ClipHalfSpace(m, &left);
@@ -100,8 +100,8 @@ TEST(PolygonTest, APolygonAcrossFacesKeepsItsSolidAngle) {
   MicroBuffer mb;
   ASSERT_TRUE(mb.Prepare(32).ok());
   const int res = 32;
-  const Polygon p = Quad({-3.0f, -3.0f, 0.4f}, {3.0f, -3.0f, 0.4f}, {3.0f, 3.0f, 0.4f},
-                         {-3.0f, 3.0f, 0.4f});
+  const Polygon p =
+      Quad({-3.0f, -3.0f, 0.4f}, {3.0f, -3.0f, 0.4f}, {3.0f, 3.0f, 0.4f}, {-3.0f, 3.0f, 0.4f});
   const auto m = Coverage(p, res);
   double omega = 0;
   for (const auto& [pixel, c] : m) omega += c * mb.PixelSolidAngle(int(pixel));
@@ -119,8 +119,8 @@ TEST(PolygonTest, PlaneBoxPolygonIsTheCrossSection) {
   EXPECT_NEAR(PolygonArea(p), 1.0, 1e-5);
   // The diagonal plane x + y + z = 1.5 cuts the unit cube in a regular hexagon of side
   // sqrt(2) / 2: area 3 sqrt(3) / 2 * s^2 = 3 sqrt(3) / 4.
-  PlaneBoxPolygon(glm::normalize(glm::vec3(1, 1, 1)), 1.5f / std::sqrt(3.0f), {0, 0, 0},
-                  {1, 1, 1}, &p);
+  PlaneBoxPolygon(glm::normalize(glm::vec3(1, 1, 1)), 1.5f / std::sqrt(3.0f), {0, 0, 0}, {1, 1, 1},
+                  &p);
   EXPECT_EQ(p.n, 6);
   EXPECT_NEAR(PolygonArea(p), 3.0 * std::sqrt(3.0) / 4.0, 1e-4);
   // A flat box (a wall's cluster) and its own plane.
@@ -129,6 +129,94 @@ TEST(PolygonTest, PlaneBoxPolygonIsTheCrossSection) {
   // A plane that misses the box.
   PlaneBoxPolygon({0, 0, 1}, 3.0f, {0, 0, 0}, {1, 1, 1}, &p);
   EXPECT_EQ(p.n, 0);
+}
+
+// The solid angle of an axis-aligned rectangle {z = h, [x0, x1] x [y0, y1]} seen from the
+// origin: the signed sum of the four rectangles from the foot point (double precision).
+double RectangleSolidAngle(double x0, double x1, double y0, double y1, double h) {
+  auto corner = [h](double a, double b) {
+    return std::atan(a * b / (h * std::sqrt(h * h + a * a + b * b)));
+  };
+  return corner(x1, y1) - corner(x0, y1) - corner(x1, y0) + corner(x0, y0);
+}
+
+// The faces of the box [lo, hi] that the origin sees, each with its solid angle (double).
+std::vector<std::pair<Polygon, double>> SeenFaces(const glm::vec3& lo, const glm::vec3& hi) {
+  std::vector<std::pair<Polygon, double>> faces;
+  for (int k = 0; k < 3; ++k) {
+    const float at = lo[k] > 0.0f ? lo[k] : hi[k] < 0.0f ? hi[k] : 0.0f;
+    if (at == 0.0f) continue;
+    const int k1 = (k + 1) % 3, k2 = (k + 2) % 3;
+    Polygon q;
+    q.n = 4;
+    for (int j = 0; j < 4; ++j) {
+      q.v[j][k] = at;
+      q.v[j][k1] = (j == 1 || j == 2) ? hi[k1] : lo[k1];
+      q.v[j][k2] = (j >= 2) ? hi[k2] : lo[k2];
+    }
+    faces.push_back({q, RectangleSolidAngle(lo[k1], hi[k1], lo[k2], hi[k2], std::fabs(at))});
+  }
+  return faces;
+}
+
+TEST(PolygonTest, BoxSilhouetteCoversWhatItsSeenFacesCover) {
+  // Boxes seen across one, two and three faces, near and far, with the origin above the
+  // horizon (z > 0 half-space: the boxes' lowest corner may lie below it).
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<float> u(-1.0f, 1.0f);
+  const int res = 12;
+  int by_count[4] = {0, 0, 0, 0};
+  for (int trial = 0; trial < 300; ++trial) {
+    const float scale = trial % 3 == 0 ? 20.0f : 2.0f;
+    glm::vec3 lo(scale * u(rng), scale * u(rng), scale * std::fabs(u(rng)));
+    const glm::vec3 ext(0.05f + std::fabs(u(rng)), 0.05f + std::fabs(u(rng)),
+                        0.05f + std::fabs(u(rng)));
+    if (trial % 5 == 1) lo.x = -0.5f * ext.x, lo.y = -0.5f * ext.y;  // one face, overhead
+    glm::vec3 hi = lo + ext;
+    bool inside = true;
+    for (int k = 0; k < 3; ++k) inside &= lo[k] <= 0.0f && hi[k] >= 0.0f;
+    if (inside) continue;
+    const auto faces = SeenFaces(lo, hi);
+    int mask = 0;
+    for (int k = 0; k < 3; ++k) mask |= (lo[k] > 0.0f || hi[k] < 0.0f) ? 1 << k : 0;
+    ++by_count[faces.size()];
+    Polygon sil;
+    BoxSilhouette(lo, hi, mask, &sil);
+    ASSERT_GE(sil.n, 4);
+    // Its solid angle is the faces' sum.
+    double omega = 0;
+    for (const auto& f : faces) omega += f.second;
+    EXPECT_NEAR(ConeSolidAngle(sil), omega, 2e-4 * omega + 1e-7) << trial;
+    // Its coverage, pixel by pixel, is the faces' sum (above the horizon).
+    ClipHalfSpace({0, 0, 1}, &sil);
+    std::map<uint32_t, float> want;
+    for (auto f : faces) {
+      ClipHalfSpace({0, 0, 1}, &f.first);
+      for (const auto& [pixel, c] : Coverage(f.first, res)) want[pixel] += c;
+    }
+    const auto got = Coverage(sil, res);
+    for (const auto& [pixel, c] : want) {
+      const auto it = got.find(pixel);
+      EXPECT_NEAR(it == got.end() ? 0.0f : it->second, std::min(1.0f, c), 2e-4f)
+          << trial << " pixel " << pixel;
+    }
+    for (const auto& [pixel, c] : got) EXPECT_TRUE(want.count(pixel) || c < 2e-4f) << pixel;
+  }
+  EXPECT_GT(by_count[1], 10);
+  EXPECT_GT(by_count[2], 10);
+  EXPECT_GT(by_count[3], 10);
+}
+
+TEST(PolygonTest, ConeSolidAngleOfNearAndFarSquares) {
+  // The square [-a, a]^2 at height h, from nearly a hemisphere to a speck: 4 atan(a^2 / (h
+  // sqrt(h^2 + 2 a^2))).
+  for (const double h : {1e-3, 0.1, 1.0, 10.0, 1e3}) {
+    const double a = 1.0;
+    const Polygon p =
+        Quad({-1, -1, float(h)}, {1, -1, float(h)}, {1, 1, float(h)}, {-1, 1, float(h)});
+    const double exact = 4.0 * std::atan(a * a / (h * std::sqrt(h * h + 2 * a * a)));
+    EXPECT_NEAR(ConeSolidAngle(p), exact, 1e-5 * exact) << h;
+  }
 }
 
 }  // namespace

@@ -1,0 +1,280 @@
+// Exact area coverage of a polygon on the micro-buffer's cube faces (see raster/polygon.h),
+// as a template over what receives each covered pixel: the rasterizer hands each pixel straight
+// to its compositing (no list of pixels to write and read back), the tests collect them.
+#ifndef PBGI_RASTER_POLYGON_COVERAGE_H_
+#define PBGI_RASTER_POLYGON_COVERAGE_H_
+
+#include <algorithm>
+#include <cmath>
+#include <cstddef>
+#include <cstdint>
+#include <vector>
+
+#include "pbgi/raster.h"
+
+namespace pbgi::internal {
+namespace polygon_coverage {
+
+// floor and ceil of pixel coordinates, which are >= 0 (std::floor is a library call without
+// SSE4.1).
+inline int FloorPos(float x) { return static_cast<int>(x); }
+inline int CeilPos(float x) {
+  const int i = static_cast<int>(x);
+  return static_cast<float>(i) < x ? i + 1 : i;
+}
+
+// Adds the polygon's edges to the signed-area accumulation buffer of the cells
+// [x0, x0 + w) x [y0, y0 + h) (w includes one column past the last, which an edge's right
+// neighbour may reach). Each piece of an edge inside one cell (column m, row r) with vertical
+// extent d (signed by the edge's direction) and mean x xm adds d * (1 - (xm - m)) to cell m and
+// d * (xm - m) to cell m + 1: the running sum of a row is then the exact area covered in each
+// cell (the integral over the row of clamp(m + 1 - x_edge(y), 0, 1), summed over edges).
+inline void Accumulate(const float* xs, const float* ys, int n, int x0, int y0, int w, int h,
+                       float* acc) {
+  for (int i = 0; i < n; ++i) {
+    const int j = i + 1 == n ? 0 : i + 1;
+    float ax = xs[i], ay = ys[i], bx = xs[j], by = ys[j];
+    if (ay == by) continue;
+    float dir = 1.0f;
+    if (ay > by) {
+      std::swap(ax, bx);
+      std::swap(ay, by);
+      dir = -1.0f;
+    }
+    const float slope = (bx - ax) / (by - ay);  // dx per dy
+    const int r0 = std::max(y0, FloorPos(ay));
+    const int r1 = std::min(y0 + h - 1, CeilPos(by) - 1);
+    for (int r = r0; r <= r1; ++r) {
+      const float ya = std::max(ay, static_cast<float>(r));
+      const float yb = std::min(by, static_cast<float>(r + 1));
+      if (!(yb > ya)) continue;
+      const float xa = ax + (ya - ay) * slope, xb = ax + (yb - ay) * slope;
+      float* row = acc + size_t(r - y0) * size_t(w);
+      const float d = dir * (yb - ya);
+      const float lo = std::min(xa, xb), hi = std::max(xa, xb);
+      const int mlo = FloorPos(lo);
+      // The last cell the piece enters (an end exactly on a cell's left edge does not enter it).
+      const int mhi = std::max(mlo, CeilPos(hi) - 1);
+      if (mhi == mlo) {
+        const int m = std::clamp(mlo, x0, x0 + w - 2);
+        const float f = 0.5f * (lo + hi) - static_cast<float>(m);
+        row[m - x0] += d * (1.0f - f);
+        row[m - x0 + 1] += d * f;
+        continue;
+      }
+      // Split at the integer crossings; each piece's share of d is its share of the x span.
+      const float inv = d / (hi - lo);
+      float s = lo;
+      for (int m = mlo; m <= mhi; ++m) {
+        const float e = std::min(hi, static_cast<float>(m + 1));
+        if (e > s) {
+          const int mc = std::clamp(m, x0, x0 + w - 2);
+          const float piece = (e - s) * inv;
+          const float f = 0.5f * (s + e) - static_cast<float>(mc);
+          row[mc - x0] += piece * (1.0f - f);
+          row[mc - x0 + 1] += piece * f;
+        }
+        s = e;
+      }
+    }
+  }
+}
+
+// A polygon in a face's pixel coordinates.
+struct Poly2 {
+  int n = 0;
+  float x[kMaxPolygonVertices + 2], y[kMaxPolygonVertices + 2];
+};
+
+// Twice the signed area (shoelace).
+inline float Area2(const Poly2& p) {
+  float a = 0.0f;
+  for (int i = 0, j = p.n - 1; i < p.n; j = i++) a += (p.x[j] + p.x[i]) * (p.y[j] - p.y[i]);
+  return a;
+}
+
+// Splits p by the line {coord = at} (coord 0: x, 1: y) into its parts below and above.
+inline void Split(const Poly2& p, int coord, float at, Poly2* below, Poly2* above) {
+  below->n = above->n = 0;
+  const float* c = coord == 0 ? p.x : p.y;
+  for (int i = 0; i < p.n; ++i) {
+    const int j = i + 1 == p.n ? 0 : i + 1;
+    const float si = c[i] - at, sj = c[j] - at;
+    if (si <= 0.0f) below->x[below->n] = p.x[i], below->y[below->n++] = p.y[i];
+    if (si >= 0.0f) above->x[above->n] = p.x[i], above->y[above->n++] = p.y[i];
+    if ((si < 0.0f && sj > 0.0f) || (si > 0.0f && sj < 0.0f)) {
+      const float t = si / (si - sj);
+      const float x = p.x[i] + t * (p.x[j] - p.x[i]), y = p.y[i] + t * (p.y[j] - p.y[i]);
+      below->x[below->n] = x, below->y[below->n++] = y;
+      above->x[above->n] = x, above->y[above->n++] = y;
+    }
+  }
+}
+
+// Clips the homogeneous polygon (a, b, w) of a face to |a| <= w, |b| <= w (its pyramid),
+// ping-ponging between two buffers; returns the vertex count (0 when nothing is left).
+inline int ClipToPyramid(float* a, float* b, float* w, int n, float* ta, float* tb, float* tw) {
+  // Plane i: s = w + sa * a (i = 0, 1) or w + sb * b (i = 2, 3).
+  for (int plane = 0; plane < 4 && n >= 3; ++plane) {
+    const float sa = plane == 0 ? 1.0f : plane == 1 ? -1.0f : 0.0f;
+    const float sb = plane == 2 ? 1.0f : plane == 3 ? -1.0f : 0.0f;
+    float s[kMaxPolygonVertices + 2];
+    bool all_in = true;
+    for (int i = 0; i < n; ++i) {
+      s[i] = w[i] + sa * a[i] + sb * b[i];
+      all_in &= s[i] >= 0.0f;
+    }
+    if (all_in) continue;
+    int m = 0;
+    for (int i = 0; i < n; ++i) {
+      const int j = i + 1 == n ? 0 : i + 1;
+      const bool in_i = s[i] >= 0.0f, in_j = s[j] >= 0.0f;
+      if (in_i && m < kMaxPolygonVertices) ta[m] = a[i], tb[m] = b[i], tw[m++] = w[i];
+      if (in_i != in_j && m < kMaxPolygonVertices) {
+        const float t = s[i] / (s[i] - s[j]);
+        ta[m] = a[i] + t * (a[j] - a[i]);
+        tb[m] = b[i] + t * (b[j] - b[i]);
+        tw[m++] = w[i] + t * (w[j] - w[i]);
+      }
+    }
+    for (int i = 0; i < m; ++i) a[i] = ta[i], b[i] = tb[i], w[i] = tw[i];
+    n = m;
+  }
+  return n >= 3 ? n : 0;
+}
+
+}  // namespace polygon_coverage
+
+// RasterizePolygon() (raster/polygon.h) with each covered pixel passed to sink(pixel, coverage)
+// in the same order as RasterizePolygon() appends them.
+template <class Sink>
+inline void RasterizePolygonTo(const Polygon& p, int res, std::vector<float>* acc, Sink&& sink) {
+  using namespace polygon_coverage;  // NOLINT(build/namespaces): this file's own helpers
+
+  if (p.n < 3) return;
+  // The face of each vertex; a polygon whose vertices all lie in one face's pyramid lies in it
+  // (the pyramid is convex) and needs no clipping.
+  int home = -1;
+  bool one_face = true;
+  for (int i = 0; i < p.n && one_face; ++i) {
+    const glm::vec3& x = p.v[i];
+    const float ax = std::fabs(x.x), ay = std::fabs(x.y), az = std::fabs(x.z);
+    const int f = ax >= ay ? (ax >= az ? (x.x < 0.0f ? 1 : 0) : (x.z < 0.0f ? 5 : 4))
+                           : (ay >= az ? (x.y < 0.0f ? 3 : 2) : (x.z < 0.0f ? 5 : 4));
+    if (home < 0) home = f;
+    one_face = f == home;
+  }
+  const float half = 0.5f * static_cast<float>(res);
+  const float* coords = &p.v[0].x;  // x, y, z of vertex i at 3 i .. 3 i + 2
+  static_assert(sizeof(glm::vec3) == 3 * sizeof(float));
+  // The -z face lies below the horizon, which the caller clipped away.
+  const int f_first = one_face ? home : 0, f_last = one_face ? home : 4;
+  for (int f = f_first; f <= f_last; ++f) {
+    const int k = f / 2, k1 = k == 0 ? 1 : 0, k2 = k == 2 ? 1 : 2;
+    const float sign = (f % 2) ? -1.0f : 1.0f;
+    // The face's homogeneous coordinates: (a, b) / w is the point on the face's plane.
+    float a[kMaxPolygonVertices], b[kMaxPolygonVertices], w[kMaxPolygonVertices];
+    int n = p.n;
+    for (int i = 0; i < n; ++i) {
+      a[i] = coords[3 * i + k1], b[i] = coords[3 * i + k2], w[i] = sign * coords[3 * i + k];
+    }
+    if (!one_face) {
+      // Rejected at once when every vertex lies outside one side of the face's pyramid.
+      bool out_lo1 = true, out_hi1 = true, out_lo2 = true, out_hi2 = true;
+      for (int i = 0; i < n; ++i) {
+        out_lo1 &= w[i] + a[i] < 0.0f, out_hi1 &= w[i] - a[i] < 0.0f;
+        out_lo2 &= w[i] + b[i] < 0.0f, out_hi2 &= w[i] - b[i] < 0.0f;
+      }
+      if (out_lo1 || out_hi1 || out_lo2 || out_hi2) continue;
+      float ta[kMaxPolygonVertices], tb[kMaxPolygonVertices], tw[kMaxPolygonVertices];
+      n = ClipToPyramid(a, b, w, n, ta, tb, tw);
+      if (n < 3) continue;
+    }
+    // The face-pixel coordinates, in the layout Split() and Area2() take.
+    Poly2 whole;
+    whole.n = n;
+    float* xs = whole.x;
+    float* ys = whole.y;
+    float minx = 1e30f, maxx = -1e30f, miny = 1e30f, maxy = -1e30f;
+    bool ok = true;
+    const float top = static_cast<float>(res);
+    for (int i = 0; i < n; ++i) {
+      if (!(w[i] > 0.0f)) {
+        ok = false;  // a vertex at the apex: the polygon passes through the receiver
+        break;
+      }
+      const float inv = 1.0f / w[i];
+      xs[i] = std::min(top, std::max(0.0f, (a[i] * inv + 1.0f) * half));
+      ys[i] = std::min(top, std::max(0.0f, (b[i] * inv + 1.0f) * half));
+      minx = std::min(minx, xs[i]), maxx = std::max(maxx, xs[i]);
+      miny = std::min(miny, ys[i]), maxy = std::max(maxy, ys[i]);
+    }
+    if (!ok) continue;
+    const int x0 = std::min(res - 1, static_cast<int>(minx));
+    const int x1 = std::min(res - 1, static_cast<int>(maxx));
+    const int y0 = std::min(res - 1, static_cast<int>(miny));
+    const int y1 = std::min(res - 1, std::max(y0, CeilPos(maxy) - 1));
+    const uint32_t base = static_cast<uint32_t>(f * res * res);
+    auto emit = [&](int col, int row, float area2) {
+      const float cov = std::min(1.0f, 0.5f * std::fabs(area2));
+      if (cov > 1e-6f) sink(base + static_cast<uint32_t>(row * res + col), cov);
+    };
+    if (x1 - x0 <= 1 && y1 - y0 <= 1) {
+      // Within a 2 x 2 block of pixels (most far footprints): the exact areas of the polygon's
+      // parts on either side of the block's middle lines.
+      if (x1 == x0 && y1 == y0) {
+        emit(x0, y0, Area2(whole));  // inside one pixel
+        continue;
+      }
+      Poly2 split[2];
+      const Poly2* cols[2] = {&whole, nullptr};
+      int nc = 1;
+      if (x1 > x0) {
+        Split(whole, 0, static_cast<float>(x1), &split[0], &split[1]);
+        cols[0] = &split[0], cols[1] = &split[1];
+        nc = 2;
+      }
+      for (int ci = 0; ci < nc; ++ci) {
+        const Poly2& col = *cols[ci];
+        if (col.n < 3) continue;
+        if (y1 > y0) {
+          Poly2 lo, hi;
+          Split(col, 1, static_cast<float>(y1), &lo, &hi);
+          if (lo.n >= 3) emit(x0 + ci, y0, Area2(lo));
+          if (hi.n >= 3) emit(x0 + ci, y1, Area2(hi));
+        } else {
+          emit(x0 + ci, y0, Area2(col));
+        }
+      }
+      continue;
+    }
+    const int cw = x1 - x0 + 2, h = y1 - y0 + 1;
+    // Most footprints span a few pixels: their buffer lives on the stack.
+    constexpr int kSmall = 64;
+    float small[kSmall];
+    float* buf = small;
+    const size_t cells = size_t(cw) * size_t(h);
+    if (cells <= size_t(kSmall)) {
+      std::fill(small, small + cells, 0.0f);
+    } else {
+      acc->assign(cells, 0.0f);
+      buf = acc->data();
+    }
+    Accumulate(xs, ys, n, x0, y0, cw, h, buf);
+    for (int r = 0; r < h; ++r) {
+      const float* row = buf + size_t(r) * size_t(cw);
+      float sum = 0.0f;
+      for (int c = 0; c < cw - 1; ++c) {
+        sum += row[c];
+        const float cov = std::min(1.0f, std::fabs(sum));
+        if (cov > 1e-6f) {
+          sink(base + static_cast<uint32_t>((y0 + r) * res + x0 + c), cov);
+        }
+      }
+    }
+  }
+}
+
+}  // namespace pbgi::internal
+
+#endif  // PBGI_RASTER_POLYGON_COVERAGE_H_
