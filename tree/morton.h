@@ -95,9 +95,13 @@ struct MortonCube {
     const double side = size / cells;
     // Clamped first, then truncated: the same as floor then clamp (a value below 0 ends at 0
     // either way), without a libm floor call per axis (most of a gather's cost per cell).
-    const glm::dvec3 x =
-        glm::clamp((glm::dvec3(p) - origin) / side, glm::dvec3(0.0), glm::dvec3(cells - 1.0));
-    const glm::dvec3 i(double(int64_t(x.x)), double(int64_t(x.y)), double(int64_t(x.z)));
+    // A NaN coordinate (never stored: the builder refuses it) lands in cell 0, not in a
+    // conversion of NaN to an integer.
+    const glm::dvec3 q = (glm::dvec3(p) - origin) / side;
+    auto index = [cells](double v) {
+      return v > 0.0 ? double(int64_t(std::min(v, cells - 1.0))) : 0.0;
+    };
+    const glm::dvec3 i(index(q.x), index(q.y), index(q.z));
     Bounds cell;
     cell.lo = glm::vec3(origin + i * side);
     cell.hi = glm::vec3(origin + (i + 1.0) * side);
