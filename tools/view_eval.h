@@ -53,14 +53,16 @@ struct ViewEvalArgs {
   std::vector<int> resolutions = {12};
   std::vector<std::string> cuts = {"cosine"};
   std::vector<std::string> footprints = {"polygons"};  // swept: polygons | splats
-  float curved_scale = 0.3f;                          // Cut::curved_scale
+  float curved_scale = 0.3f;                           // Cut::curved_scale
   std::string hitsides = "front";
   uint64_t memory_bytes = uint64_t{512} << 20;  // the build's cap
   uint64_t cache_bytes = uint64_t{256} << 20;   // the shading cache
   int threads = 0;
   uint64_t seed = 1;
   int size = 0;
-  double error_scale = 0.1;  // the heat map saturates at this |error| (occlusion units)
+  std::string up = "z";         // a mesh file's up axis
+  std::string orient = "auto";  // a mesh file: auto | none
+  double error_scale = 0.1;     // the heat map saturates at this |error| (occlusion units)
   // Modes: every setting per receiver (ShadeMode::kExact) and, unless exact_only, shared
   // (kShared) at every spacing x tolerance, seeing the receivers as an image ("image") or as a
   // point set ("points").
