@@ -104,8 +104,10 @@ std::map<std::string, std::string> SceneFingerprint(const Scene& scene, uint64_t
     }
   }
   const Bounds b = scene.ComputeBounds();
-  const bool procedural = std::find(ProceduralSceneNames().begin(), ProceduralSceneNames().end(),
-                                    scene.name) != ProceduralSceneNames().end();
+  // One copy of the names: begin() and end() of two temporaries compared nothing (every mesh
+  // was fingerprinted as a procedural scene, without its up axis).
+  const std::vector<std::string> names = ProceduralSceneNames();
+  const bool procedural = std::find(names.begin(), names.end(), scene.name) != names.end();
   std::map<std::string, std::string> f;
   f["scene.name"] = scene.name;
   if (procedural) {
