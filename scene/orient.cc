@@ -240,29 +240,69 @@ std::vector<bool> OrientMesh(Mesh& mesh, bool mirrored, OrientReport& r) {
       for (uint32_t t : comps[c].tris) flip[t] ^= 1;
     }
   }
+  // Which closed shells hold which: a shell can only lie inside one whose box holds its box. A
+  // grid over the mesh's box finds those candidates without comparing every pair (a mesh of many
+  // pebbles has many shells and few candidates each); a shell whose box spans too many cells
+  // is a candidate for every one.
   std::vector<int> depth(comps.size(), 0);
+  const int n = std::clamp(static_cast<int>(std::cbrt(static_cast<double>(closed.size()))), 1, 64);
+  const glm::dvec3 cell = glm::max((hi - lo) / static_cast<double>(n), glm::dvec3(tol));
+  const auto cell_of = [&](const glm::dvec3& p) {
+    return glm::clamp(glm::ivec3(glm::floor((p - lo) / cell)), glm::ivec3(0), glm::ivec3(n - 1));
+  };
+  std::vector<std::vector<int>> grid(static_cast<size_t>(n) * n * n);
+  std::vector<int> big;
+  for (int d : closed) {
+    const glm::ivec3 a = cell_of(comps[d].lo), b = cell_of(comps[d].hi);
+    const glm::ivec3 span = b - a + 1;
+    if (static_cast<int64_t>(span.x) * span.y * span.z > 512) {
+      big.push_back(d);
+      continue;
+    }
+    for (int x = a.x; x <= b.x; ++x) {
+      for (int y = a.y; y <= b.y; ++y) {
+        for (int z = a.z; z <= b.z; ++z)
+          grid[(static_cast<size_t>(x) * n + y) * n + z].push_back(d);
+      }
+    }
+  }
+  // The winding numbers cost a pass over the holder's triangles per point: past this budget
+  // the remaining shells are left facing out (and counted) rather than stall the import.
+  constexpr int64_t kWindingBudget = int64_t{200} << 20;
+  int64_t work = 0;
   for (int c : closed) {
-    // A few centroids spread over the shell; each votes inside or outside of every other
-    // closed shell whose box holds it (a centroid on a touching surface, winding near 1/2,
-    // abstains).
+    // A few centroids spread over the shell; each votes inside or outside of a candidate
+    // holder (a centroid on a touching surface, winding near 1/2, abstains).
     const Component& cc = comps[c];
+    const glm::ivec3 k = cell_of(0.5 * (cc.lo + cc.hi));
+    std::vector<int> candidates = grid[(static_cast<size_t>(k.x) * n + k.y) * n + k.z];
+    candidates.insert(candidates.end(), big.begin(), big.end());
     const size_t samples = std::min<size_t>(7, cc.tris.size());
-    for (int d : closed) {
-      if (d == c) continue;
+    bool unchecked = false;
+    for (int d : candidates) {
       const Component& dd = comps[d];
+      if (d == c || glm::any(glm::lessThan(cc.lo, dd.lo - tol)) ||
+          glm::any(glm::greaterThan(cc.hi, dd.hi + tol))) {
+        continue;
+      }
+      if (work > kWindingBudget) {
+        unchecked = true;
+        break;
+      }
       int in = 0, out = 0;
       for (size_t s = 0; s < samples; ++s) {
         const uint32_t t = cc.tris[(s * cc.tris.size()) / samples];
         const glm::dvec3 p = (corner(t, 0) + corner(t, 1) + corner(t, 2)) / 3.0;
-        if (glm::any(glm::lessThan(p, dd.lo)) || glm::any(glm::greaterThan(p, dd.hi))) {
-          ++out;
-          continue;
-        }
         const double w = std::abs(winding(dd, p));
+        work += static_cast<int64_t>(dd.tris.size());
         if (w > 0.75) ++in;
         if (w < 0.25) ++out;
       }
       if (in > out) ++depth[c];
+    }
+    if (unchecked) {
+      depth[c] = 0;
+      ++r.nesting_unchecked;
     }
   }
 

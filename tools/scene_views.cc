@@ -47,6 +47,10 @@ std::string DescribeOrientation(const OrientReport& r) {
   if (r.collapsed_triangles > 0) {
     s += absl::StrFormat(", %d slivers left as they were", r.collapsed_triangles);
   }
+  if (r.nesting_unchecked > 0) {
+    s += absl::StrFormat(", %d closed shells not tested for nesting (work budget): outward",
+                         r.nesting_unchecked);
+  }
   if (r.mixed_mirror_meshes > 0) {
     s += absl::StrFormat(", %d meshes placed both mirrored and not (outward where not mirrored)",
                          r.mixed_mirror_meshes);

@@ -280,6 +280,8 @@ struct OrientReport {
   int64_t welded_vertices = 0;            // vertices merged into another at the same position
   int64_t collapsed_triangles = 0;        // triangles that welding made degenerate: untouched
   int64_t mixed_mirror_meshes = 0;        // placed both mirrored and not: outward for the latter
+  int64_t nesting_unchecked = 0;          // closed shells past the nesting test's work budget
+                                          // (left facing out)
 };
 
 // Orients each mesh consistently, in its own object space (a mesh that all its instances mirror

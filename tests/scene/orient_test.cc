@@ -239,6 +239,28 @@ TEST(OrientTest, NestedShellBoundsACavity) {
   ExpectFacing(s.meshes[0], 24, 12, glm::vec3(1.5f), glm::vec3(2.5f), 1.0f);
 }
 
+TEST(OrientTest, ManyShellsInsideOneHollowAreEachCavities) {
+  // 16^3 cubes (a grid of pebbles) inside one big box: the nesting test finds each cube's one
+  // holder through the grid, without comparing every pair.
+  std::vector<glm::vec3> soup = BoxSoup(glm::vec3(-1), glm::vec3(33));
+  for (int x = 0; x < 16; ++x) {
+    for (int y = 0; y < 16; ++y) {
+      for (int z = 0; z < 16; ++z) {
+        const glm::vec3 lo(2.0f * x, 2.0f * y, 2.0f * z);
+        const std::vector<glm::vec3> b = BoxSoup(lo, lo + glm::vec3(1.0f));
+        soup.insert(soup.end(), b.begin(), b.end());
+      }
+    }
+  }
+  Scene s = SceneOf({MeshOf(soup, true)});
+  const OrientReport r = OrientScene(&s);
+  EXPECT_EQ(r.closed_components, 1 + 4096);
+  EXPECT_EQ(r.cavities, 4096);
+  EXPECT_EQ(r.nesting_unchecked, 0);
+  EXPECT_EQ(r.flipped_triangles, 4096 * 12);
+  ExpectFacing(s.meshes[0], 12, 12, glm::vec3(0), glm::vec3(1), -1.0f);
+}
+
 TEST(OrientTest, MirroredPlacementFacesOutInWorldSpace) {
   Mesh m = MeshOf(BoxSoup(glm::vec3(0), glm::vec3(1)), true);
   Scene s = SceneOf({m});
