@@ -146,6 +146,11 @@ void AddWarnings(const std::string& path, int64_t bad_transforms, ImportReport& 
 }  // namespace
 
 absl::StatusOr<Scene> ImportMesh(const std::string& path, ImportReport* report) {
+  return ImportMesh(path, ImportOptions{}, report);
+}
+
+absl::StatusOr<Scene> ImportMesh(const std::string& path, const ImportOptions& options,
+                                 ImportReport* report) {
   ImportReport local;
   ImportReport& r = report ? *report : local;
   r = ImportReport{};
@@ -199,6 +204,10 @@ absl::StatusOr<Scene> ImportMesh(const std::string& path, ImportReport* report) 
   }
   absl::Status valid = scene.Validate();
   if (!valid.ok()) return valid;
+  if (options.orient) {
+    r.orientation = OrientScene(&scene);
+    r.oriented = true;
+  }
   return scene;
 }
 

@@ -57,8 +57,10 @@ struct EvalArgs {
   std::string cache = "auto";
   int threads = 0;
   uint64_t seed = 1;
-  bool keep_hidden = false;  // database surfels inside solid geometry too (the old sampler)
-  int size = 0;              // scene scale (city blocks, forest trees per side); 0: default
+  bool keep_hidden = false;     // database surfels inside solid geometry too (the old sampler)
+  int size = 0;                 // scene scale (city blocks, forest trees per side); 0: default
+  std::string up = "z";         // a mesh file's up axis (y: glTF)
+  std::string orient = "auto";  // a mesh file: auto | none (pbgi import --orient)
   std::string receivers_from = "surfaces";  // or "camera": the default view's primary hits
   int64_t frame = 1920 * 1080;              // receivers that one database build serves
   int repeat = 1;  // time every setting this many times, keep the median (the results repeat)
@@ -228,7 +230,9 @@ absl::Status BuildEvalDatabase(const EvalArgs& a, uint64_t memory, EvalSetup* e)
   bo.memory_bytes = memory;
   bo.channels = e->occlusion ? Channels::kOcclusion : Channels::kRadiance;
   bo.tmp_dir = a.out_dir;
-  bo.provenance = SceneFingerprint(*e->scene, a.seed, a.size, UpAxis::kZ);
+  bo.provenance =
+      SceneFingerprint(*e->scene, a.seed, a.size,
+                       a.up == "y" || a.up == "Y" ? UpAxis::kY : UpAxis::kZ, a.orient != "none");
   bo.provenance["source"] = "pbgi eval";
   bo.provenance["tool"] = kToolVersion;
   bo.provenance["built_at"] = NowIso8601();
@@ -751,7 +755,14 @@ absl::Status RunEval(const EvalArgs& a) {
   e.threads = ResolveThreads(a.threads);
   tbb::global_control limit(tbb::global_control::max_allowed_parallelism, e.threads);
 
-  PBGI_ASSIGN_OR_RETURN(e.scene, LoadScene(a.scene, a.seed, a.size));
+  PBGI_ASSIGN_OR_RETURN(const UpAxis up, ParseUpAxis(a.up));
+  PBGI_ASSIGN_OR_RETURN(const bool orient, ParseOrient(a.orient));
+  ImportReport import;
+  PBGI_ASSIGN_OR_RETURN(e.scene, LoadScene(a.scene, a.seed, a.size, up, orient, &import));
+  if (import.oriented) {
+    std::printf("%s: orientation: %s\n", a.scene.c_str(),
+                DescribeOrientation(import.orientation).c_str());
+  }
   if (!e.occlusion && !e.scene->has_radiance) {
     return absl::FailedPreconditionError(
         absl::StrFormat("scene %s has no radiance: use --mode occlusion", e.scene->name));
@@ -791,6 +802,13 @@ CommandSetup Setup() {
   return [](CLI::App* app) -> std::function<absl::Status()> {
     auto a = std::make_shared<EvalArgs>();
     app->add_option("scene", a->scene, "Procedural scene or mesh file")->capture_default_str();
+    app->add_option("--up", a->up, "Up axis of a mesh file: z, or y (glTF)")
+        ->check(CLI::IsMember({"y", "z", "Y", "Z"}))
+        ->capture_default_str();
+    app->add_option("--orient", a->orient,
+                    "Orientation of a mesh file, as pbgi import --orient: auto or none")
+        ->check(CLI::IsMember({"auto", "none"}))
+        ->capture_default_str();
     app->add_option("-o,--output", a->out_dir, "Output directory (database, eval.json, eval.png)")
         ->capture_default_str();
     app->add_option("--mode", a->mode,
@@ -942,6 +960,8 @@ CommandSetup Setup() {
       v.threads = a->threads;
       v.seed = a->seed;
       v.size = a->size;
+      v.up = a->up;
+      v.orient = a->orient;
       v.error_scale = a->error_scale;
       v.exact_only = a->exact;
       v.shared_only = a->shared;

@@ -40,6 +40,7 @@ absl::Status Run(const Args& a) {
         absl::StrFormat("-o %s: the output is a PLY point file (-o NAME.ply)", a.out));
   }
   PBGI_RETURN_IF_ERROR(CheckOutputsAreNotInputs({a.db}, {a.out}));
+  PBGI_RETURN_IF_ERROR(CheckOutsideStores(a.out));
   PBGI_ASSIGN_OR_RETURN(uint64_t cache, ParseBudget(a.cache, "--cache"));
   DatabaseOptions dbo;
   dbo.cache_bytes = cache;

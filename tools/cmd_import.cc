@@ -55,6 +55,7 @@ struct Options {
   int sky_rays = 8;
   bool ascii = false;
   std::string up = "z";
+  std::string orient = "auto";
 };
 
 absl::Status Run(const Options& o) {
@@ -82,8 +83,11 @@ absl::Status Run(const Options& o) {
           o.mesh, h->vertex_count, o.mesh));
     }
   }
+  PBGI_ASSIGN_OR_RETURN(const bool orient, ParseOrient(o.orient));
   ImportReport report;
-  PBGI_ASSIGN_OR_RETURN(Scene scene, ImportMesh(o.mesh, &report));
+  ImportOptions import_options;
+  import_options.orient = orient;
+  PBGI_ASSIGN_OR_RETURN(Scene scene, ImportMesh(o.mesh, import_options, &report));
   if (up == UpAxis::kY) RotateYUpToZUp(&scene);
   for (const std::string& w : report.warnings) {
     absl::FPrintF(stderr, "pbgi import: warning: %s\n", w.c_str());
@@ -110,6 +114,14 @@ absl::Status Run(const Options& o) {
                 "area %.6g\n",
                 o.mesh.c_str(), report.meshes, report.instances, scene.TriangleCount(),
                 report.materials, scene.SurfaceArea());
+  if (report.oriented) {
+    absl::FPrintF(stderr, "pbgi import: %s: orientation: %s\n", o.mesh,
+                  DescribeOrientation(report.orientation));
+  } else {
+    absl::FPrintF(stderr,
+                  "pbgi import: %s: orientation: none (--orient none: as the file winds it)\n",
+                  o.mesh);
+  }
   auto shared = std::make_shared<const Scene>(std::move(scene));
   SamplerOptions sampler;
   sampler.count = points;
@@ -120,7 +132,7 @@ absl::Status Run(const Options& o) {
                         MakeSceneSurfelSource(shared, sampler));
   PlyWriterOptions wo;
   wo.ascii = o.ascii;
-  auto fields = SceneFingerprint(*shared, o.seed, 0, up);
+  auto fields = SceneFingerprint(*shared, o.seed, 0, up, orient);
   fields["scene.file"] = o.mesh;
   for (const auto& [k, v] : LightsProvenance(shared->lights)) fields[k] = v;
   fields["source"] = "pbgi import";
@@ -161,6 +173,11 @@ CommandSetup Setup() {
     app->add_option("--density", o->density, "Surfels per unit area (instead of -n)");
     app->add_option("--up", o->up, "Up axis of the mesh: z, or y (glTF, many OBJ files)")
         ->check(CLI::IsMember({"y", "z", "Y", "Z"}))
+        ->capture_default_str();
+    app->add_option("--orient", o->orient,
+                    "auto: wind closed shells outward and mark open or non-manifold parts thin "
+                    "(two-sided); none: keep the file's winding")
+        ->check(CLI::IsMember({"auto", "none"}))
         ->capture_default_str();
     app->add_option("--sun", o->sun,
                     "Sun direction (towards the sun) and radiance: DX,DY,DZ[,R,G,B]");

@@ -54,6 +54,7 @@ struct ShadeArgs {
   uint64_t seed = 1;
   int size = 0;
   std::string up = "z";
+  std::string orient = "auto";  // a mesh file: auto | none (pbgi import --orient)
   bool any_scene = false;
   std::string eye, look_at;
   float fov = 0.0f;
@@ -247,10 +248,14 @@ absl::StatusOr<std::pair<std::string, std::string>> ViewOutputs(const std::strin
 absl::Status ShadeCamera(const ShadeArgs& a, Database& db, const ShadeOptions& base, Mode mode,
                          uint64_t cache) {
   PBGI_ASSIGN_OR_RETURN(UpAxis up, ParseUpAxis(a.up));
-  PBGI_ASSIGN_OR_RETURN(std::shared_ptr<const Scene> scene, LoadScene(a.scene, a.seed, a.size, up));
+  PBGI_ASSIGN_OR_RETURN(const bool orient, ParseOrient(a.orient));
+  PBGI_ASSIGN_OR_RETURN(std::shared_ptr<const Scene> scene,
+                        LoadScene(a.scene, a.seed, a.size, up, orient));
   std::string warning;
-  const absl::Status match = CheckSceneMatchesDatabase(
-      *scene, SceneFingerprint(*scene, a.seed, a.size, up), db.meta(), a.db, &warning);
+  auto fingerprint = SceneFingerprint(*scene, a.seed, a.size, up, orient);
+  if (fingerprint.count("scene.up") != 0) fingerprint["scene.file"] = a.scene;
+  const absl::Status match =
+      CheckSceneMatchesDatabase(*scene, fingerprint, db.meta(), a.db, &warning);
   if (!match.ok()) {
     if (!a.any_scene) return match;
     std::fprintf(stderr, "pbgi shade: warning (--any-scene): %s\n",
@@ -440,6 +445,10 @@ CommandSetup Setup() {
         ->capture_default_str();
     app->add_option("--up", a->up, "Up axis of a mesh file: z, or y (glTF)")
         ->check(CLI::IsMember({"y", "z", "Y", "Z"}))
+        ->capture_default_str();
+    app->add_option("--orient", a->orient,
+                    "Orientation of a mesh file, as pbgi import --orient: auto or none")
+        ->check(CLI::IsMember({"auto", "none"}))
         ->capture_default_str();
     app->add_flag("--any-scene", a->any_scene,
                   "Shade a view even when the database was built from another scene");

@@ -29,8 +29,38 @@ void RotateYUpToZUp(Scene* scene) {
   for (Instance& i : scene->instances) i.transform = r * i.transform;
 }
 
+absl::StatusOr<bool> ParseOrient(const std::string& text) {
+  if (text == "auto") return true;
+  if (text == "none") return false;
+  return absl::InvalidArgumentError(absl::StrFormat("--orient %s: use auto or none", text));
+}
+
+std::string DescribeOrientation(const OrientReport& r) {
+  std::string s =
+      absl::StrFormat("%d components: %d closed (outward", r.components, r.closed_components);
+  if (r.cavities > 0) s += absl::StrFormat(", %d of them cavities facing in", r.cavities);
+  s += absl::StrFormat("), %d open, %d non-manifold, %d non-orientable; %d triangles flipped, ",
+                       r.open_components, r.non_manifold_components, r.non_orientable_components,
+                       r.flipped_triangles);
+  s += absl::StrFormat("%d marked thin (two-sided), %d vertices welded", r.thin_triangles,
+                       r.welded_vertices);
+  if (r.collapsed_triangles > 0) {
+    s += absl::StrFormat(", %d slivers left as they were", r.collapsed_triangles);
+  }
+  if (r.nesting_unchecked > 0) {
+    s += absl::StrFormat(", %d closed shells not tested for nesting (work budget): outward",
+                         r.nesting_unchecked);
+  }
+  if (r.mixed_mirror_meshes > 0) {
+    s += absl::StrFormat(", %d meshes placed both mirrored and not (outward where not mirrored)",
+                         r.mixed_mirror_meshes);
+  }
+  return s;
+}
+
 absl::StatusOr<std::shared_ptr<const Scene>> LoadScene(const std::string& spec, uint64_t seed,
-                                                       int size, UpAxis up) {
+                                                       int size, UpAxis up, bool orient,
+                                                       ImportReport* out_report) {
   for (const std::string& name : ProceduralSceneNames()) {
     if (name == spec) {
       SceneOptions options;
@@ -47,13 +77,16 @@ absl::StatusOr<std::shared_ptr<const Scene>> LoadScene(const std::string& spec, 
         "'%s' is neither a procedural scene (%s) nor an existing mesh file", spec, names));
   }
   ImportReport report;
-  PBGI_ASSIGN_OR_RETURN(Scene scene, ImportMesh(spec, &report));
+  ImportOptions options;
+  options.orient = orient;
+  PBGI_ASSIGN_OR_RETURN(Scene scene, ImportMesh(spec, options, &report));
   if (up == UpAxis::kY) RotateYUpToZUp(&scene);
+  if (out_report != nullptr) *out_report = std::move(report);
   return std::make_shared<const Scene>(std::move(scene));
 }
 
 std::map<std::string, std::string> SceneFingerprint(const Scene& scene, uint64_t seed, int size,
-                                                    UpAxis up) {
+                                                    UpAxis up, bool oriented) {
   // FNV-1a over the bits of every instanced triangle's world-space vertices: equal for the same
   // geometry, whatever options made it.
   uint64_t h = 1469598103934665603ull;
@@ -75,8 +108,10 @@ std::map<std::string, std::string> SceneFingerprint(const Scene& scene, uint64_t
     }
   }
   const Bounds b = scene.ComputeBounds();
-  const bool procedural = std::find(ProceduralSceneNames().begin(), ProceduralSceneNames().end(),
-                                    scene.name) != ProceduralSceneNames().end();
+  // One copy of the names: begin() and end() of two temporaries compared nothing (every mesh
+  // was fingerprinted as a procedural scene, without its up axis).
+  const std::vector<std::string> names = ProceduralSceneNames();
+  const bool procedural = std::find(names.begin(), names.end(), scene.name) != names.end();
   std::map<std::string, std::string> f;
   f["scene.name"] = scene.name;
   if (procedural) {
@@ -84,6 +119,7 @@ std::map<std::string, std::string> SceneFingerprint(const Scene& scene, uint64_t
     f["scene.size"] = absl::StrFormat("%d", size);
   } else {
     f["scene.up"] = UpAxisName(up);
+    f["scene.orient"] = oriented ? "auto" : "none";
   }
   f["scene.triangles"] = absl::StrFormat("%d", scene.TriangleCount());
   f["scene.bounds"] = absl::StrFormat("%.9g,%.9g,%.9g,%.9g,%.9g,%.9g", b.lo.x, b.lo.y, b.lo.z,
@@ -147,8 +183,40 @@ std::string Describe(const std::map<std::string, std::string>& f) {
   if (!get("scene.seed").empty()) s += " seed " + get("scene.seed");
   if (!get("scene.size").empty() && get("scene.size") != "0") s += " size " + get("scene.size");
   if (!get("scene.up").empty()) s += " up " + get("scene.up");
+  if (!get("scene.orient").empty()) s += " orient " + get("scene.orient");
+  if (!get("scene.file").empty()) s += " (file " + get("scene.file") + ")";
   s += ", " + get("scene.triangles") + " triangles";
   return s;
+}
+
+// The recorded fields in which the database and the view differ, as "field: database X, view
+// Y"; the file (a path as typed) and the bounds (implied by the rest) are left out.
+std::string Differences(const std::map<std::string, std::string>& db,
+                        const std::map<std::string, std::string>& view) {
+  std::vector<std::string> keys;
+  for (const auto& [k, v] : db) keys.push_back(k);
+  for (const auto& [k, v] : view) {
+    if (db.count(k) == 0) keys.push_back(k);
+  }
+  std::string out;
+  for (const std::string& k : keys) {
+    if (k == "scene.file" || k == "scene.bounds" || k == "scene.geometry") continue;
+    auto d = db.find(k);
+    auto v = view.find(k);
+    const std::string dv = d == db.end() ? "(none)" : d->second;
+    const std::string vv = v == view.end() ? "(none)" : v->second;
+    if (dv == vv) continue;
+    // A database from before scene.orient was recorded: its meshes were not oriented.
+    if (k == "scene.orient" && d == db.end()) continue;
+    out +=
+        absl::StrFormat("%s%s: database %s, view %s", out.empty() ? "" : "; ", k.substr(6), dv, vv);
+  }
+  if (out.empty()) {
+    out =
+        "only the geometry hash (the same name and triangle count, other vertices: another "
+        "version of the file, or other import options)";
+  }
+  return out;
 }
 
 }  // namespace
@@ -177,14 +245,16 @@ absl::Status CheckSceneMatchesDatabase(const Scene& scene,
         fix += " --size " + db["scene.size"];
       }
     } else {
-      fix =
-          absl::StrFormat("--scene %s%s", db["scene.name"], db["scene.up"] == "y" ? " --up y" : "");
+      fix = absl::StrFormat("--scene %s%s%s",
+                            db.count("scene.file") ? db["scene.file"] : db["scene.name"],
+                            db["scene.up"] == "y" ? " --up y" : "",
+                            db["scene.orient"] == "none" ? " --orient none" : "");
     }
     return absl::FailedPreconditionError(absl::StrFormat(
-        "%s was built from scene %s, but the view is of scene %s: its surfels do not lie on "
-        "this geometry and the image would be wrong. Shade the scene it was built from (%s), "
-        "or pass --any-scene to shade anyway",
-        db_path, Describe(db), Describe(fingerprint), fix));
+        "%s was built from scene %s, but the view is of scene %s (differs in %s): its surfels "
+        "do not lie on this geometry and the image would be wrong. Shade the scene it was built "
+        "from (%s), or pass --any-scene to shade anyway",
+        db_path, Describe(db), Describe(fingerprint), Differences(db, fingerprint), fix));
   }
   // No fingerprint (points from elsewhere): compare the boxes, axis by axis, with a tolerance
   // of 2% of the scene's diagonal.

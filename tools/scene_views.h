@@ -25,18 +25,26 @@ const char* UpAxisName(UpAxis up);
 
 // A procedural scene's name (see ProceduralSceneNames()) or a mesh file that Assimp reads; a
 // Y-up mesh is turned to Z-up (+90 degrees about x: y becomes z).
+// Mesh files are oriented (OrientScene()) unless `orient` is false, as `pbgi import --orient`;
+// `report`, when given, receives what the import did (untouched for a procedural scene).
 absl::StatusOr<std::shared_ptr<const Scene>> LoadScene(const std::string& spec, uint64_t seed,
-                                                       int size, UpAxis up = UpAxis::kZ);
+                                                       int size, UpAxis up = UpAxis::kZ,
+                                                       bool orient = true,
+                                                       ImportReport* report = nullptr);
+// "--orient auto|none" -> whether to orient.
+absl::StatusOr<bool> ParseOrient(const std::string& text);
+// One line for a summary: what OrientScene() did.
+std::string DescribeOrientation(const OrientReport& r);
 // Turns every instance of a Y-up scene to Z-up.
 void RotateYUpToZUp(Scene* scene);
 
-// What identifies a scene's geometry: "scene.name", "scene.seed", "scene.size", "scene.up",
-// "scene.triangles", "scene.bounds" and "scene.geometry" (a hash of every instanced triangle's
-// vertices). `pbgi generate` and `pbgi import` write it into their PLY's comments, and the
-// builds store it in the meta record's stats, so that a view can be checked against the
-// database it is shaded from.
+// What identifies a scene's geometry: "scene.name", "scene.seed" and "scene.size" (procedural),
+// "scene.up" and "scene.orient" (mesh files), "scene.triangles", "scene.bounds" and
+// "scene.geometry" (a hash of every instanced triangle's vertices, in winding order). `pbgi
+// generate` and `pbgi import` write it into their PLY's comments, and the builds store it in the
+// meta record's stats, so that a view can be checked against the database it is shaded from.
 std::map<std::string, std::string> SceneFingerprint(const Scene& scene, uint64_t seed, int size,
-                                                    UpAxis up);
+                                                    UpAxis up, bool oriented = true);
 // The lights that baked an imported mesh's surfels ("light.sun": DX,DY,DZ,R,G,B; "light.sky":
 // R,G,B), kept with its fingerprint so that a view of the mesh is lit the same way; and back.
 std::map<std::string, std::string> LightsProvenance(const Lights& lights);
@@ -45,7 +53,8 @@ std::shared_ptr<const Scene> WithRecordedLights(std::shared_ptr<const Scene> sce
                                                 const std::map<std::string, std::string>& stats);
 
 // OK when the database was built from this scene (same name, triangle count and geometry hash),
-// or has no fingerprint. FailedPrecondition naming both scenes and the fix when they differ.
+// or has no fingerprint. FailedPrecondition naming both scenes, each recorded field that differs
+// (database against view) and the fix when they differ.
 // Without a fingerprint, *warning is set when the database's bounds do not fit the scene's.
 absl::Status CheckSceneMatchesDatabase(const Scene& scene,
                                        const std::map<std::string, std::string>& fingerprint,

@@ -144,7 +144,15 @@ absl::Status RunViewEval(const ViewEvalArgs& a) {
   const int threads = ResolveThreads(a.threads);
   tbb::global_control limit(tbb::global_control::max_allowed_parallelism, threads);
 
-  PBGI_ASSIGN_OR_RETURN(std::shared_ptr<const Scene> scene, LoadScene(a.scene, a.seed, a.size));
+  PBGI_ASSIGN_OR_RETURN(const UpAxis up, ParseUpAxis(a.up));
+  PBGI_ASSIGN_OR_RETURN(const bool orient, ParseOrient(a.orient));
+  ImportReport import;
+  PBGI_ASSIGN_OR_RETURN(std::shared_ptr<const Scene> scene,
+                        LoadScene(a.scene, a.seed, a.size, up, orient, &import));
+  if (import.oriented) {
+    std::printf("%s: orientation: %s\n", a.scene.c_str(),
+                DescribeOrientation(import.orientation).c_str());
+  }
   if (!occlusion && !scene->has_radiance) {
     return absl::FailedPreconditionError(
         absl::StrFormat("scene %s has no radiance: use --mode occlusion", scene->name));
@@ -160,7 +168,7 @@ absl::Status RunViewEval(const ViewEvalArgs& a) {
   bo.memory_bytes = memory;
   bo.channels = occlusion ? Channels::kOcclusion : Channels::kRadiance;
   bo.tmp_dir = a.out_dir;
-  bo.provenance = SceneFingerprint(*scene, a.seed, a.size, UpAxis::kZ);
+  bo.provenance = SceneFingerprint(*scene, a.seed, a.size, up, orient);
   bo.provenance["source"] = "pbgi eval --view";
   bo.provenance["tool"] = kToolVersion;
   bo.provenance["built_at"] = NowIso8601();

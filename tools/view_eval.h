@@ -64,7 +64,9 @@ struct ViewEvalArgs {
   int threads = 0;
   uint64_t seed = 1;
   int size = 0;
-  double error_scale = 0.1;  // the heat map saturates at this |error| (occlusion units)
+  std::string up = "z";         // a mesh file's up axis
+  std::string orient = "auto";  // a mesh file: auto | none
+  double error_scale = 0.1;     // the heat map saturates at this |error| (occlusion units)
   // Modes: every setting per receiver (ShadeMode::kExact) and, unless exact_only, shared
   // (kShared) at every spacing x tolerance, seeing the receivers as an image ("image") or as a
   // point set ("points").

@@ -287,6 +287,38 @@ absl::StatusOr<std::unique_ptr<SurfelSource>> MakeSceneSurfelSource(
 
 // ---- Mesh import ------------------------------------------------------------------------------
 
+// What OrientScene() did to a scene's meshes. A component is a set of triangles connected
+// across manifold edges (edges that exactly two triangles share) once vertices are welded by
+// position; it is closed when each of its edges is used by exactly two of its triangles in
+// opposite directions.
+struct OrientReport {
+  int64_t components = 0;
+  int64_t closed_components = 0;          // oriented outward (positive signed volume)
+  int64_t cavities = 0;                   // closed shells inside an odd number of others: inward
+  int64_t open_components = 0;            // with a boundary edge: thin
+  int64_t non_manifold_components = 0;    // an edge used by three or more of its triangles: thin
+  int64_t non_orientable_components = 0;  // no consistent winding exists: thin
+  int64_t flipped_triangles = 0;          // triangles whose winding was reversed
+  int64_t thin_triangles = 0;             // triangles given a thin material
+  int64_t thin_materials = 0;             // thin copies of materials made for them
+  int64_t welded_vertices = 0;            // vertices merged into another at the same position
+  int64_t collapsed_triangles = 0;        // triangles that welding made degenerate: untouched
+  int64_t mixed_mirror_meshes = 0;        // placed both mirrored and not: outward for the latter
+  int64_t nesting_unchecked = 0;          // closed shells past the nesting test's work budget
+                                          // (left facing out)
+};
+
+// Orients each mesh consistently, in its own object space (a mesh that all its instances mirror
+// is oriented so that it faces out in world space). Vertices are welded by position (within a
+// millionth of the mesh's diagonal); a winding is propagated across manifold edges; a closed
+// component faces outward, or inward when it is nested in an odd number of closed components of
+// the same mesh (the inner wall of a hollow solid). Components that are open, non-manifold or
+// non-orientable keep their majority winding made consistent and get a copy of their material
+// with Material::thin set (closed parts sharing that material keep the original). Nesting is not
+// looked for across meshes; a closed box meant to be seen from inside (a room) is turned to face
+// out like any solid.
+OrientReport OrientScene(Scene* scene);
+
 // What ImportMesh() found and dropped. Each dropped item is counted, and `warnings` has one
 // line per kind of problem, with its count.
 struct ImportReport {
@@ -299,13 +331,23 @@ struct ImportReport {
   int64_t degenerate_triangles = 0;    // zero-area triangles, dropped
   int64_t nan_triangles = 0;           // triangles with a NaN or infinite vertex, dropped
   int64_t non_triangle_faces = 0;      // points and lines, dropped
+  bool oriented = false;               // OrientScene() ran (ImportOptions::orient)
+  OrientReport orientation;
   std::vector<std::string> warnings;
+};
+
+struct ImportOptions {
+  // Run OrientScene() on the imported meshes; off keeps every triangle as the file winds it.
+  bool orient = true;
 };
 
 // Reads a mesh file through Assimp (OBJ, PLY, glTF/GLB, FBX, DAE, STL, 3MF, ...), keeping its
 // node hierarchy as instances and its materials' base (or diffuse) and emissive colours. A file
 // that Assimp cannot read is an error naming the file and Assimp's reason; a file with nothing
 // usable left is an error. The scene has no lights: the caller adds them.
+absl::StatusOr<Scene> ImportMesh(const std::string& path, const ImportOptions& options,
+                                 ImportReport* report);
+// The same with the default options (oriented).
 absl::StatusOr<Scene> ImportMesh(const std::string& path, ImportReport* report);
 
 }  // namespace pbgi

@@ -227,6 +227,29 @@ run up_y_info "$pbgi" info "$dir/wy.ply" --json
 awk -v z="$(json "$dir/up_y_info.out" 'j["bounds"]["hi"][2]')" 'BEGIN {exit !(z > 1.4 && z < 1.55)}' && ok ||
   fail "--up y: the top is not the file's y maximum 1.515"
 refuse import_cloud "pbgi build" "$pbgi" import "$assimp_ply/pond.0.ply" -n 1k -o "$dir/pond.ply"
+grep -q "orientation: 54 components: 1 closed" "$dir/up_y.err" && ok ||
+  fail "import did not report its orientation: $(grep orientation "$dir/up_y.err")"
+# Views of a Y-up mesh: --up y on shade matches the import; without it the mismatch names the
+# up axis (regression mesh_mismatch_names_up: both descriptions read alike) and the fix.
+run up_y_build "$pbgi" build "$dir/wy.ply" -o "$dir/wy.pbgi" --memory 64M
+refuse view_up_mismatch "up: database y, view z.*--up y" \
+  "$pbgi" shade "$dir/wy.pbgi" --scene "$assimp_ply/Wuson.ply" -o "$dir/wy.png" --mode occlusion \
+  --width 16 --height 16
+run view_up_y "$pbgi" shade "$dir/wy.pbgi" --scene "$assimp_ply/Wuson.ply" --up y -o "$dir/wy.png" \
+  --mode occlusion --width 16 --height 16
+[ -s "$dir/wy.png" ] && ok || fail "shade --up y wrote no image"
+# spider.obj has 4 triangles wound against their neighbours: --orient none keeps them.
+spider="$(dirname "$assimp_ply")/OBJ/spider.obj"
+run orient_none "$pbgi" import "$spider" -n 5k -o "$dir/sn.ply" --orient none
+run orient_none_build "$pbgi" build "$dir/sn.ply" -o "$dir/sn.pbgi" --memory 64M
+refuse view_orient_mismatch "orient: database none, view auto.*--orient none" \
+  "$pbgi" shade "$dir/sn.pbgi" --scene "$spider" -o "$dir/sn.png" --mode occlusion \
+  --width 16 --height 16
+run view_orient_none "$pbgi" shade "$dir/sn.pbgi" --scene "$spider" --orient none \
+  -o "$dir/sn.png" --mode occlusion --width 16 --height 16
+run eval_view_up_y "$pbgi" eval --view "$assimp_ply/Wuson.ply" --up y -o "$dir/wuson-view" \
+  --mode occlusion --points 5000 --width 16 --height 16 --rays 64 --exact
+grep -q "orientation:" "$dir/eval_view_up_y.out" && ok || fail "eval --view did not report orientation"
 
 # build -o: refuses other files and an existing database without --force.
 mkdir -p "$dir/notadb" && touch "$dir/notadb/keep"

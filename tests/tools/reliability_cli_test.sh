@@ -47,6 +47,9 @@ refuse stats_into_db "database directory" \
 refuse demo_into_db "database directory" "$pbgi" demo -o "$dir/db" --scene cornell --points 1000
 refuse eval_view_into_db "database directory" \
   "$pbgi" eval --view cornell -o "$dir/db/view" --mode occlusion --points 1000 --width 16 --height 16
+# Regression (export_into_db): `pbgi export -o` lacked the refusal the other commands have.
+refuse export_into_db "database directory" "$pbgi" export "$dir/db" -o "$dir/db/x.ply"
+refuse export_through_link "database directory" "$pbgi" export "$dir/db" -o "$dir/link/x.ply"
 [ "$(md5sum < "$dir/db/data.mdb")" = "$sum_before" ] && ok || fail "a refused output changed data.mdb"
 [ "$(ls "$dir/db")" = "data.mdb" ] && ok || fail "the database directory holds $(ls "$dir/db")"
 run verify_after "$pbgi" verify "$dir/db"

@@ -129,6 +129,43 @@ TEST(SceneViewsTest, AViewOfAnotherSceneIsRefused) {
   EXPECT_EQ(warning, "");
 }
 
+// Regression (mesh_fingerprint_names_up): a mesh's fingerprint was that of a procedural scene
+// (seed, no up axis), so a view with the wrong --up was refused with two identical descriptions.
+TEST(SceneViewsTest, MeshFingerprintRecordsUpAndOrientAndSaysWhatDiffers) {
+  const testing_common::ScratchDir dir;
+  const std::string path = dir.Sub("wedge.obj");
+  std::ofstream(path) << "v 0 0 0\nv 2 0 0\nv 0 1 0\nv 0 0 3\nf 1 2 3\nf 1 2 4\nf 1 4 3\n"
+                         "f 2 3 4\n";
+  auto z = LoadScene(path, 1, 0, UpAxis::kZ);
+  auto y = LoadScene(path, 1, 0, UpAxis::kY);
+  ASSERT_TRUE(z.ok() && y.ok()) << z.status() << y.status();
+  // --up y: the file's y (extent 1) is up, its z (extent 3) points to -y.
+  EXPECT_NEAR((*y)->ComputeBounds().hi.z, 1.0f, 1e-6f);
+  EXPECT_NEAR((*y)->ComputeBounds().lo.y, -3.0f, 1e-6f);
+  auto fz = SceneFingerprint(**z, 1, 0, UpAxis::kZ);
+  auto fy = SceneFingerprint(**y, 1, 0, UpAxis::kY);
+  EXPECT_EQ(fz.count("scene.seed"), 0u);
+  EXPECT_EQ(fz["scene.up"], "z");
+  EXPECT_EQ(fy["scene.up"], "y");
+  EXPECT_EQ(fz["scene.orient"], "auto");
+  StoreMeta meta;
+  meta.stats = fy;
+  meta.stats["scene.file"] = path;
+  std::string warning;
+  absl::Status s = CheckSceneMatchesDatabase(**z, fz, meta, "db", &warning);
+  EXPECT_EQ(s.code(), absl::StatusCode::kFailedPrecondition);
+  EXPECT_NE(s.message().find("up: database y, view z"), std::string::npos) << s;
+  EXPECT_NE(s.message().find("--scene " + path + " --up y"), std::string::npos) << s;
+  EXPECT_TRUE(CheckSceneMatchesDatabase(**y, fy, meta, "db", &warning).ok());
+  // Imported with --orient none (the wedge's first face is wound inward): named too.
+  auto raw = LoadScene(path, 1, 0, UpAxis::kY, /*orient=*/false);
+  ASSERT_TRUE(raw.ok());
+  meta.stats = SceneFingerprint(**raw, 1, 0, UpAxis::kY, false);
+  s = CheckSceneMatchesDatabase(**y, fy, meta, "db", &warning);
+  EXPECT_NE(s.message().find("orient: database none, view auto"), std::string::npos) << s;
+  EXPECT_NE(s.message().find("--orient none"), std::string::npos) << s;
+}
+
 TEST(SceneViewsTest, YUpMeshesTurnToZUp) {
   Scene s;
   s.meshes.push_back(Mesh{{{0, 0, 0}, {1, 0, 0}, {0, 2, 0}}, {{0, 1, 2}}, {0}});
