@@ -88,8 +88,8 @@ inline float NodeCutCosine(const glm::vec3& centre, float radius2, const glm::ve
 // holds pi Y0 A and band 1 holds (2 pi / 3) Y1 N, for A(w) = sum A_i max(0, n_i.w); or, for a
 // two-sided card whose pairs cancel in N, its second moment has one dominant axis (the
 // rasterizer's test too: raster/cluster_prep.cc). For a cluster of one-sided surfels the
-// first test implies the second (E[n.e]^2 <= E[(n.e)^2]), and both agree exactly for two
-// facets: their normals are within 2 acos(kClusterFlatness) of each other.
+// first test implies the second (E[n.e]^2 <= E[(n.e)^2]); the second also finds flat a thin
+// wedge (two facets facing nearly opposite ways), as it must a two-sided card.
 inline bool NodeIsFlat(const float* sh_area) {
   const float a = sh_area[0] * static_cast<float>(1.0 / (sh::kPi * sh::kY0));
   const float k = static_cast<float>(3.0 / (2.0 * sh::kPi * sh::kY1));
