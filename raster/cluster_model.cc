@@ -39,7 +39,9 @@ float SideSign(const Sh9& area, const Basis9& b, HitSides sides) {
   return 1.0f;
 }
 
-float EvalSide(const Sh9& c, const Basis9& b, float sign) { return std::max(0.0f, Dot(c, b, sign)); }
+float EvalSide(const Sh9& c, const Basis9& b, float sign) {
+  return std::max(0.0f, Dot(c, b, sign));
+}
 
 }  // namespace
 

@@ -115,10 +115,9 @@ struct PlyWriterOptions {
 };
 
 // Streams surfels to a PLY file with float properties x y z nx ny nz radius [r g b] [extra...]
-// [uchar red green blue] [uchar two_sided]. The vertex count is patched into the header by Close(), so the count
-// need not be known in advance.
-// REQUIRES: Close() to finish the file; a writer destroyed without Close() removes its
-// temporary file and leaves `path` as it was.
+// [uchar red green blue] [uchar two_sided]. The vertex count is patched into the header by Close(),
+// so the count need not be known in advance. REQUIRES: Close() to finish the file; a writer
+// destroyed without Close() removes its temporary file and leaves `path` as it was.
 class PlyWriter {
  public:
   static absl::StatusOr<std::unique_ptr<PlyWriter>> Create(const std::string& path,

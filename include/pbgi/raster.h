@@ -54,8 +54,9 @@
 // the area-weighted normal sum N (band 1) and the second moment M = sum A_i n_i n_i^T (bands 0
 // and 2). A(w) = (sum A_i |n_i.w| + N.w) / 2, and the even part is estimated from M, exactly for
 // a flat cluster and for an isotropic one. A two-sided surfel enters the SH as the pair
-// (n_i, -n_i), so it adds A_i |n_i.w| to the front (and to the back) area. Plain SH evaluation (kShEval) overestimates a facing
-// flat cluster by 6.25% and leaks 9.4% of its area at grazing angles.
+// (n_i, -n_i), so it adds A_i |n_i.w| to the front (and to the back) area. Plain SH evaluation
+// (kShEval) overestimates a facing flat cluster by 6.25% and leaks 9.4% of its area at grazing
+// angles.
 #ifndef PBGI_RASTER_H_
 #define PBGI_RASTER_H_
 

@@ -71,8 +71,12 @@ inline std::array<float, 6> SecondMoment(const float* c) {
   const float zz = (c[6] * static_cast<float>(4.0 / (kPi * kY6)) + area) * (1.0f / 3.0f);
   const float diff = c[8] * static_cast<float>(4.0 / (kPi * kY8));  // sum A (x^2 - y^2)
   constexpr float kInvXy = static_cast<float>(4.0 / (kPi * kY2));
-  return {0.5f * (area - zz + diff), 0.5f * (area - zz - diff), zz, c[4] * kInvXy,
-          c[5] * kInvXy, c[7] * kInvXy};
+  return {0.5f * (area - zz + diff),
+          0.5f * (area - zz - diff),
+          zz,
+          c[4] * kInvXy,
+          c[5] * kInvXy,
+          c[7] * kInvXy};
 }
 
 // Whether the normals of the SH c lie near one axis e, sides counted apart: the largest
@@ -118,8 +122,9 @@ inline glm::vec3 PrincipalAxis(const float* c) {
   if (!(len > 0.0)) {
     // M is a multiple of one axis' projector or zero: its largest diagonal entry's axis.
     if (!(xx + yy + zz > 0.0)) return glm::vec3(0.0f);
-    return xx >= yy && xx >= zz ? glm::vec3(1, 0, 0) : yy >= zz ? glm::vec3(0, 1, 0)
-                                                                : glm::vec3(0, 0, 1);
+    return xx >= yy && xx >= zz ? glm::vec3(1, 0, 0)
+           : yy >= zz           ? glm::vec3(0, 1, 0)
+                                : glm::vec3(0, 0, 1);
   }
   return glm::vec3(best / len);
 }

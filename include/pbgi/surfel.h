@@ -115,7 +115,7 @@ using Sh9 = std::array<float, 9>;
 // An octree node standing in for all the surfels below it.
 struct Cluster {
   Bounds bounds;
-  float area = 0.0f;              // total surfel area
+  float area = 0.0f;  // total surfel area
   // Projected area A(w) = sum A_i max(0, n_i.w) over one-sided surfels + sum A_i |n_i.w| over
   // two-sided ones (each the pair n_i, -n_i: band 1 cancels, bands 0 and 2 double, so band 0
   // holds the area of both sides; `area` counts each surfel once).
@@ -123,7 +123,7 @@ struct Cluster {
   // Emitted power per colour P(w), the same sums weighted by L_i; zero when the database has no
   // radiance channel.
   std::array<Sh9, 3> sh_power{};
-  uint32_t depth = 0;             // depth in the octree (root = 0)
+  uint32_t depth = 0;  // depth in the octree (root = 0)
   // The surfels below this node are the contiguous range [first_point, first_point+point_count)
   // of global point indices (rank in Morton order): the test harness checks cuts with it.
   uint64_t first_point = 0;

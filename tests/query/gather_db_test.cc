@@ -186,7 +186,6 @@ TEST(GatherDb, CellsHoldTheirContentAndDoNotOverlap) {
   }
 }
 
-
 TEST(GatherDb, TinyCacheAndEightThreadsMatchOneThread) {
   BuildOptions b;
   b.page_size = EfficientPageSize(1);

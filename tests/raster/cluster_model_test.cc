@@ -87,10 +87,10 @@ TEST(ClusterModelTest, TwoSidedSheetAndIsotropicBall) {
   const Cluster f = Aggregate(flagged);
   for (const glm::vec3& w : Directions(100, 5)) {
     for (HitSides sides : {HitSides::kFront, HitSides::kBack, HitSides::kBoth}) {
-      EXPECT_NEAR(ProjectedArea(c, w, sides, ClusterModel::kMoments),
-                  BruteForce(sheet, w, sides), 2e-4 * c.area);
-      EXPECT_NEAR(ProjectedArea(f, w, sides, ClusterModel::kMoments),
-                  BruteForce(flagged, w, sides), 2e-4 * f.area);
+      EXPECT_NEAR(ProjectedArea(c, w, sides, ClusterModel::kMoments), BruteForce(sheet, w, sides),
+                  2e-4 * c.area);
+      EXPECT_NEAR(ProjectedArea(f, w, sides, ClusterModel::kMoments), BruteForce(flagged, w, sides),
+                  2e-4 * f.area);
     }
   }
   const std::vector<Surfel> ball =

@@ -147,7 +147,8 @@ inline std::vector<Cluster> ClustersInCells(const std::vector<Surfel>& surfels, 
   for (const auto& [key, group] : groups) {
     Cluster c = Aggregate(group);
     const auto [x, y, z] = key;
-    c.cell.lo = glm::vec3(static_cast<float>(x), static_cast<float>(y), static_cast<float>(z)) * cell;
+    c.cell.lo =
+        glm::vec3(static_cast<float>(x), static_cast<float>(y), static_cast<float>(z)) * cell;
     c.cell.hi = c.cell.lo + cell;
     out.push_back(c);
   }

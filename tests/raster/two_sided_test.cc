@@ -184,7 +184,7 @@ TEST(TwoSidedTest, SecondMomentFlatnessFindsTheCardsAxis) {
     facets[0].radius = facets[1].radius = 1.0f;
     const Cluster f = Aggregate(facets);
     // Facets facing nearly opposite ways (a thin wedge) are flat about the axis across them.
-    const bool near_z = angle < limit, near_x = angle > kPi - limit;
+    const bool near_z = angle<limit, near_x = angle> kPi - limit;
     EXPECT_EQ(sh::AxisDominates(f.sh_area.data(), k), near_z || near_x) << angle;
     if (near_z || near_x) {
       const glm::vec3 e = sh::PrincipalAxis(f.sh_area.data());
