@@ -816,7 +816,8 @@ absl::Status PlyWriter::Write(absl::Span<const Surfel> surfels, absl::Span<const
     if (options_.ascii) {
       for (size_t k = 0; k < v.size(); ++k) {
         // %.9g round-trips every float exactly.
-        absl::StrAppendFormat(&buf_, k == 0 ? "%.9g" : " %.9g", v[k]);
+        if (k > 0) buf_ += ' ';
+        absl::StrAppendFormat(&buf_, "%.9g", v[k]);
       }
       if (colors_) absl::StrAppendFormat(&buf_, " %d %d %d", c[0], c[1], c[2]);
       if (options_.two_sided) absl::StrAppend(&buf_, s.two_sided ? " 1" : " 0");
