@@ -258,7 +258,7 @@ absl::StatusOr<BuildStats> BuildToSink(SurfelSource& source, PageSink& sink,
     if (options.estimate.radius) {
       Surfel s;
       s.position = glm::vec3(r.position[0], r.position[1], r.position[2]);
-      s.radius = r.radius;
+      s.radius = std::fabs(r.radius);  // the sign bit is the two-sided flag
       s.radiance = glm::vec3(r.radiance[0], r.radiance[1], r.radiance[2]);
       PBGI_RETURN_IF_ERROR(range.AddEstimated(s, estimated++, radiance));
     }

@@ -45,6 +45,10 @@ void NodeAggregate::AddPoint(const SortRecord& r, bool radiance) {
   const double a = sh::kPi * double(r.radius) * double(r.radius);
   area += a;
   auto c = sh::ProjectClampedCosine<double>(r.normal[0], r.normal[1], r.normal[2], a);
+  // A two-sided surfel is the pair (n, -n): A |n.w|, band 1 cancels and the even bands double.
+  if (RadiusTwoSided(r.radius)) {
+    for (int k = 0; k < 9; ++k) c[k] = (k >= 1 && k <= 3) ? 0.0 : 2.0 * c[k];
+  }
   for (int k = 0; k < 9; ++k) sh_area[k] += c[k];
   if (radiance) {
     for (int ch = 0; ch < 3; ++ch) {

@@ -172,6 +172,7 @@ enum Field {
   kRx,
   kRy,
   kRz,
+  kTwoSided,
   kNumFields,
   kSkip = -1
 };
@@ -195,7 +196,8 @@ int FieldOf(absl::string_view name) {
                                                        {"diffuse_blue", kB},
                                                        {"rx", kRx},
                                                        {"ry", kRy},
-                                                       {"rz", kRz}};
+                                                       {"rz", kRz},
+                                                       {"two_sided", kTwoSided}};
   for (const auto& [n, f] : kNames) {
     if (name == n) return f;
   }
@@ -453,6 +455,7 @@ class PlyFileReader final : public PlySource {
     header_.has_normals = have_[kNx] && have_[kNy] && have_[kNz];
     header_.has_radius = have_[kRadius];
     header_.has_reflection = have_[kRx] && have_[kRy] && have_[kRz];
+    header_.has_two_sided = have_[kTwoSided];
     if (!header_only) {
       static const char* kRequired[] = {"x", "y", "z", "nx", "ny", "nz", "radius"};
       for (int f = kX; f <= kRadius; ++f) {
@@ -560,6 +563,7 @@ class PlyFileReader final : public PlySource {
     s->radius = have_[kRadius] ? static_cast<float>(v[kRadius]) : options_.uniform_radius;
     s->radiance = has_color_ ? glm::vec3(v[kR], v[kG], v[kB]) : glm::vec3(0.0f);
     *reflection = glm::vec3(v[kRx], v[kRy], v[kRz]);
+    s->two_sided = v[kTwoSided] != 0.0;
   }
 
   absl::Status ReadBinaryRecord(Surfel* s, glm::vec3* reflection) {
@@ -580,11 +584,11 @@ class PlyFileReader final : public PlySource {
     return absl::OkStatus();
   }
 
-  // The common layout (PlyWriter's, float x y z nx ny nz radius [r g b], then anything): whole
-  // buffered runs of records at a time, one copy into the surfels. Surfel is 10 packed floats
-  // in file order.
+  // The common layout (PlyWriter's, float x y z nx ny nz radius [r g b], then anything but
+  // two_sided): whole buffered runs of records at a time, one copy per surfel. A Surfel starts
+  // with 10 packed floats in file order.
   absl::StatusOr<size_t> NextBinaryFloats(absl::Span<Surfel> out) {
-    static_assert(sizeof(Surfel) == 10 * sizeof(float));
+    static_assert(offsetof(Surfel, radiance) + sizeof(glm::vec3) == 10 * sizeof(float));
     const size_t stride = static_cast<size_t>(stride_);
     size_t n = 0;
     while (n < out.size() && record_ < count_) {
@@ -595,14 +599,11 @@ class PlyFileReader final : public PlySource {
       const size_t k = static_cast<size_t>(
           std::min<uint64_t>({out.size() - n, count_ - record_, (buf_len_ - buf_pos_) / stride}));
       const char* p = buf_.data() + buf_pos_;
-      if (stride == sizeof(Surfel) && float_prefix_bytes_ == sizeof(Surfel)) {
-        std::memcpy(static_cast<void*>(&out[n]), p, k * stride);
-      } else {
-        for (size_t j = 0; j < k; ++j) {
-          Surfel& s = out[n + j];
-          std::memcpy(static_cast<void*>(&s), p + j * stride, float_prefix_bytes_);
-          if (!has_color_) s.radiance = glm::vec3(0.0f);
-        }
+      for (size_t j = 0; j < k; ++j) {
+        Surfel& s = out[n + j];
+        std::memcpy(static_cast<void*>(&s), p + j * stride, float_prefix_bytes_);
+        if (!has_color_) s.radiance = glm::vec3(0.0f);
+        s.two_sided = false;
       }
       buf_pos_ += k * stride;
       file_pos_ += static_cast<long>(k * stride);
@@ -773,6 +774,7 @@ absl::StatusOr<std::unique_ptr<PlyWriter>> PlyWriter::Create(const std::string& 
   w->colors_ = options.colors == PlyColors::kGiven ||
                (options.colors == PlyColors::kRadiance && options.radiance);
   if (w->colors_) h += "property uchar red\nproperty uchar green\nproperty uchar blue\n";
+  if (options.two_sided) h += "property uchar two_sided\n";
   h += "end_header\n";
   if (std::fwrite(h.data(), 1, h.size(), w->file_) != h.size()) {
     return absl::InternalError(
@@ -814,13 +816,16 @@ absl::Status PlyWriter::Write(absl::Span<const Surfel> surfels, absl::Span<const
     if (options_.ascii) {
       for (size_t k = 0; k < v.size(); ++k) {
         // %.9g round-trips every float exactly.
+        if (k > 0) buf_ += ' ';
         absl::StrAppendFormat(&buf_, "%.9g", v[k]);
-        buf_ += k + 1 < v.size() || colors_ ? ' ' : '\n';
       }
-      if (colors_) absl::StrAppendFormat(&buf_, "%d %d %d\n", c[0], c[1], c[2]);
+      if (colors_) absl::StrAppendFormat(&buf_, " %d %d %d", c[0], c[1], c[2]);
+      if (options_.two_sided) absl::StrAppend(&buf_, s.two_sided ? " 1" : " 0");
+      buf_ += '\n';
     } else {
       buf_.append(reinterpret_cast<const char*>(v.data()), v.size() * sizeof(float));
       if (colors_) buf_.append(reinterpret_cast<const char*>(c), 3);
+      if (options_.two_sided) buf_ += static_cast<char>(s.two_sided ? 1 : 0);
     }
   }
   if (std::fwrite(buf_.data(), 1, buf_.size(), file_) != buf_.size()) {

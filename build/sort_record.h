@@ -1,4 +1,5 @@
-// The record that the external sort moves around: a Morton key and the surfel it belongs to.
+// The record that the external sort moves around: a Morton key and the surfel it belongs to,
+// its two-sided flag in the radius's sign bit as in the point records (tree/format.h).
 #ifndef PBGI_BUILD_SORT_RECORD_H_
 #define PBGI_BUILD_SORT_RECORD_H_
 
@@ -6,6 +7,7 @@
 #include <cstdint>
 
 #include "pbgi/surfel.h"
+#include "tree/format.h"
 
 namespace pbgi::internal {
 
@@ -22,7 +24,7 @@ inline SortRecord MakeSortRecord(uint64_t key, const Surfel& s) {
   return SortRecord{key,
                     {s.position.x, s.position.y, s.position.z},
                     {s.normal.x, s.normal.y, s.normal.z},
-                    s.radius,
+                    EncodeRadius(s.radius, s.two_sided),
                     {s.radiance.x, s.radiance.y, s.radiance.z}};
 }
 

@@ -248,6 +248,7 @@ py::dtype SurfelDtype() {
       .Field("normal", "(3,)f4", offsetof(Surfel, normal))
       .Field("radius", "f4", offsetof(Surfel, radius))
       .Field("radiance", "(3,)f4", offsetof(Surfel, radiance))
+      .Field("two_sided", "?", offsetof(Surfel, two_sided))
       .Make(sizeof(Surfel));
 }
 

@@ -133,7 +133,7 @@ absl::Status CheckValidCut(const Gathered& result, absl::Span<const Surfel> surf
     const uint64_t id = result.surfel_ids[k];
     const Surfel& s = result.surfels[k];
     if (s.position != surfels[id].position || s.normal != surfels[id].normal ||
-        s.radius != surfels[id].radius) {
+        s.radius != surfels[id].radius || s.two_sided != surfels[id].two_sided) {
       return fail(absl::StrFormat("surfel %d differs from the database's surfel %d", k, id));
     }
     if (SurfelWhollyBehindUnit(s, p, nrm)) {

@@ -80,13 +80,16 @@ inline float ProjectedArea(const ClusterMoments& m, const glm::vec3& w, HitSides
   // sum A_i |n_i.w| >= |sum A_i n_i.w| always; keeps both sides non-negative.
   const float even =
       std::max(std::sqrt(std::max(0.0f, m.area * m2)) * m.even_factor, std::fabs(odd));
+  // kBoth: the larger side, max(front, back), not front + back: a closed object (N = 0) shows
+  // its silhouette once, a one-sided sheet its full area, and a two-sided surfel, whose pair
+  // already counts both sides in `even`, its area once (docs/design.md, "Two-sided surfels").
   switch (sides) {
     case HitSides::kFront:
       return 0.5f * (even + odd);
     case HitSides::kBack:
       return 0.5f * (even - odd);
     case HitSides::kBoth:
-      return even;
+      return 0.5f * (even + std::fabs(odd));
   }
   return 0.0f;
 }
@@ -173,16 +176,19 @@ template <bool kRad>
         std::max(std::sqrt(std::max(0.0f, a * m2)) * even_factor, std::fabs(n_dot_w));
     out.area = sides == HitSides::kFront  ? 0.5f * (even + n_dot_w)
                : sides == HitSides::kBack ? 0.5f * (even - n_dot_w)
-                                          : even;
+                                          : 0.5f * (even + std::fabs(n_dot_w));
   }
   if constexpr (kRad) {
     const V4 zero = {0.0f, 0.0f, 0.0f, 0.0f};
     const V4 c0 = {sa[0], c.sh_power[0][0], c.sh_power[1][0], c.sh_power[2][0]};
     const V4 even = c0 * kY0 + even2;
     const V4 front = Max4(zero, even + odd), back = Max4(zero, even - odd);
+    // kBoth: the side whose area is the larger (the sign of the area's band 1), for the power
+    // as for the area, so that their ratio is one side's radiance.
     const V4 seen = sides == HitSides::kFront  ? front
                     : sides == HitSides::kBack ? back
-                                               : front + back;
+                    : odd[0] >= 0.0f           ? front
+                                               : back;
     // Lane 0: the plain SH area and its mean (not clamped, as in ClusterRadiance).
     const V4 mean = Max4(zero, c0 * kY0);
     const float den = seen[0] + kRadianceBlend * (kY0 * sa[0]);
@@ -199,7 +205,8 @@ template <bool kRad>
   return out;
 }
 
-// Radiance P(w)/A(w) per colour seen from w, with the same side rule. The ratio is regularised
+// Radiance P(w)/A(w) per colour seen from w, with the same side rule (kBoth: the side with the
+// larger area). The ratio is regularised
 // towards the cluster's mean radiance where A(w) is small (exact for a uniform radiance, however
 // much the SH rings); never negative.
 glm::vec3 ClusterRadiance(const Cluster& cluster, const glm::vec3& w, HitSides sides);

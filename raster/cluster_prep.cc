@@ -26,6 +26,29 @@ glm::vec3 ToFrame(const ClusterFrame& f, const glm::vec3& v) {
   return glm::vec3(glm::dot(f.t, v), glm::dot(f.b, v), glm::dot(f.n, v));
 }
 
+// A cluster that is not flat by its mean normal but whose normals, sides counted apart, lie
+// near one axis (a two-sided card, whose pairs cancel in N; tree/cut.h NodeIsFlat) is drawn
+// by the plane through its box centre normal to that axis, turned towards the receiver. Both
+// preparation paths call this one function, so they agree bit for bit. Such a cluster's band-2
+// anisotropy is above kAxisAnisotropy, which the lanes test first.
+constexpr float kAxisFlatness = kFlatness * kFlatness;
+// (3 k - 1)^2 / 4 for k = kAxisFlatness, the least anisotropy of a dominant axis, less a margin.
+constexpr float kAxisAnisotropy = 0.2f;
+[[gnu::noinline]] void AxisPlane(const Cluster& c, const ClusterFrame& f, PreparedSplat* s) {
+  if (!sh::AxisDominates(c.sh_area.data(), kAxisFlatness)) return;
+  const glm::vec3 e = sh::PrincipalAxis(c.sh_area.data());
+  if (!(glm::dot(e, e) > 0.0f)) return;
+  const Bounds& box = c.bounds;
+  const glm::vec3 ext = box.hi - box.lo;
+  const glm::vec3 rel = 0.5f * (box.lo + box.hi) - f.origin;
+  const float towards = glm::dot(e, rel);
+  const glm::vec3 mw = towards > 0.0f ? -e : e;
+  s->normal = ToFrame(f, mw);
+  s->plane = -std::fabs(towards);
+  s->thick = 0.5f * (std::fabs(mw.x) * ext.x + std::fabs(mw.y) * ext.y + std::fabs(mw.z) * ext.z);
+  s->flat = s->plane < 0.0f ? 1 : 0;
+}
+
 // The four-lane path reads a cluster as consecutive floats: bounds, area, then the area SH and
 // the three power SH back to back.
 constexpr size_t kLoOffset = offsetof(Cluster, bounds) + offsetof(Bounds, lo);
@@ -90,6 +113,7 @@ bool PrepareClusterOne(const Cluster& c, const ClusterFrame& f, PreparedSplat* o
   s.plane = 0.0f;
   s.thick = 0.0f;
   s.flat = 0;
+  bool flat = false;
   if (nl2 > 0.0f) {
     const float nl = std::sqrt(nl2);
     const float towards = glm::dot(ns, rel);
@@ -97,12 +121,14 @@ bool PrepareClusterOne(const Cluster& c, const ClusterFrame& f, PreparedSplat* o
     const glm::vec3 mw = ns * scale;
     s.normal = ToFrame(f, mw);
     if (nl > kFlatness * view.total) {
+      flat = true;
       s.plane = towards * scale;
       s.thick =
           0.5f * (std::fabs(mw.x) * ext.x + std::fabs(mw.y) * ext.y + std::fabs(mw.z) * ext.z);
       s.flat = s.plane < 0.0f ? 1 : 0;
     }
   }
+  if (!flat) AxisPlane(c, f, &s);
   s.near = 0;
   return true;
 }

@@ -285,7 +285,7 @@ void Rasterizer::PrepareSurfelGroups(const Gathered& g, ShadeResult* out) {
         const float nn = glm::length(sf.normal);
         if (!(nn > 0.0f) || !(sf.radius > 0.0f)) continue;
         const glm::vec3 nj = sf.normal / nn;
-        if (glm::dot(nj, n0) < 0.9f) continue;
+        if (glm::dot(nj, n0) < 0.9f || sf.two_sided != first.two_sided) continue;
         std::swap(order[j], order[end++]);
         const double a = sf.Area();
         area += a;
@@ -322,9 +322,10 @@ void Rasterizer::PrepareSurfelGroups(const Gathered& g, ShadeResult* out) {
       const glm::vec3 centroid = glm::vec3(csum / area);
       const glm::vec3 rel = centroid - origin_;
       const float side = -glm::dot(normal, rel);  // > 0: the receiver is in front
-      const bool visible = (o_.hitsides == HitSides::kFront && side > 0.0f) ||
-                           (o_.hitsides == HitSides::kBack && side < 0.0f) ||
-                           (o_.hitsides == HitSides::kBoth && side != 0.0f);
+      const HitSides sides = first.two_sided ? HitSides::kBoth : o_.hitsides;
+      const bool visible = (sides == HitSides::kFront && side > 0.0f) ||
+                           (sides == HitSides::kBack && side < 0.0f) ||
+                           (sides == HitSides::kBoth && side != 0.0f);
       const float d = glm::length(rel);
       if (!visible || !std::isfinite(d) || d > o_.max_distance) {
         out->culled += count;

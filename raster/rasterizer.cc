@@ -100,9 +100,11 @@ void Rasterizer::PrepareSurfel(const Surfel& sf, ShadeResult* out) {
   const float d = std::sqrt(d2);
   // side > 0: the receiver is in front of the surfel.
   const float side = -glm::dot(normal, rel);
-  const bool visible = (o_.hitsides == HitSides::kFront && side > 0.0f) ||
-                       (o_.hitsides == HitSides::kBack && side < 0.0f) ||
-                       (o_.hitsides == HitSides::kBoth && side != 0.0f);
+  // A two-sided surfel shows both sides whatever hitsides says.
+  const HitSides sides = sf.two_sided ? HitSides::kBoth : o_.hitsides;
+  const bool visible = (sides == HitSides::kFront && side > 0.0f) ||
+                       (sides == HitSides::kBack && side < 0.0f) ||
+                       (sides == HitSides::kBoth && side != 0.0f);
   if (!(top > 0.0f) || !visible || !std::isfinite(d2) || d > o_.max_distance) {
     ++out->culled;
     return;

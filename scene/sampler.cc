@@ -289,6 +289,7 @@ class SceneSurfelSource final : public SurfelSource {
     internal::WorldTriangle w{};
     glm::vec3 normal(0.0f);
     uint32_t material = 0;
+    bool thin = false;
     float r0 = 0.0f, r1 = 0.0f;
     for (int64_t s = begin; s < end; ++s) {
       if (s >= tri_end) {
@@ -305,6 +306,8 @@ class SceneSurfelSource final : public SurfelSource {
         w = index_.Triangle(inst, t);
         normal = glm::normalize(w.Cross());
         material = index_.MaterialOf(inst, t);
+        // A thin sheet's surfels are two-sided: its back is the sheet's other side.
+        thin = material < scene_->materials.size() && scene_->materials[material].thin;
         const uint64_t tk = HashCombine(l.seed, static_cast<uint64_t>(g));
         r0 = internal::Random(tk, 0);
         r1 = internal::Random(tk, 1);
@@ -317,6 +320,7 @@ class SceneSurfelSource final : public SurfelSource {
       sf.normal = normal;
       sf.radius = radius_;
       sf.radiance = glm::vec3(0.0f);
+      sf.two_sided = thin;
       materials[s - begin] = material;
     }
   }

@@ -369,6 +369,9 @@ ShadeOptions EvalShadeOptions(const EvalArgs& a, const EvalSetup& e, float msa, 
     so.raster.phong_exponent = e.lobe.phong_exponent;
     so.raster.ggx_roughness = e.lobe.ggx_roughness;
   }
+  so.raster.hitsides = a.hitsides == "back"   ? HitSides::kBack
+                       : a.hitsides == "both" ? HitSides::kBoth
+                                              : HitSides::kFront;
   return so;
 }
 
@@ -895,7 +898,9 @@ CommandSetup Setup() {
     app->add_option("--height", a->height, "--view: image height")
         ->check(CLI::Range(16, 8192))
         ->capture_default_str();
-    app->add_option("--hitsides", a->hitsides, "--view: front, back or both")
+    app->add_option("--hitsides", a->hitsides,
+                    "sides of one-sided surfels that occlude and emit: front, back or both "
+                    "(two-sided surfels show both; the reference counts any side)")
         ->check(CLI::IsMember({"front", "back", "both"}))
         ->capture_default_str();
     app->add_option("--error-scale", a->error_scale,

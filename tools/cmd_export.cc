@@ -50,6 +50,7 @@ absl::Status Run(const Args& a) {
   PlyWriterOptions wo;
   wo.ascii = a.ascii;
   wo.radiance = HasRadiance(meta.channels);
+  wo.two_sided = true;  // Surfel::two_sided, so that a rebuild from the file is the same
   for (const auto& [k, v] : meta.stats) {
     if (CarriedOver(k)) wo.comments.push_back(absl::StrFormat("pbgi %s %s", k, v));
   }

@@ -66,6 +66,8 @@ absl::Status Run(const Options& o) {
   PlyWriterOptions wo;
   wo.ascii = o.ascii;
   wo.radiance = source->HasRadiance();
+  // Thin materials become two-sided surfels (scene/sampler.cc): the flag goes into the file.
+  for (const Material& m : shared->materials) wo.two_sided = wo.two_sided || m.thin;
   auto fields = SceneFingerprint(*shared, o.seed, o.size, UpAxis::kZ);
   fields["source"] = "pbgi generate";
   fields["tool"] = kToolVersion;

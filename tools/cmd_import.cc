@@ -132,6 +132,9 @@ absl::Status Run(const Options& o) {
                         MakeSceneSurfelSource(shared, sampler));
   PlyWriterOptions wo;
   wo.ascii = o.ascii;
+  // The parts that orientation marked thin (open sheets) are two-sided surfels: the flag goes
+  // into the PLY, or `pbgi build` would read them one-sided.
+  for (const Material& m : shared->materials) wo.two_sided = wo.two_sided || m.thin;
   auto fields = SceneFingerprint(*shared, o.seed, 0, up, orient);
   fields["scene.file"] = o.mesh;
   for (const auto& [k, v] : LightsProvenance(shared->lights)) fields[k] = v;

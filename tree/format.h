@@ -13,6 +13,7 @@
 #ifndef PBGI_TREE_FORMAT_H_
 #define PBGI_TREE_FORMAT_H_
 
+#include <cmath>
 #include <cstdint>
 #include <cstring>
 
@@ -59,7 +60,14 @@ inline uint32_t NodeRecordSize(Channels c) {
   return HasRadiance(c) ? sizeof(NodeRecordRadiance) : sizeof(NodeRecordCommon);
 }
 
-// Point records.
+// Point records. The radius's sign bit says the surfel is two-sided (Surfel::two_sided): a
+// stored radius is always > 0 otherwise (the builder refuses the rest), so the flag costs no
+// byte, and stores of format version 1, which predate it, read as all one-sided.
+inline float EncodeRadius(float radius, bool two_sided) {
+  return two_sided ? -std::fabs(radius) : std::fabs(radius);
+}
+inline bool RadiusTwoSided(float stored) { return std::signbit(stored); }
+
 struct PointRecordOcclusion {
   float position[3];
   float normal[3];
@@ -94,14 +102,16 @@ inline Surfel DecodePoint(const uint8_t* payload, uint32_t slot, Channels c) {
     std::memcpy(&r, payload + size_t{slot} * sizeof(r), sizeof(r));
     s.position = {r.position[0], r.position[1], r.position[2]};
     s.normal = {r.normal[0], r.normal[1], r.normal[2]};
-    s.radius = r.radius;
+    s.radius = std::fabs(r.radius);
+    s.two_sided = RadiusTwoSided(r.radius);
     s.radiance = {r.radiance[0], r.radiance[1], r.radiance[2]};
   } else {
     PointRecordOcclusion r;
     std::memcpy(&r, payload + size_t{slot} * sizeof(r), sizeof(r));
     s.position = {r.position[0], r.position[1], r.position[2]};
     s.normal = {r.normal[0], r.normal[1], r.normal[2]};
-    s.radius = r.radius;
+    s.radius = std::fabs(r.radius);
+    s.two_sided = RadiusTwoSided(r.radius);
     s.radiance = glm::vec3(0.0f);
   }
   return s;

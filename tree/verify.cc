@@ -211,6 +211,9 @@ class Verifier {
         }
         const double a = sh::kPi * double(p.radius) * double(p.radius);
         auto y = sh::ProjectClampedCosine<double>(p.normal.x, p.normal.y, p.normal.z, a);
+        if (p.two_sided) {  // the pair (n, -n), as the builder aggregates it
+          for (int k = 0; k < 9; ++k) y[k] = (k >= 1 && k <= 3) ? 0.0 : 2.0 * y[k];
+        }
         s.area += a;
         s.area_abs += a;
         for (int k = 0; k < 9; ++k) {

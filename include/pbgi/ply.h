@@ -5,6 +5,8 @@
 // optionally radiance, either as floats `r g b` or as integers `red green blue` (0..255 for uchar,
 // scaled to 0..1; when a file has both, as pbgi's own outputs do, the floats are read). A
 // receiver may also carry its reflection direction (the centre of the glossy lobe) as `rx ry rz`.
+// A surfel is two-sided (Surfel::two_sided) when it has a nonzero `two_sided` property (any
+// numeric type); files without one hold one-sided surfels.
 // Files from scanners and point tools (Open3D, PCL) often lack `radius`, or normals:
 // PlyReadOptions says whether to accept them (the builder then estimates what is missing, see
 // BuildOptions::estimate). Other properties are skipped; the vertex element must come first;
@@ -55,6 +57,7 @@ struct PlyHeader {
   bool has_radius = false;
   bool has_color = false;
   bool has_reflection = false;  // rx ry rz
+  bool has_two_sided = false;   // two_sided
   // Comments of the form `pbgi KEY VALUE` (what pbgi's own writers record about where the
   // points came from: the scene, its seed, ...).
   std::map<std::string, std::string> Provenance() const;
@@ -107,13 +110,14 @@ struct PlyWriterOptions {
   std::vector<std::string> extra;
   // Header comments, one line each (e.g. "pbgi scene.name cornell": see PlyHeader::Provenance).
   std::vector<std::string> comments;
+  // Write each surfel's Surfel::two_sided as a last property `uchar two_sided` (0 or 1).
+  bool two_sided = false;
 };
 
 // Streams surfels to a PLY file with float properties x y z nx ny nz radius [r g b] [extra...]
-// [uchar red green blue]. The vertex count is patched into the header by Close(), so the count
-// need not be known in advance.
-// REQUIRES: Close() to finish the file; a writer destroyed without Close() removes its
-// temporary file and leaves `path` as it was.
+// [uchar red green blue] [uchar two_sided]. The vertex count is patched into the header by Close(),
+// so the count need not be known in advance. REQUIRES: Close() to finish the file; a writer
+// destroyed without Close() removes its temporary file and leaves `path` as it was.
 class PlyWriter {
  public:
   static absl::StatusOr<std::unique_ptr<PlyWriter>> Create(const std::string& path,

@@ -53,8 +53,10 @@
 // Cluster model: the order-2 SH of the projected area holds exactly the total area A (band 0),
 // the area-weighted normal sum N (band 1) and the second moment M = sum A_i n_i n_i^T (bands 0
 // and 2). A(w) = (sum A_i |n_i.w| + N.w) / 2, and the even part is estimated from M, exactly for
-// a flat cluster and for an isotropic one. Plain SH evaluation (kShEval) overestimates a facing
-// flat cluster by 6.25% and leaks 9.4% of its area at grazing angles.
+// a flat cluster and for an isotropic one. A two-sided surfel enters the SH as the pair
+// (n_i, -n_i), so it adds A_i |n_i.w| to the front (and to the back) area. Plain SH evaluation
+// (kShEval) overestimates a facing flat cluster by 6.25% and leaks 9.4% of its area at grazing
+// angles.
 #ifndef PBGI_RASTER_H_
 #define PBGI_RASTER_H_
 
@@ -69,9 +71,11 @@
 
 namespace pbgi {
 
-// Which sides of a surfel occlude and emit (RenderMan's `hitsides`). A surfel's front is the
-// side its normal points to. With kBack or kBoth, a surfel seen from behind shows the same
-// radiance as its front (two-sided, e.g. foliage cards).
+// Which sides of a one-sided surfel occlude and emit (RenderMan's `hitsides`). A surfel's front
+// is the side its normal points to. With kBack or kBoth, a surfel seen from behind shows the
+// same radiance as its front. A two-sided surfel (Surfel::two_sided) shows both sides in every
+// mode. A cluster with kBoth shows the larger of its two sides' projected areas, not their sum,
+// so that a closed object's silhouette counts once (see "Cluster model" above).
 enum class HitSides : uint8_t { kFront, kBack, kBoth };
 
 // The glossy lobe D around the reflection direction r, with a = angle(w, r):

@@ -13,8 +13,11 @@
 #ifndef PBGI_SH_H_
 #define PBGI_SH_H_
 
+#include <algorithm>
 #include <array>
+#include <cmath>
 
+#include "glm/geometric.hpp"
 #include "glm/vec3.hpp"
 
 namespace pbgi::sh {
@@ -58,6 +61,72 @@ inline T Eval(const C& c, const glm::vec<3, T>& w) {
   T v = 0;
   for (int i = 0; i < kCoeffs; ++i) v += T(c[i]) * y[i];
   return v;
+}
+
+// The second moment M = sum A_i n_i n_i^T of a projected-area SH c (the sum of clamped cosine
+// lobes A_i max(0, n_i.w), band 0 holding pi Y0 sum A_i): bands 0 and 2 hold it exactly, and
+// trace M = sum A_i. Returned as {xx, yy, zz, xy, yz, xz}.
+inline std::array<float, 6> SecondMoment(const float* c) {
+  const float area = c[0] * static_cast<float>(1.0 / (kPi * kY0));
+  const float zz = (c[6] * static_cast<float>(4.0 / (kPi * kY6)) + area) * (1.0f / 3.0f);
+  const float diff = c[8] * static_cast<float>(4.0 / (kPi * kY8));  // sum A (x^2 - y^2)
+  constexpr float kInvXy = static_cast<float>(4.0 / (kPi * kY2));
+  return {0.5f * (area - zz + diff),
+          0.5f * (area - zz - diff),
+          zz,
+          c[4] * kInvXy,
+          c[5] * kInvXy,
+          c[7] * kInvXy};
+}
+
+// Whether the normals of the SH c lie near one axis e, sides counted apart: the largest
+// eigenvalue of M exceeds k * trace M, for k in (1/2, 1). Then exactly one eigenvalue does
+// (they sum to trace M), so the test is det(k trace(M) I - M) < 0, with no eigen solve.
+inline bool AxisDominates(const float* c, float k) {
+  const std::array<float, 6> m = SecondMoment(c);
+  const float s = k * (m[0] + m[1] + m[2]);
+  if (!(s > 0.0f)) return false;
+  const float a = s - m[0], b = s - m[1], d = s - m[2];
+  // det of [[a, -xy, -xz], [-xy, b, -yz], [-xz, -yz, d]].
+  const float det = a * (b * d - m[4] * m[4]) - d * (m[3] * m[3]) - b * (m[5] * m[5]) -
+                    2.0f * (m[3] * m[4] * m[5]);
+  return det < 0.0f;
+}
+
+// The unit eigenvector of M's largest eigenvalue (any sign): the plane normal of a flat
+// cluster whose sides cancel in band 1 (a two-sided card). Zero when M is zero.
+inline glm::vec3 PrincipalAxis(const float* c) {
+  const std::array<float, 6> m = SecondMoment(c);
+  // Largest eigenvalue of the symmetric 3x3 matrix, in closed form (trigonometric solution).
+  const double xx = m[0], yy = m[1], zz = m[2], xy = m[3], yz = m[4], xz = m[5];
+  const double q = (xx + yy + zz) / 3.0;
+  const double p1 = xy * xy + yz * yz + xz * xz;
+  const double p2 = (xx - q) * (xx - q) + (yy - q) * (yy - q) + (zz - q) * (zz - q) + 2.0 * p1;
+  const double p = std::sqrt(p2 / 6.0);
+  double l = q;
+  if (p > 0.0) {
+    const double bxx = (xx - q) / p, byy = (yy - q) / p, bzz = (zz - q) / p;
+    const double bxy = xy / p, byz = yz / p, bxz = xz / p;
+    const double det = bxx * (byy * bzz - byz * byz) - bxy * (bxy * bzz - byz * bxz) +
+                       bxz * (bxy * byz - byy * bxz);
+    const double r = std::clamp(det / 2.0, -1.0, 1.0);
+    l = q + 2.0 * p * std::cos(std::acos(r) / 3.0);
+  }
+  // The eigenvector is orthogonal to the rows of M - l I: the longest cross product of two.
+  const glm::dvec3 r0(xx - l, xy, xz), r1(xy, yy - l, yz), r2(xz, yz, zz - l);
+  glm::dvec3 best = glm::cross(r0, r1);
+  for (const glm::dvec3& v : {glm::cross(r0, r2), glm::cross(r1, r2)}) {
+    if (glm::dot(v, v) > glm::dot(best, best)) best = v;
+  }
+  const double len = glm::length(best);
+  if (!(len > 0.0)) {
+    // M is a multiple of one axis' projector or zero: its largest diagonal entry's axis.
+    if (!(xx + yy + zz > 0.0)) return glm::vec3(0.0f);
+    return xx >= yy && xx >= zz ? glm::vec3(1, 0, 0)
+           : yy >= zz           ? glm::vec3(0, 1, 0)
+                                : glm::vec3(0, 0, 1);
+  }
+  return glm::vec3(best / len);
 }
 
 }  // namespace pbgi::sh

@@ -51,7 +51,10 @@
 namespace pbgi {
 
 inline constexpr uint64_t kStoreMagic = 0x3130424447425050ull;  // "PPBGDB01" little-endian
-inline constexpr uint32_t kStoreFormatVersion = 1;
+// Version 2: a point record's radius carries the two-sided flag in its sign bit (tree/format.h),
+// which a version-1 reader would misread as a negative radius, so it refuses version 2; this
+// library reads versions 1 (all surfels one-sided) and 2.
+inline constexpr uint32_t kStoreFormatVersion = 2;
 
 // The efficient page sizes are k*4096 - 16: LMDB stores a large value in a run of 4 KiB overflow
 // pages behind a 16-byte page header.

@@ -20,11 +20,15 @@ namespace pbgi {
 
 // A surfel is a disk: position, unit normal, radius, and (with the radiance channel) the
 // diffusely reflected radiance the renderer baked into it (direct light * albedo + emission).
+// A two-sided surfel (a piece of a thin sheet: a leaf, a card, an open mesh part) occludes and
+// shows its radiance from both sides whatever RasterOptions::hitsides says; a one-sided one
+// only from the side its normal points to (or as hitsides selects).
 struct Surfel {
   glm::vec3 position{0.0f};
   glm::vec3 normal{0.0f, 0.0f, 1.0f};
   float radius = 0.0f;
   glm::vec3 radiance{0.0f};
+  bool two_sided = false;
 
   float Area() const { return 3.14159265358979f * radius * radius; }
 };
@@ -111,11 +115,15 @@ using Sh9 = std::array<float, 9>;
 // An octree node standing in for all the surfels below it.
 struct Cluster {
   Bounds bounds;
-  float area = 0.0f;              // total surfel area
-  Sh9 sh_area{};                  // projected area A(w) = sum A_i max(0, n_i.w)
-  std::array<Sh9, 3> sh_power{};  // emitted power per colour P(w) = sum A_i L_i max(0, n_i.w);
-                                  // zero when the database has no radiance channel
-  uint32_t depth = 0;             // depth in the octree (root = 0)
+  float area = 0.0f;  // total surfel area
+  // Projected area A(w) = sum A_i max(0, n_i.w) over one-sided surfels + sum A_i |n_i.w| over
+  // two-sided ones (each the pair n_i, -n_i: band 1 cancels, bands 0 and 2 double, so band 0
+  // holds the area of both sides; `area` counts each surfel once).
+  Sh9 sh_area{};
+  // Emitted power per colour P(w), the same sums weighted by L_i; zero when the database has no
+  // radiance channel.
+  std::array<Sh9, 3> sh_power{};
+  uint32_t depth = 0;  // depth in the octree (root = 0)
   // The surfels below this node are the contiguous range [first_point, first_point+point_count)
   // of global point indices (rank in Morton order): the test harness checks cuts with it.
   uint64_t first_point = 0;
@@ -127,8 +135,11 @@ struct Cluster {
 };
 
 // A cluster is flat when |sum A_i n_i| > kClusterFlatness * sum A_i (its surfels face within
-// about 37 degrees of one way on average): the rasterizer draws it by its mean plane and the
-// cut may refine the others further (Cut::curved_scale).
+// about 37 degrees of one way on average), or when its normals, sides counted apart, lie
+// within about 37 degrees of one axis e: e^T M e > kClusterFlatness^2 * sum A_i, M = sum A_i
+// n_i n_i^T (a two-sided card, whose pairs cancel in the sum; see tree/cut.h NodeIsFlat). The
+// rasterizer draws it by its plane and the cut may refine the others further
+// (Cut::curved_scale).
 inline constexpr float kClusterFlatness = 0.8f;
 
 // What Gather() returns for one receiver: every surfel in front of the receiver is represented

@@ -71,6 +71,57 @@ TEST(PlyTest, RoundTripsBinaryAndAsciiWithAndWithoutColour) {
   }
 }
 
+// Surfel::two_sided round-trips through the optional `uchar two_sided` property (binary and
+// ASCII, with and without colour and extras); files without it read as one-sided, and any
+// nonzero value of another type counts as two-sided.
+TEST(PlyTest, TwoSidedFlagRoundTrips) {
+  ScratchDir dir("ply_two_sided");
+  auto cloud = testing_build::UniformCloud(1500, 4, 2.0f, glm::vec3(0.0f));
+  for (size_t i = 0; i < cloud.size(); ++i) cloud[i].two_sided = (i * 7) % 3 == 0;
+  for (bool ascii : {false, true}) {
+    for (bool colour : {true, false}) {
+      for (bool flag : {true, false}) {
+        SCOPED_TRACE(std::string(ascii ? "ascii" : "binary") + (colour ? " rgb" : " no rgb") +
+                     (flag ? " flag" : " no flag"));
+        const std::string path = dir.Sub("t.ply");
+        PlyWriterOptions wo;
+        wo.ascii = ascii;
+        wo.radiance = colour;
+        wo.two_sided = flag;
+        wo.extra = {"occlusion"};
+        auto w = PlyWriter::Create(path, wo);
+        ASSERT_TRUE(w.ok()) << w.status();
+        std::vector<float> extra(cloud.size(), 0.25f);
+        ASSERT_TRUE((*w)->Write(cloud, extra).ok());
+        ASSERT_TRUE((*w)->Close().ok());
+        auto src = OpenPlyFile(path);
+        ASSERT_TRUE(src.ok()) << src.status();
+        EXPECT_EQ((*src)->header().has_two_sided, flag);
+        auto got = ReadAll(**src, 333);
+        ASSERT_EQ(got.size(), cloud.size());
+        for (size_t i = 0; i < cloud.size(); ++i) {
+          ASSERT_EQ(got[i].position, cloud[i].position) << i;
+          ASSERT_EQ(got[i].radius, cloud[i].radius) << i;
+          ASSERT_EQ(got[i].two_sided, flag && cloud[i].two_sided) << i;
+        }
+      }
+    }
+  }
+  const std::string path = dir.Sub("f.ply");
+  WriteFile(path,
+            "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+            "property float z\nproperty float nx\nproperty float ny\nproperty float nz\n"
+            "property float radius\nproperty float two_sided\nend_header\n"
+            "0 0 0 0 0 1 1 0\n1 0 0 0 0 1 1 0.5\n2 0 0 0 0 1 1 1\n");
+  auto src = OpenPly(path);
+  ASSERT_TRUE(src.ok()) << src.status();
+  const auto got = ReadAll(**src);
+  ASSERT_EQ(got.size(), 3u);
+  EXPECT_FALSE(got[0].two_sided);
+  EXPECT_TRUE(got[1].two_sided);
+  EXPECT_TRUE(got[2].two_sided);
+}
+
 TEST(PlyTest, ReadsUcharColoursExtraPropertiesAndOtherTypes) {
   ScratchDir dir("ply_types");
   const std::string path = dir.Sub("t.ply");

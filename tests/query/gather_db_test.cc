@@ -109,6 +109,39 @@ INSTANTIATE_TEST_SUITE_P(
                              HasRadiance(info.param.channels) ? "radiance" : "occlusion");
     });
 
+// A database with two-sided surfels: Gather returns them with their flag (the harness compares
+// each gathered surfel with the store's), the cut is valid against brute force, and the store
+// holds as many two-sided surfels as went in.
+TEST(GatherDb, TwoSidedSurfelsGatherWithTheirFlag) {
+  std::vector<Surfel> in = testing::RandomSceneSurfels(2500, 43);
+  size_t two_sided = 0;
+  for (size_t i = 0; i < in.size(); ++i) {
+    in[i].two_sided = i % 2 == 0;
+    two_sided += in[i].two_sided ? 1 : 0;
+  }
+  BuildOptions b;
+  b.memory_bytes = 64 << 20;
+  auto t = TempDatabase::Create(in, b);
+  ASSERT_TRUE(t.ok()) << t.status();
+  const std::vector<Surfel>& surfels = (*t)->surfels();
+  size_t stored = 0;
+  for (const Surfel& s : surfels) stored += s.two_sided ? 1 : 0;
+  EXPECT_EQ(stored, two_sided);
+  auto reader = (*t)->db().NewReader();
+  ASSERT_TRUE(reader.ok()) << reader.status();
+  Gathered g;
+  size_t gathered_two_sided = 0;
+  for (const Cut& cut : {Cut{0.2f}, Cut{0.02f, 0.3f}, Cut{0.0f}}) {
+    for (const Receiver& r : Receivers(surfels, 100, 5)) {
+      absl::Status s = (*reader)->Gather(r, cut, &g);
+      ASSERT_TRUE(s.ok()) << s;
+      ASSERT_TRUE((s = testing::CheckValidCut(g, surfels, r, cut)).ok()) << s;
+      for (const Surfel& sf : g.surfels) gathered_two_sided += sf.two_sided ? 1 : 0;
+    }
+  }
+  EXPECT_GT(gathered_two_sided, 1000u);
+}
+
 // The cells that Gather reports: a cluster's cell holds its bounds, a leaf's cell holds its
 // surfels, and the cells of one cut do not overlap (they tile the space the cut covers).
 TEST(GatherDb, CellsHoldTheirContentAndDoNotOverlap) {
@@ -152,7 +185,6 @@ TEST(GatherDb, CellsHoldTheirContentAndDoNotOverlap) {
     }
   }
 }
-
 
 TEST(GatherDb, TinyCacheAndEightThreadsMatchOneThread) {
   BuildOptions b;

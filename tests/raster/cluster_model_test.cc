@@ -16,16 +16,18 @@ using internal::ClusterRadiance;
 using internal::ProjectedArea;
 using testing_raster::Aggregate;
 
+// The projected area of a group of surfels that the side rule selects: a two-sided surfel shows
+// A |n.w| from either side; kBoth is the larger side's total (raster/cluster_model.h).
 double BruteForce(const std::vector<Surfel>& s, const glm::vec3& w, HitSides sides) {
-  double sum = 0.0;
+  double front = 0.0, back = 0.0;
   for (const Surfel& x : s) {
     const double c = glm::dot(x.normal, w);
-    const double front = std::max(0.0, c), back = std::max(0.0, -c);
-    sum += x.Area() * (sides == HitSides::kFront  ? front
-                       : sides == HitSides::kBack ? back
-                                                  : front + back);
+    front += x.Area() * (x.two_sided ? std::fabs(c) : std::max(0.0, c));
+    back += x.Area() * (x.two_sided ? std::fabs(c) : std::max(0.0, -c));
   }
-  return sum;
+  return sides == HitSides::kFront  ? front
+         : sides == HitSides::kBack ? back
+                                    : std::max(front, back);
 }
 
 std::vector<glm::vec3> Directions(int n, uint32_t seed) {
@@ -80,9 +82,16 @@ TEST(ClusterModelTest, TwoSidedSheetAndIsotropicBall) {
   std::vector<Surfel> back = Patch(-n, 20, 0.0f, 4);
   sheet.insert(sheet.end(), back.begin(), back.end());
   const Cluster c = Aggregate(sheet);
+  std::vector<Surfel> flagged = Patch(n, 20, 0.0f, 3);
+  for (Surfel& x : flagged) x.two_sided = true;
+  const Cluster f = Aggregate(flagged);
   for (const glm::vec3& w : Directions(100, 5)) {
-    EXPECT_NEAR(ProjectedArea(c, w, HitSides::kBoth, ClusterModel::kMoments),
-                BruteForce(sheet, w, HitSides::kBoth), 2e-4 * c.area);
+    for (HitSides sides : {HitSides::kFront, HitSides::kBack, HitSides::kBoth}) {
+      EXPECT_NEAR(ProjectedArea(c, w, sides, ClusterModel::kMoments), BruteForce(sheet, w, sides),
+                  2e-4 * c.area);
+      EXPECT_NEAR(ProjectedArea(f, w, sides, ClusterModel::kMoments), BruteForce(flagged, w, sides),
+                  2e-4 * f.area);
+    }
   }
   const std::vector<Surfel> ball =
       testing_raster::SphereSurfels(glm::vec3(0.0f), 0.1f, 2000, false, glm::vec3(1.0f));

@@ -94,7 +94,8 @@ inline std::vector<Surfel> SphereSurfels(const glm::vec3& centre, float radius, 
   return out;
 }
 
-// One cluster standing for `surfels`, as the builder aggregates it.
+// One cluster standing for `surfels`, as the builder aggregates it (a two-sided surfel as the
+// pair n, -n: build/octree_builder.cc).
 inline Cluster Aggregate(const std::vector<Surfel>& surfels) {
   Cluster c;
   std::array<double, 9> area{};
@@ -104,7 +105,10 @@ inline Cluster Aggregate(const std::vector<Surfel>& surfels) {
     const double a = s.Area();
     total += a;
     c.bounds.Extend(s.position);
-    const auto y = sh::ProjectClampedCosine<double>(s.normal.x, s.normal.y, s.normal.z, a);
+    auto y = sh::ProjectClampedCosine<double>(s.normal.x, s.normal.y, s.normal.z, a);
+    if (s.two_sided) {  // the pair (n, -n)
+      for (int i = 0; i < 9; ++i) y[i] = (i >= 1 && i <= 3) ? 0.0 : 2.0 * y[i];
+    }
     for (int i = 0; i < 9; ++i) {
       area[i] += y[i];
       for (int ch = 0; ch < 3; ++ch) power[ch][i] += y[i] * s.radiance[ch];
@@ -143,7 +147,8 @@ inline std::vector<Cluster> ClustersInCells(const std::vector<Surfel>& surfels, 
   for (const auto& [key, group] : groups) {
     Cluster c = Aggregate(group);
     const auto [x, y, z] = key;
-    c.cell.lo = glm::vec3(static_cast<float>(x), static_cast<float>(y), static_cast<float>(z)) * cell;
+    c.cell.lo =
+        glm::vec3(static_cast<float>(x), static_cast<float>(y), static_cast<float>(z)) * cell;
     c.cell.hi = c.cell.lo + cell;
     out.push_back(c);
   }

@@ -229,6 +229,10 @@ awk -v z="$(json "$dir/up_y_info.out" 'j["bounds"]["hi"][2]')" 'BEGIN {exit !(z 
 refuse import_cloud "pbgi build" "$pbgi" import "$assimp_ply/pond.0.ply" -n 1k -o "$dir/pond.ply"
 grep -q "orientation: 54 components: 1 closed" "$dir/up_y.err" && ok ||
   fail "import did not report its orientation: $(grep orientation "$dir/up_y.err")"
+# Its open parts are marked thin, so their surfels are two-sided in the PLY it writes
+# (regression import_drops_two_sided: the flag was set by the sampler, not written).
+check props "$dir/wy.ply" two_sided && ok || fail "import wrote no two_sided property"
+check mean "$dir/wy.ply" two_sided 0.001 1.0 >/dev/null && ok || fail "import: no surfel two-sided: $(check mean "$dir/wy.ply" two_sided 0 1)"
 # Views of a Y-up mesh: --up y on shade matches the import; without it the mismatch names the
 # up axis (regression mesh_mismatch_names_up: both descriptions read alike) and the fix.
 run up_y_build "$pbgi" build "$dir/wy.ply" -o "$dir/wy.pbgi" --memory 64M
