@@ -85,17 +85,17 @@ inline float NodeCutCosine(const glm::vec3& centre, float radius2, const glm::ve
 }
 
 // Whether a node with projected-area SH `sh_area` is flat (see kClusterFlatness): band 0
-// holds pi Y0 A and band 1 holds (2 pi / 3) Y1 N, for A(w) = sum A_i max(0, n_i.w); or, for a
-// two-sided card whose pairs cancel in N, its second moment has one dominant axis (the
-// rasterizer's test too: raster/cluster_prep.cc). For a cluster of one-sided surfels the
-// first test implies the second (E[n.e]^2 <= E[(n.e)^2]); the second also finds flat a thin
-// wedge (two facets facing nearly opposite ways), as it must a two-sided card.
+// holds pi Y0 A and band 1 holds (2 pi / 3) Y1 N, for A(w) = sum A_i max(0, n_i.w). A
+// two-sided card, whose pairs cancel in N, is not flat by this test, so the cut refines it like
+// a curved node (the rasterizer still draws it by its plane: raster/cluster_prep.cc AxisPlane).
+// Counting a dominant axis of the second moment as flat here too (sh::AxisDominates) also kept
+// thin slabs and wedges of one-sided surfels whole, and doubled cornell's error (docs/eval.md,
+// Session 5 summary).
 inline bool NodeIsFlat(const float* sh_area) {
   const float a = sh_area[0] * static_cast<float>(1.0 / (sh::kPi * sh::kY0));
   const float k = static_cast<float>(3.0 / (2.0 * sh::kPi * sh::kY1));
   const glm::vec3 nsum(sh_area[3] * k, sh_area[1] * k, sh_area[2] * k);
-  return glm::dot(nsum, nsum) > (kClusterFlatness * a) * (kClusterFlatness * a) ||
-         sh::AxisDominates(sh_area, kClusterFlatness * kClusterFlatness);
+  return glm::dot(nsum, nsum) > (kClusterFlatness * a) * (kClusterFlatness * a);
 }
 
 // The cut for one node: `cut`, with max_solid_angle scaled by curved_scale when the node is not
