@@ -27,7 +27,7 @@ glm::vec3 ToFrame(const ClusterFrame& f, const glm::vec3& v) {
 }
 
 // A cluster that is not flat by its mean normal but whose normals, sides counted apart, lie
-// near one axis (a two-sided card, whose pairs cancel in N; tree/cut.h NodeIsFlat) is drawn
+// near one axis (a two-sided card, whose pairs cancel in N; include/pbgi/surfel.h) is drawn
 // by the plane through its box centre normal to that axis, turned towards the receiver. Both
 // preparation paths call this one function, so they agree bit for bit. Such a cluster's band-2
 // anisotropy is above kAxisAnisotropy, which the lanes test first.

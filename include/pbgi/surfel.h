@@ -135,11 +135,11 @@ struct Cluster {
 };
 
 // A cluster is flat when |sum A_i n_i| > kClusterFlatness * sum A_i (its surfels face within
-// about 37 degrees of one way on average), or when its normals, sides counted apart, lie
-// within about 37 degrees of one axis e: e^T M e > kClusterFlatness^2 * sum A_i, M = sum A_i
-// n_i n_i^T (a two-sided card, whose pairs cancel in the sum; see tree/cut.h NodeIsFlat). The
-// rasterizer draws it by its plane and the cut may refine the others further
-// (Cut::curved_scale).
+// about 37 degrees of one way on average): the cut may refine the others further
+// (Cut::curved_scale, tree/cut.h NodeIsFlat). The rasterizer draws a flat cluster by its
+// plane, and also one whose normals, sides counted apart, lie within about 37 degrees of one
+// axis e: e^T M e > kClusterFlatness^2 * sum A_i, M = sum A_i n_i n_i^T (a two-sided card,
+// whose pairs cancel in the sum; raster/cluster_prep.cc).
 inline constexpr float kClusterFlatness = 0.8f;
 
 // What Gather() returns for one receiver: every surfel in front of the receiver is represented
