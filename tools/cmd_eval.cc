@@ -31,6 +31,7 @@
 #include "tools/chart.h"
 #include "tools/command.h"
 #include "tools/footprint_flags.h"
+#include "tools/mesh_flags.h"
 #include "tools/progress.h"
 #include "tools/report.h"
 #include "tools/scene_views.h"
@@ -805,13 +806,7 @@ CommandSetup Setup() {
   return [](CLI::App* app) -> std::function<absl::Status()> {
     auto a = std::make_shared<EvalArgs>();
     app->add_option("scene", a->scene, "Procedural scene or mesh file")->capture_default_str();
-    app->add_option("--up", a->up, "Up axis of a mesh file: z, or y (glTF)")
-        ->check(CLI::IsMember({"y", "z", "Y", "Z"}))
-        ->capture_default_str();
-    app->add_option("--orient", a->orient,
-                    "Orientation of a mesh file, as pbgi import --orient: auto or none")
-        ->check(CLI::IsMember({"auto", "none"}))
-        ->capture_default_str();
+    AddMeshFlags(app, &a->up, &a->orient);
     app->add_option("-o,--output", a->out_dir, "Output directory (database, eval.json, eval.png)")
         ->capture_default_str();
     app->add_option("--mode", a->mode,

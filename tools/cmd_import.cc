@@ -18,6 +18,7 @@
 #include "pbgi/store.h"
 #include "tools/args.h"
 #include "tools/command.h"
+#include "tools/mesh_flags.h"
 #include "tools/outputs.h"
 #include "tools/progress.h"
 #include "tools/scene_views.h"
@@ -174,14 +175,7 @@ CommandSetup Setup() {
     app->add_option("-n,--points", o->points, "Number of surfels (50k, 10M, 1e8, ...)")
         ->check(CountValidator(1));
     app->add_option("--density", o->density, "Surfels per unit area (instead of -n)");
-    app->add_option("--up", o->up, "Up axis of the mesh: z, or y (glTF, many OBJ files)")
-        ->check(CLI::IsMember({"y", "z", "Y", "Z"}))
-        ->capture_default_str();
-    app->add_option("--orient", o->orient,
-                    "auto: wind closed shells outward and mark open or non-manifold parts thin "
-                    "(two-sided); none: keep the file's winding")
-        ->check(CLI::IsMember({"auto", "none"}))
-        ->capture_default_str();
+    AddMeshFlags(app, &o->up, &o->orient);
     app->add_option("--sun", o->sun,
                     "Sun direction (towards the sun) and radiance: DX,DY,DZ[,R,G,B]");
     app->add_option("--sky", o->sky, "Uniform sky radiance: R,G,B");

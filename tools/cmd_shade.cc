@@ -26,6 +26,7 @@
 #include "tools/budget.h"
 #include "tools/command.h"
 #include "tools/footprint_flags.h"
+#include "tools/mesh_flags.h"
 #include "tools/outputs.h"
 #include "tools/progress.h"
 #include "tools/scene_views.h"
@@ -443,13 +444,7 @@ CommandSetup Setup() {
     app->add_option("--seed", a->seed, "Seed of a procedural scene")->capture_default_str();
     app->add_option("--size", a->size, "Scale of a procedural scene (0: its default)")
         ->capture_default_str();
-    app->add_option("--up", a->up, "Up axis of a mesh file: z, or y (glTF)")
-        ->check(CLI::IsMember({"y", "z", "Y", "Z"}))
-        ->capture_default_str();
-    app->add_option("--orient", a->orient,
-                    "Orientation of a mesh file, as pbgi import --orient: auto or none")
-        ->check(CLI::IsMember({"auto", "none"}))
-        ->capture_default_str();
+    AddMeshFlags(app, &a->up, &a->orient);
     app->add_flag("--any-scene", a->any_scene,
                   "Shade a view even when the database was built from another scene");
     app->add_option("--eye", a->eye, "Camera position X,Y,Z");
