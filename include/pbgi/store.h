@@ -170,9 +170,9 @@ struct StoreCheckReport {
   };
   SectionCounts nodes;
   SectionCounts points;
-  uint64_t bad_pages = 0;    // pages that failed their own check (checksum, kind, number, size)
+  uint64_t bad_pages = 0;        // pages that failed their own check (checksum, kind, number, size)
   uint64_t lmdb_tree_pages = 0;  // LMDB's branch and leaf pages of both sections, checked again
-  absl::Status first_error;  // OK when the store is consistent; else the first problem found
+  absl::Status first_error;      // OK when the store is consistent; else the first problem found
   bool ok() const { return first_error.ok(); }
 };
 
