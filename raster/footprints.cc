@@ -17,6 +17,7 @@
 #include <cmath>
 
 #include "glm/geometric.hpp"
+#include "pbgi/sh.h"
 #include "raster/polygon.h"
 #include "raster/rasterizer.h"
 
@@ -26,6 +27,21 @@ namespace {
 // A flat footprint whose polygon holds at most this many surfels' areas fills its cell whenever
 // it reaches the cell's sides (see FlatFootprint).
 constexpr double kSmallCell = 9.0;
+
+// A cluster is porous (foliage, grass: pieces facing every way with gaps between them) when
+// |sum A_i n_i| < kPorousCoherence * sum A_i; two-sided surfels, whose sides cancel in the sum,
+// always are (the pieces of one two-sided card still add up: they face the same way and join
+// one layer, see Rasterizer::Layer()). Its opacity is composited as an independent layer's
+// (Rasterizer::Close()); the coverage of a piece of a continuous surface, whose neighbours fill
+// what its footprint leaves free, is scaled by it instead.
+constexpr float kPorousCoherence = 0.5f;
+
+bool Porous(const Cluster& c) {
+  const float a = c.sh_area[0] * static_cast<float>(1.0 / (sh::kPi * sh::kY0));
+  const float k = static_cast<float>(3.0 / (2.0 * sh::kPi * sh::kY1));
+  const glm::vec3 nsum(c.sh_area[3] * k, c.sh_area[1] * k, c.sh_area[2] * k);
+  return glm::dot(nsum, nsum) < (kPorousCoherence * a) * (kPorousCoherence * a);
+}
 
 // Whether `cell` is a usable octree cell for content with box `b` (the gather sets it; a
 // caller-built cluster may not).
@@ -153,6 +169,7 @@ void Rasterizer::BuildClusterFootprints(const Gathered& g) {
     const uint32_t first = poly_count_;
     s.poly_count = 0;
     s.poly_first = first;
+    s.porous = Porous(c) ? 1 : 0;  // the cone splat's too, when it keeps it
     if (s.flat) {
       // The mean plane (through the box centre, s.plane in the receiver's frame), cut by the box.
       const float cosw = std::fabs(glm::dot(s.normal, s.dir));
@@ -357,6 +374,7 @@ void Rasterizer::PrepareSurfelGroups(const Gathered& g, ShadeResult* out) {
       s.omega = 0.0f;
       s.near = 2;
       s.alpha = alpha;
+      s.porous = first.two_sided ? 1 : 0;  // a piece of a leaf (see Rasterizer::Layer())
       s.poly_first = poly_count_;
       s.poly_count = 0;
       AddPolygon(p, &s);

@@ -123,6 +123,7 @@ void Rasterizer::PrepareSurfel(const Surfel& sf, ShadeResult* out) {
   s.plane = -std::fabs(side);
   s.thick = 0.0f;
   s.flat = 1;
+  s.porous = polygons_ && sf.two_sided ? 1 : 0;  // a piece of a leaf (see Layer())
   if (d < o_.near_field_factor * r) {
     s.dir = ToLocal(rel);
     s.omega = r;

@@ -85,9 +85,9 @@ class Rasterizer {
   template <bool kRad>
   static void Close(PixelState& px, bool behind, bool free_layer) {
     if (!(px.open > 0.0f)) return;
-    const float e = free_layer && px.closed == 0.0f && !behind
-                        ? px.open
-                        : std::min(px.open, std::max(0.0f, 1.0f - px.closed));
+    const float e = free_layer && px.closed == 0.0f && !behind ? px.open
+                    : px.porous != 0.0f ? std::min(px.open, 1.0f) * std::max(0.0f, 1.0f - px.closed)
+                                        : std::min(px.open, std::max(0.0f, 1.0f - px.closed));
     const float closed = px.closed + e;
     if constexpr (kRad) {
       const V4 open = Load4(&px.open);
@@ -127,10 +127,11 @@ class Rasterizer {
     glm::vec3 normal;     // unit, facing the receiver; 0 when unknown
     float plane, thick;   // flat: see PreparedSplat
     bool flat;
+    bool porous;  // see PreparedSplat
   };
   static Frag FragOf(const PreparedSplat& s) {
     return Frag{Load4(s.rgb1), s.depth, s.depth - s.extent, s.depth + s.extent, s.normal,
-                s.plane,       s.thick, s.flat != 0};
+                s.plane,       s.thick, s.flat != 0,        s.porous != 0};
   }
   template <bool kClamp, bool kRad>
   void Draw(uint32_t count);
@@ -212,7 +213,14 @@ class Rasterizer {
     }
   }
 
-  // Emit() with clamp once the fragment's depth range in the pixel is known.
+  // Emit() with clamp once the fragment's depth range in the pixel is known. Porous fragments
+  // (f.porous: leaves) are independent of each other: a layer they start adds what it covers
+  // of what the layers in front leave free, cov * (1 - closed) (Close()), and one that overlaps
+  // the open layer in depth without facing its way (another leaf) adds cov * (1 - closed -
+  // open) at once, so leaves at many depths multiply their transmittances where adding and
+  // clamping at 1 over-occluded the forest (bug: porous_layers_overcount). A porous fragment
+  // facing the layer's way (the next piece of the same leaf or card) joins it, so the
+  // overlapping disks of one sheet still add up to cover it.
   template <bool kRad>
   [[gnu::always_inline]] void Layer(PixelState& px, float cov, const Frag& f, float lo, float hi) {
     if (lo > px.far && px.open > 0.0f) {
@@ -222,9 +230,18 @@ class Rasterizer {
     if (!(px.open > 0.0f)) {
       px.far = hi;
       px.normal[0] = f.normal.x, px.normal[1] = f.normal.y, px.normal[2] = f.normal.z;
+      px.porous = f.porous ? 1.0f : 0.0f;
     } else if (f.normal.x * px.normal[0] + f.normal.y * px.normal[1] + f.normal.z * px.normal[2] >
                kChainCos) {
       px.far = std::max(px.far, hi);
+    } else if (f.porous) {
+      const float e = std::min(cov, 1.0f) * std::max(0.0f, 1.0f - px.closed - px.open);
+      if constexpr (kRad) {
+        Store4(&px.closed, Load4(&px.closed) + e * f.rgb1);
+      } else {
+        px.closed += e;
+      }
+      return;
     }
     if constexpr (kRad) {
       Store4(&px.open, Load4(&px.open) + cov * f.rgb1);

@@ -173,7 +173,10 @@ struct alignas(16) PreparedSplat {
   uint8_t near;  // 1 for an exact disk, 2 for polygons (poly_first, poly_count)
   uint8_t flat;  // far: 1 when plane and thick are set (a surfel, or a nearly flat cluster)
   uint8_t poly_count;
-  uint8_t unused_;
+  // 1 when the element is porous, polygon footprints only: a cluster of pieces facing every
+  // way with gaps between them (leaves, grass), or a two-sided surfel (a piece of a leaf). Its
+  // layer's coverage is composited as an independent one's, see Rasterizer::Layer().
+  uint8_t porous;
   uint32_t source;      // the cluster's index in Gathered::clusters (clusters only)
   uint32_t poly_first;  // polygons: the first in the MicroBuffer's polygon list
   float alpha;          // polygons: the coverage of the element inside them
@@ -190,7 +193,7 @@ struct alignas(16) PixelState {
   float far;        // far end of the open layer's depth range
   float depth;      // nearest fragment's depth
   float normal[3];  // the open layer's first fragment's normal (0: none)
-  float unused;
+  float porous;     // 1 when the open layer's first fragment is porous (PreparedSplat::porous)
 };
 struct PixelDir {
   float x, y, z;
