@@ -15,12 +15,8 @@
 // and exactly 1 when the surface fills its cell.
 #include <algorithm>
 #include <cmath>
-#include <cstring>
-#include <limits>
-#include <vector>
 
 #include "glm/geometric.hpp"
-#include "pbgi/sh.h"
 #include "raster/polygon.h"
 #include "raster/rasterizer.h"
 
@@ -40,11 +36,14 @@ bool CellHolds(const Bounds& cell, const Bounds& b) {
          glm::all(glm::lessThanEqual(b.hi, cell.hi + tol));
 }
 
-Bounds Box(const Bounds& centres, const Bounds& cell, float spacing, const glm::vec3& plane_normal,
-           bool has_cell, bool* full, int* snapped) {
+}  // namespace
+
+Bounds FootprintBox(const Bounds& centres, const Bounds& cell, float spacing,
+                    const glm::vec3& plane_normal, bool* full, int* snapped) {
   Bounds b;
   bool all = true;
   int mask = 0;
+  const bool has_cell = CellHolds(cell, centres);
   for (int k = 0; k < 3; ++k) {
     const bool in_plane = std::fabs(plane_normal[k]) < 0.9f;
     // A cell less than two spacings across cannot tell a surface's edge from sampling noise
@@ -67,29 +66,14 @@ Bounds Box(const Bounds& centres, const Bounds& cell, float spacing, const glm::
   return b;
 }
 
-// What FlatFootprint computes before it knows the content's area: the footprint box and the
-// plane's polygon in it (relative to `origin`), with its area.
-struct FlatBase {
-  Bounds box;
-  double poly = 0.0;
+float FlatFootprint(const Bounds& centres, const Bounds& cell, float spacing,
+                    const glm::vec3& normal, float offset, const glm::vec3& origin, double area,
+                    Polygon* p) {
+  bool full = false;
   int snapped = 0;
-  bool full = false, has_cell = false;
-};
-
-void FlatFootprintBase(const Bounds& centres, const Bounds& cell, float spacing,
-                       const glm::vec3& normal, float offset, const glm::vec3& origin,
-                       FlatBase* base, Polygon* p) {
-  base->has_cell = CellHolds(cell, centres);
-  base->box = Box(centres, cell, spacing, normal, base->has_cell, &base->full, &base->snapped);
-  PlaneBoxPolygon(normal, offset, base->box.lo - origin, base->box.hi - origin, p);
-  base->poly = p->n >= 3 ? PolygonArea(*p) : 0.0;
-}
-
-// The rest of FlatFootprint, from its base and the base's polygon in *p.
-float FlatFootprintAlpha(const FlatBase& base, const Bounds& centres, const Bounds& cell,
-                         float spacing, const glm::vec3& normal, float offset,
-                         const glm::vec3& origin, double area, Polygon* p) {
-  double poly = base.poly;
+  Bounds box = FootprintBox(centres, cell, spacing, normal, &full, &snapped);
+  PlaneBoxPolygon(normal, offset, box.lo - origin, box.hi - origin, p);
+  double poly = p->n >= 3 ? PolygonArea(*p) : 0.0;
   if (!(poly > 0.0) || !(area > 0.0)) {
     p->n = 0;
     return 0.0f;
@@ -103,10 +87,8 @@ float FlatFootprintAlpha(const FlatBase& base, const Bounds& centres, const Boun
   // cell is seen, the more the finer the raster (bug: sparse_full_cell_leak).
   const double m = poly / std::max(1e-30, double(spacing) * spacing);
   const double lacks = m <= kSmallCell ? 0.0 : 0.7;
-  if (base.full && area >= lacks * poly) return 1.0f;
-  const bool has_cell = base.has_cell;
-  const int snapped = base.snapped;
-  Bounds box = base.box;
+  if (full && area >= lacks * poly) return 1.0f;
+  const bool has_cell = CellHolds(cell, centres);
   for (int iter = 0; iter < 2 && area > poly * 1.0001; ++iter) {
     // Grow the free in-plane axes by the missing factor, shared among them.
     int free_axes = 0;
@@ -141,119 +123,6 @@ float FlatFootprintAlpha(const FlatBase& base, const Bounds& centres, const Boun
     poly = qa;
   }
   return std::min(1.0f, static_cast<float>(area / poly));
-}
-
-// FootprintEntry::key's slots.
-constexpr int kKeyFloats = 16;
-constexpr size_t kCacheSlots = 8192;  // a power of two
-
-uint64_t HashKey(const float* key) {
-  uint64_t h = 0x243f6a8885a308d3ull;
-  for (int i = 0; i < kKeyFloats; i += 2) {
-    uint64_t w;
-    std::memcpy(&w, key + i, sizeof w);
-    h = (h ^ w) * 0x9e3779b97f4a7c15ull;
-    h ^= h >> 29;
-  }
-  return h;
-}
-
-// The cache of footprints (FootprintEntry, in the MicroBuffer): direct-mapped on a hash of the
-// key, filled on a miss.
-FootprintEntry& CacheSlot(std::vector<FootprintEntry>& cache, const Cluster& c, float spacing,
-                          bool flat, bool* hit) {
-  float key[kKeyFloats];
-  std::memcpy(key, &c.bounds.lo, 12);
-  std::memcpy(key + 3, &c.bounds.hi, 12);
-  std::memcpy(key + 6, &c.cell.lo, 12);
-  std::memcpy(key + 9, &c.cell.hi, 12);
-  key[12] = flat ? spacing : -spacing;
-  key[13] = c.sh_area[3], key[14] = c.sh_area[1], key[15] = c.sh_area[2];  // N, up to a scale
-  if (cache.empty()) {
-    cache.resize(kCacheSlots);
-    for (FootprintEntry& e : cache) e.key[0] = std::numeric_limits<float>::quiet_NaN();
-  }
-  FootprintEntry& e = cache[HashKey(key) & (kCacheSlots - 1)];
-  *hit = std::memcmp(e.key, key, sizeof key) == 0;
-  if (!*hit) std::memcpy(e.key, key, sizeof key);
-  return e;
-}
-
-bool Parallel(const glm::vec3& unit, const glm::vec3& v) {
-  return std::fabs(glm::dot(unit, v)) > 0.99999f;
-}
-
-// A flat cluster's plane passes through its bounds' centre with a normal of its own, whatever
-// the receiver: the mean normal N (PrepareClusterOne), or the principal axis of a two-sided
-// card (AxisPlane). So its footprint polygon and area are kept per cluster and only the
-// opacity, which depends on the projected area seen, is computed per receiver. The receiver's
-// frame turns the normal (mean_world, from the splat's local normal) by a rounding that differs
-// per receiver: the polygon takes the cluster's own normal instead, the one mean_world is
-// parallel to. False (nothing kept) when it is parallel to neither.
-bool CachedFlatFootprint(std::vector<FootprintEntry>& cache, const Cluster& c, float spacing,
-                         const glm::vec3& mean_world, const glm::vec3& origin, double area,
-                         Polygon* p, float* alpha) {
-  bool hit;
-  FootprintEntry& e = CacheSlot(cache, c, spacing, /*flat=*/true, &hit);
-  const glm::vec3 anchor = 0.5f * (c.bounds.lo + c.bounds.hi);
-  FlatBase base;
-  if (hit) {
-    if (!(e.n <= 6) || !Parallel(e.plane, mean_world)) return false;
-    base.box = e.box;
-    base.poly = e.poly;
-    base.snapped = e.snapped;
-    base.full = e.full != 0;
-    base.has_cell = e.has_cell != 0;
-    p->n = e.n;
-    for (int i = 0; i < e.n; ++i) p->v[i] = e.v[i];
-  } else {
-    e.n = 255;  // unusable until complete
-    const glm::vec3 ns(c.sh_area[3], c.sh_area[1], c.sh_area[2]);
-    const float nl2 = glm::dot(ns, ns);
-    glm::vec3 plane(0.0f);
-    if (nl2 > 0.0f && std::isfinite(nl2)) plane = ns * (1.0f / std::sqrt(nl2));
-    if (!Parallel(plane, mean_world)) {
-      plane = sh::PrincipalAxis(c.sh_area.data());
-      if (!Parallel(plane, mean_world)) return false;
-    }
-    FlatFootprintBase(c.bounds, c.cell, spacing, plane, 0.0f, anchor, &base, p);
-    if (p->n > 6) return false;  // not a plane's section of a box; not kept
-    e.plane = plane;
-    e.box = base.box;
-    e.poly = base.poly;
-    e.snapped = static_cast<uint8_t>(base.snapped);
-    e.full = base.full;
-    e.has_cell = base.has_cell;
-    e.n = static_cast<uint8_t>(p->n);
-    for (int i = 0; i < p->n; ++i) e.v[i] = p->v[i];
-  }
-  *alpha = FlatFootprintAlpha(base, c.bounds, c.cell, spacing, e.plane, 0.0f, anchor, area, p);
-  const glm::vec3 shift = anchor - origin;
-  for (int i = 0; i < p->n; ++i) p->v[i] += shift;
-  return true;
-}
-
-// A curved cluster's footprint box, kept like a flat one's polygon.
-Bounds CachedCurvedBox(std::vector<FootprintEntry>& cache, const Cluster& c, float spacing) {
-  bool hit;
-  FootprintEntry& e = CacheSlot(cache, c, spacing, /*flat=*/false, &hit);
-  if (!hit) e.box = FootprintBox(c.bounds, c.cell, spacing, glm::vec3(0.0f), nullptr);
-  return e.box;
-}
-
-}  // namespace
-
-Bounds FootprintBox(const Bounds& centres, const Bounds& cell, float spacing,
-                    const glm::vec3& plane_normal, bool* full, int* snapped) {
-  return Box(centres, cell, spacing, plane_normal, CellHolds(cell, centres), full, snapped);
-}
-
-float FlatFootprint(const Bounds& centres, const Bounds& cell, float spacing,
-                    const glm::vec3& normal, float offset, const glm::vec3& origin, double area,
-                    Polygon* p) {
-  FlatBase base;
-  FlatFootprintBase(centres, cell, spacing, normal, offset, origin, &base, p);
-  return FlatFootprintAlpha(base, centres, cell, spacing, normal, offset, origin, area, p);
 }
 
 void Rasterizer::AddPolygon(const Polygon& world_rel, PreparedSplat* s) {
@@ -292,12 +161,8 @@ void Rasterizer::BuildClusterFootprints(const Gathered& g) {
       const float seen = s.omega * s.depth * s.depth;
       const glm::vec3 mean_world = s.normal.x * t_ + s.normal.y * b_ + s.normal.z * n_;
       Polygon p;
-      float alpha;
-      if (!CachedFlatFootprint(mb_.footprint_cache_, c, spacing, mean_world, origin_, seen / cosw, &p,
-                               &alpha)) {
-        alpha =
-            FlatFootprint(c.bounds, c.cell, spacing, mean_world, s.plane, origin_, seen / cosw, &p);
-      }
+      const float alpha =
+          FlatFootprint(c.bounds, c.cell, spacing, mean_world, s.plane, origin_, seen / cosw, &p);
       if (p.n < 3) continue;  // keeps the cone splat
       s.alpha = alpha;
       AddPolygon(p, &s);
@@ -305,7 +170,7 @@ void Rasterizer::BuildClusterFootprints(const Gathered& g) {
       // The box's faces that face the receiver (at the origin), drawn as one polygon: their
       // silhouette (BoxSilhouette). The faces tile it, so a pixel's coverage is the same sum,
       // for one polygon's cost instead of up to three.
-      const Bounds box = CachedCurvedBox(mb_.footprint_cache_, c, spacing);
+      const Bounds box = FootprintBox(c.bounds, c.cell, spacing, glm::vec3(0.0f), nullptr);
       const glm::vec3 lo = box.lo - origin_, hi = box.hi - origin_;
       const glm::vec3 ext = hi - lo;
       bool inside = true;

@@ -197,22 +197,6 @@ struct PixelDir {
   float inv_width;   // 1 / (angular width of the pixel)
   float half_width;  // half the angular width of the pixel
 };
-// A cluster's footprint before its opacity, kept per MicroBuffer across receivers
-// (raster/footprints.cc): the box, and a flat cluster's plane and polygon in it, depend only on
-// the cluster, and neighbouring receivers gather mostly the same clusters. `key` holds the
-// cluster's data they are computed from, compared bit for bit, so a hit gives what computing
-// them again would.
-struct FootprintEntry {
-  float key[16];  // bounds lo, hi; cell lo, hi; spacing (negated: curved); N (NaN: empty slot)
-  Bounds box;     // the footprint box (FootprintBox)
-  glm::vec3 plane;  // flat: the unit plane normal (through the bounds' centre)
-  double poly;      // flat: the polygon's area
-  glm::vec3 v[6];   // flat: the polygon, relative to the bounds' centre
-  uint8_t n;        // flat: its vertex count (0: none)
-  uint8_t full;     // flat: the plane fills the cell
-  uint8_t has_cell;
-  uint8_t snapped;  // FootprintBox's sides that reached the cell
-};
 class Rasterizer;
 }  // namespace internal
 
@@ -271,7 +255,6 @@ class MicroBuffer {
   std::vector<internal::PixelCoverage> coverage_;      // one polygon's pixels
   std::vector<uint32_t> groups_;                       // scratch of the surfel groups
   std::vector<uint64_t> group_keys_;                   // their grid cells
-  std::vector<internal::FootprintEntry> footprint_cache_;  // direct-mapped, by the key's hash
   bool free_layer_ = true;  // the last Shade()'s first layer summed freely (kSplats)
 };
 
