@@ -225,6 +225,50 @@ TEST(FootprintTest, AnObliquePlaneIsNotGrownAcrossItsCell) {
   // surfels as splats. docs/eval.md lists it among what is left.)
 }
 
+// A MicroBuffer that has shaded other receivers and other clusters gives, bit for bit, what a
+// fresh one gives: nothing a receiver leaves in the buffer (scratch, or anything kept across
+// receivers to save work) changes the next one's answer. The clusters: a tilted disk (oblique
+// planes; its rim cells grow their polygons), the same clusters with their cells dropped, an
+// axis-aligned square, a sphere in large cells and a two-sided card (planes by the principal
+// axis).
+TEST(FootprintTest, AReusedBufferGivesWhatAFreshOneGives) {
+  std::vector<Surfel> disk = DiskSurfels(glm::vec3(0.0f, 0.0f, 1.0f), glm::vec3(0, 0, -1), 0.8f,
+                                         0.02f, glm::vec3(0.5f), /*jitter=*/true);
+  disk = Transform(disk, Rotation(glm::vec3(1, 0.3f, 0), 0.4f), 1.0f, glm::vec3(0.1f, 0, 0.2f));
+  std::vector<Gathered> sets(3);
+  sets[0].clusters = ClustersInCells(disk, 0.125f);
+  sets[1].clusters = sets[0].clusters;
+  for (Cluster& c : sets[1].clusters) c.cell = Bounds();
+  sets[2].clusters = ClustersInCells(SquareSurfels(1.0f, 0.7f, 0.02f), 0.25f);
+  sets.emplace_back().clusters =
+      ClustersInCells(SphereSurfels(glm::vec3(0.2f, 0.1f, 1.5f), 0.6f, 20000, false), 1.5f);
+  std::vector<Surfel> card =
+      Transform(SquareSurfels(0.6f, 0.0f, 0.02f), Rotation(glm::vec3(0, 1, 0), 0.5f), 1.0f,
+                glm::vec3(0.0f, 0.0f, 0.8f));
+  for (size_t i = 0; i < card.size(); ++i) {
+    card[i].two_sided = true;
+    if (i % 2) card[i].normal = -card[i].normal;  // the sides cancel in N
+  }
+  sets.emplace_back().clusters = ClustersInCells(card, 0.2f);
+  MicroBuffer kept;
+  int compared = 0;
+  for (int pass = 0; pass < 2; ++pass) {
+    for (size_t k = 0; k < sets.size(); ++k) {
+      for (int i = 0; i < 12; ++i) {
+        const ShadeReceiver r = At(glm::vec3(-0.3f + 0.05f * i, 0.02f * i, 0.0f));
+        MicroBuffer fresh;
+        const ShadeResult a = MustShade(sets[k], r, Polygons(true), &fresh);
+        const ShadeResult b = MustShade(sets[k], r, Polygons(true), &kept);
+        EXPECT_EQ(a.occlusion, b.occlusion) << "set " << k << " receiver " << i;
+        EXPECT_EQ(a.irradiance, b.irradiance) << "set " << k << " receiver " << i;
+        EXPECT_GT(a.occlusion, 0.05f);
+        ++compared;
+      }
+    }
+  }
+  EXPECT_EQ(compared, 2 * 12 * 5);
+}
+
 TEST(FootprintTest, RejectsAnUnknownFootprint) {
   RasterOptions o;
   o.footprint = static_cast<Footprint>(7);
