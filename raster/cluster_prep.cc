@@ -130,7 +130,7 @@ bool PrepareClusterOne(const Cluster& c, const ClusterFrame& f, PreparedSplat* o
   }
   if (!flat) AxisPlane(c, f, &s);
   s.near = 0;
-  s.porous = 0;
+  s.flags = 0;
   return true;
 }
 

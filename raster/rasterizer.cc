@@ -123,7 +123,11 @@ void Rasterizer::PrepareSurfel(const Surfel& sf, ShadeResult* out) {
   s.plane = -std::fabs(side);
   s.thick = 0.0f;
   s.flat = 1;
-  s.porous = polygons_ && sf.two_sided ? 1 : 0;  // a piece of a leaf (see Layer())
+  // A two-sided surfel is a piece of a leaf; see Layer().
+  s.flags = !polygons_                                      ? 0
+            : sf.two_sided                                  ? kSplatPorous
+            : o_.hitsides == HitSides::kBoth && side < 0.0f ? kSplatBack
+                                                            : 0;
   if (d < o_.near_field_factor * r) {
     s.dir = ToLocal(rel);
     s.omega = r;

@@ -158,6 +158,14 @@ struct PixelCoverage {
   uint32_t pixel;
   float coverage;
 };
+// PreparedSplat::flags. Porous: a cluster of pieces facing every way with gaps between them
+// (leaves, grass), or a two-sided surfel (a piece of a leaf); its layer's coverage is
+// composited as an independent one's. Back: with hitsides both, a one-sided element seen from
+// behind; it counts only where no element seen from the front came before it in the pixel
+// (the inside of a closed object shows only through gaps of its front's footprints). See
+// Rasterizer::Layer().
+inline constexpr uint8_t kSplatPorous = 1;
+inline constexpr uint8_t kSplatBack = 2;
 // One element ready to splat (local frame), kept in the MicroBuffer to avoid allocation.
 // 64 bytes, the radiance first and 16-byte aligned so that Emit() adds it four lanes wide.
 struct alignas(16) PreparedSplat {
@@ -173,10 +181,7 @@ struct alignas(16) PreparedSplat {
   uint8_t near;  // 1 for an exact disk, 2 for polygons (poly_first, poly_count)
   uint8_t flat;  // far: 1 when plane and thick are set (a surfel, or a nearly flat cluster)
   uint8_t poly_count;
-  // 1 when the element is porous, polygon footprints only: a cluster of pieces facing every
-  // way with gaps between them (leaves, grass), or a two-sided surfel (a piece of a leaf). Its
-  // layer's coverage is composited as an independent one's, see Rasterizer::Layer().
-  uint8_t porous;
+  uint8_t flags;        // kSplatPorous, kSplatBack (polygon footprints only; 0 otherwise)
   uint32_t source;      // the cluster's index in Gathered::clusters (clusters only)
   uint32_t poly_first;  // polygons: the first in the MicroBuffer's polygon list
   float alpha;          // polygons: the coverage of the element inside them
@@ -193,7 +198,8 @@ struct alignas(16) PixelState {
   float far;        // far end of the open layer's depth range
   float depth;      // nearest fragment's depth
   float normal[3];  // the open layer's first fragment's normal (0: none)
-  float porous;     // 1 when the open layer's first fragment is porous (PreparedSplat::porous)
+  float porous;     // 1 when the open layer's first fragment is porous (kSplatPorous)
+  float front;      // 1 once a fragment not flagged kSplatBack reached the pixel
 };
 struct PixelDir {
   float x, y, z;

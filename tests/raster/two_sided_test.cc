@@ -79,11 +79,17 @@ TEST(TwoSidedTest, ClosedSphereOccludesTheSameWithBothSidesAsWithFront) {
     const double cf = MustShade(cells, glm::vec3(0.0f), Options(fp, HitSides::kFront)).occlusion;
     const double cb = MustShade(cells, glm::vec3(0.0f), Options(fp, HitSides::kBoth)).occlusion;
     EXPECT_NEAR(cf, want, 0.1 * want) << Name(fp) << " cells";
-    // In cells, the far hemisphere's patches show their insides with hitsides both, and they
-    // fill what the near patches' partial opacity leaves: a known residual, about +50%
-    // (docs/eval.md, "Session 5"). Still below the old front + back rule's, which doubled it.
-    EXPECT_GT(cb, cf) << Name(fp) << " cells";
-    EXPECT_LT(cb, 1.6 * want) << Name(fp) << " cells";
+    if (fp == Footprint::kPolygons) {
+      // In cells, the far hemisphere's patches show their insides with hitsides both; behind
+      // the near patches they add nothing (kSplatBack), where they filled what the near
+      // patches' partial opacity left, about +50% (bug: back_faces_fill_front_gaps).
+      EXPECT_NEAR(cb, want, 0.1 * want) << Name(fp) << " cells";
+    } else {
+      // Splats keep that residual (docs/eval.md, "Session 5"); still below the old front +
+      // back rule's, which doubled it.
+      EXPECT_GT(cb, cf) << Name(fp) << " cells";
+      EXPECT_LT(cb, 1.6 * want) << Name(fp) << " cells";
+    }
   }
 }
 
