@@ -105,7 +105,10 @@ void Rasterizer::PrepareSurfel(const Surfel& sf, ShadeResult* out) {
   const bool visible = (sides == HitSides::kFront && side > 0.0f) ||
                        (sides == HitSides::kBack && side < 0.0f) ||
                        (sides == HitSides::kBoth && side != 0.0f);
-  if (!(top > 0.0f) || !visible || !std::isfinite(d2) || d > o_.max_distance) {
+  // With hitsides both, a one-sided surfel seen from behind whose plane passes within its
+  // radius of the receiver is the receiver's own surface (see PrepareSurfelGroups).
+  const bool own = o_.hitsides == HitSides::kBoth && !sf.two_sided && side < 0.0f && -side < r;
+  if (!(top > 0.0f) || !visible || own || !std::isfinite(d2) || d > o_.max_distance) {
     ++out->culled;
     return;
   }
