@@ -323,6 +323,11 @@ absl::StatusOr<BuildStats> BuildToSink(SurfelSource& source, PageSink& sink,
   m["merge_passes"] = absl::StrFormat("%d", stats.merge_passes);
   m["memory_bytes"] = absl::StrFormat("%d", options.memory_bytes);
   m["threads"] = absl::StrFormat("%d", stats.threads);
+  // The box whose cube the Morton keys were made in (the source's declared bounds when it knew
+  // them, which may be larger than the points' box): the reader's octree cells come from it
+  // (query/database.cc KeyBounds), exactly, as hexadecimal floats.
+  m["key_bounds"] = absl::StrFormat("%a %a %a %a %a %a", bounds.lo.x, bounds.lo.y, bounds.lo.z,
+                                    bounds.hi.x, bounds.hi.y, bounds.hi.z);
   m["upper_records"] = absl::StrFormat("%d", stats.upper_records);
   m["early_upper_writes"] = absl::StrFormat("%d", stats.early_upper_writes);
   const std::string knn = absl::StrFormat("estimated from %d nearest neighbours",

@@ -3,13 +3,16 @@
 #include <algorithm>
 #include <atomic>
 #include <cmath>
+#include <cstdlib>
 #include <cstring>
 #include <mutex>
+#include <string>
 #include <utility>
 #include <vector>
 
 #include "absl/base/thread_annotations.h"
 #include "absl/strings/str_format.h"
+#include "absl/strings/str_split.h"
 #include "pbgi/query.h"
 #include "pbgi/status.h"
 #include "query/database_internal.h"
@@ -183,6 +186,36 @@ inline bool ClearlyBelowCut(const NodeHot& node, const glm::vec3& p, float max_s
   return node.area_bound < (max_sa * d2) * (1.0f - 1e-4f);
 }
 
+namespace {
+
+// The box whose cube the builder made the Morton keys in: build statistic "key_bounds" (six
+// hexadecimal floats). A database built from a source that declared bounds larger than its
+// points has it; the points' box stood for it before, and then every cluster's and leaf's cell
+// was off the octree's grid, so footprints did not snap to the cells' sides (bug:
+// cells_off_the_key_cube). Missing or unusable (older databases): the points' box, which is
+// the key box of every build that measured its bounds.
+Bounds KeyBounds(const StoreMeta& meta) {
+  const auto it = meta.stats.find("key_bounds");
+  if (it == meta.stats.end()) return meta.bounds;
+  std::vector<std::string> parts = absl::StrSplit(it->second, ' ', absl::SkipEmpty());
+  if (parts.size() != 6) return meta.bounds;
+  float v[6];
+  for (int k = 0; k < 6; ++k) {
+    char* end = nullptr;
+    v[k] = std::strtof(parts[k].c_str(), &end);
+    if (end == parts[k].c_str() || *end != '\0' || !std::isfinite(v[k])) return meta.bounds;
+  }
+  Bounds b;
+  b.lo = glm::vec3(v[0], v[1], v[2]);
+  b.hi = glm::vec3(v[3], v[4], v[5]);
+  for (int k = 0; k < 3; ++k) {
+    if (!(b.lo[k] <= meta.bounds.lo[k] && meta.bounds.hi[k] <= b.hi[k])) return meta.bounds;
+  }
+  return b;
+}
+
+}  // namespace
+
 struct Reader::Impl {
   struct StackEntry {
     NodeRef ref;
@@ -195,7 +228,7 @@ struct Reader::Impl {
         source(std::move(r)),
         front(budget, max_entries),
         points_per_page(internal::PointsPerPage(meta.page_size, meta.channels)),
-        cube(meta.bounds) {}
+        cube(KeyBounds(meta)) {}
 
   // A page through both cache levels, counted at `level`.
   inline absl::Status Fetch(Section section, uint64_t page_no, int level, const DecodedPage** out) {

@@ -17,6 +17,7 @@ using testing_raster::ClustersInCells;
 using testing_raster::DiskSurfels;
 using testing_raster::Hash01;
 using testing_raster::kPi;
+using testing_raster::RectangleFormFactor;
 
 struct Leaf {
   glm::vec3 centre, normal;
@@ -129,6 +130,34 @@ TEST(PorousTest, TheSurfelsOfOneTwoSidedCardStillTileIt) {
   const double want = 0.64 / 1.64;
   EXPECT_NEAR(Occlusion(one_sided), want, 0.02 * want);
   EXPECT_NEAR(Occlusion(two_sided), Occlusion(one_sided), 0.01 * want);
+}
+
+// A leaf that nearly fills its leaf cell ends where its surfels end: the footprint of a
+// continuous surface snaps to the cell's sides (its neighbour cell continues it), and snapped,
+// each leaf of the forest tiled its cell at full opacity (+23% on the forest once the cells
+// were the octree's; bug: cells_off_the_key_cube). A square two-sided leaf 0.30 wide in a cell
+// 0.32 wide occludes its own form factor.
+TEST(PorousTest, ALeafDoesNotSnapToItsCell) {
+  Gathered g;
+  Bounds cell;
+  cell.lo = glm::vec3(-0.16f, -0.16f, 0.84f);
+  cell.hi = glm::vec3(0.16f, 0.16f, 1.16f);
+  g.leaf_cells.push_back(cell);
+  const float pitch = 0.03f;
+  for (int j = 0; j < 10; ++j) {
+    for (int i = 0; i < 10; ++i) {
+      Surfel s;
+      s.position = glm::vec3(-0.15f + (i + 0.5f) * pitch, -0.15f + (j + 0.5f) * pitch, 1.0f);
+      s.normal = glm::vec3(0, 0, -1);
+      s.radius = pitch / std::sqrt(static_cast<float>(kPi));
+      s.two_sided = true;
+      g.surfels.push_back(s);
+      g.surfel_leaf.push_back(0);
+      g.surfel_ids.push_back(g.surfel_ids.size());
+    }
+  }
+  const double want = RectangleFormFactor(-0.15, 0.15, -0.15, 0.15, 1.0);
+  EXPECT_NEAR(Occlusion(g), want, 0.04 * want);
 }
 
 }  // namespace
