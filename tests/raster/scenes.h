@@ -57,8 +57,8 @@ inline std::vector<Surfel> DiskSurfels(const glm::vec3& centre, const glm::vec3&
       if (u * u + v * v > radius * radius) continue;
       if (jitter) {
         // Stratified like the scene sampler: one uniform point per lattice square.
-        u += (Hash01(uint32_t(i * 73856093) ^ uint32_t(j * 19349663)) - 0.5f) * pitch;
-        v += (Hash01(uint32_t(i * 83492791) ^ uint32_t(j * 2654435761u)) - 0.5f) * pitch;
+        u += (Hash01(uint32_t(i) * 73856093u ^ uint32_t(j) * 19349663u) - 0.5f) * pitch;
+        v += (Hash01(uint32_t(i) * 83492791u ^ uint32_t(j) * 2654435761u) - 0.5f) * pitch;
       }
       Surfel s;
       s.position = centre + u * t + v * b;
