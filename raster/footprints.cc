@@ -29,22 +29,21 @@ namespace {
 constexpr double kSmallCell = 9.0;
 
 // A cluster is porous (foliage, grass: pieces facing every way with gaps between them) when
-// |sum A_i n_i| < kPorousCoherence * sum A_i; two-sided surfels, whose sides cancel in the sum,
-// always are (the pieces of one two-sided card still add up: they face the same way and join
-// one layer, see Rasterizer::Layer()). Its opacity is composited as an independent layer's
-// (Rasterizer::Close()); the coverage of a piece of a continuous surface, whose neighbours fill
-// what its footprint leaves free, is scaled by it instead.
+// |sum A_i n_i| < kPorousCoherence * sum A_i; two-sided content always is, its sides cancelling
+// in the sum (the pieces of one two-sided card still add up: they face the same way and join
+// one layer). Its layer composites as an independent one's: see Rasterizer::Layer() and
+// Close().
 constexpr float kPorousCoherence = 0.5f;
 
 // The cluster's PreparedSplat::flags: porous, or (hitsides both) seen from behind, its
 // area-weighted normal pointing away from the receiver at `origin`.
 uint8_t ClusterFlags(const Cluster& c, const glm::vec3& origin, HitSides sides) {
-  const float a = c.sh_area[0] * static_cast<float>(1.0 / (sh::kPi * sh::kY0));
-  const float k = static_cast<float>(3.0 / (2.0 * sh::kPi * sh::kY1));
-  const glm::vec3 nsum(c.sh_area[3] * k, c.sh_area[1] * k, c.sh_area[2] * k);
-  if (glm::dot(nsum, nsum) < (kPorousCoherence * a) * (kPorousCoherence * a)) return kSplatPorous;
+  const sh::FirstMoments m = sh::AreaAndNormalSum(c.sh_area.data());
+  const float porous = kPorousCoherence * m.area;
+  if (glm::dot(m.normal_sum, m.normal_sum) < porous * porous) return kSplatPorous;
   const glm::vec3 centre = 0.5f * (c.bounds.lo + c.bounds.hi);
-  return sides == HitSides::kBoth && glm::dot(nsum, centre - origin) > 0.0f ? kSplatBack : 0;
+  return sides == HitSides::kBoth && glm::dot(m.normal_sum, centre - origin) > 0.0f ? kSplatBack
+                                                                                    : 0;
 }
 
 // Whether `cell` is a usable octree cell for content with box `b` (the gather sets it; a
@@ -353,11 +352,9 @@ void Rasterizer::PrepareSurfelGroups(const Gathered& g, ShadeResult* out) {
         continue;
       }
       const float spacing = static_cast<float>(std::sqrt(area / count));
-      // With hitsides both, a one-sided group seen from behind whose plane passes within a
-      // spacing of the receiver is the receiver's own surface, which a receiver never sees
-      // from behind: drawn, its polygon covered up to half the hemisphere (+0.03 of the +0.055
-      // excess on Wuson.ply; bug: own_surface_seen_from_behind).
-      if (o_.hitsides == HitSides::kBoth && !first.two_sided && side < 0.0f && -side < spacing) {
+      // Drawn, the receiver's own surface seen from behind covered up to half the hemisphere
+      // (+0.03 of the +0.055 excess on Wuson.ply; bug: own_surface_seen_from_behind).
+      if (OwnSurfaceFromBehind(first.two_sided, side, spacing)) {
         out->culled += count;
         continue;
       }
@@ -390,10 +387,7 @@ void Rasterizer::PrepareSurfelGroups(const Gathered& g, ShadeResult* out) {
       s.omega = 0.0f;
       s.near = 2;
       s.alpha = alpha;
-      // A two-sided surfel is a piece of a leaf; see Rasterizer::Layer().
-      s.flags = first.two_sided                                 ? kSplatPorous
-                : o_.hitsides == HitSides::kBoth && side < 0.0f ? kSplatBack
-                                                                : 0;
+      s.flags = SurfelFlags(first.two_sided, side);
       s.poly_first = poly_count_;
       s.poly_count = 0;
       AddPolygon(p, &s);

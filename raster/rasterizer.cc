@@ -105,10 +105,8 @@ void Rasterizer::PrepareSurfel(const Surfel& sf, ShadeResult* out) {
   const bool visible = (sides == HitSides::kFront && side > 0.0f) ||
                        (sides == HitSides::kBack && side < 0.0f) ||
                        (sides == HitSides::kBoth && side != 0.0f);
-  // With hitsides both, a one-sided surfel seen from behind whose plane passes within its
-  // radius of the receiver is the receiver's own surface (see PrepareSurfelGroups).
-  const bool own = o_.hitsides == HitSides::kBoth && !sf.two_sided && side < 0.0f && -side < r;
-  if (!(top > 0.0f) || !visible || own || !std::isfinite(d2) || d > o_.max_distance) {
+  if (!(top > 0.0f) || !visible || OwnSurfaceFromBehind(sf.two_sided, side, r) ||
+      !std::isfinite(d2) || d > o_.max_distance) {
     ++out->culled;
     return;
   }
@@ -126,11 +124,7 @@ void Rasterizer::PrepareSurfel(const Surfel& sf, ShadeResult* out) {
   s.plane = -std::fabs(side);
   s.thick = 0.0f;
   s.flat = 1;
-  // A two-sided surfel is a piece of a leaf; see Layer().
-  s.flags = !polygons_                                      ? 0
-            : sf.two_sided                                  ? kSplatPorous
-            : o_.hitsides == HitSides::kBoth && side < 0.0f ? kSplatBack
-                                                            : 0;
+  s.flags = SurfelFlags(sf.two_sided, side);
   if (d < o_.near_field_factor * r) {
     s.dir = ToLocal(rel);
     s.omega = r;

@@ -118,6 +118,20 @@ class Rasterizer {
   // clipped to its hemisphere, to s's polygons.
   void AddPolygon(const Polygon& world_rel, PreparedSplat* s);
   void Integrate(const ShadeReceiver& r, ShadeResult* out);
+  // With hitsides both, whether a one-sided surfel or co-planar group whose plane lies at
+  // signed distance `side` from the receiver (> 0: in front) is the receiver's own surface
+  // seen from behind, its plane passing within `reach` (a radius, a spacing): a receiver never
+  // sees that, so it is culled.
+  bool OwnSurfaceFromBehind(bool two_sided, float side, float reach) const {
+    return o_.hitsides == HitSides::kBoth && !two_sided && side < 0.0f && -side < reach;
+  }
+  // PreparedSplat::flags of a surfel or co-planar group: a two-sided one is a piece of a leaf
+  // (porous); with hitsides both, a one-sided one seen from behind is kSplatBack. See Layer().
+  uint8_t SurfelFlags(bool two_sided, float side) const {
+    if (!polygons_) return 0;
+    if (two_sided) return kSplatPorous;
+    return o_.hitsides == HitSides::kBoth && side < 0.0f ? kSplatBack : 0;
+  }
 
   // What Emit() needs of the element being drawn, by value: through a pointer into the
   // splats the compiler would reload it after every store to a pixel.

@@ -92,10 +92,9 @@ inline float NodeCutCosine(const glm::vec3& centre, float radius2, const glm::ve
 // thin slabs and wedges of one-sided surfels whole, and doubled cornell's error (docs/eval.md,
 // Session 5 summary).
 inline bool NodeIsFlat(const float* sh_area) {
-  const float a = sh_area[0] * static_cast<float>(1.0 / (sh::kPi * sh::kY0));
-  const float k = static_cast<float>(3.0 / (2.0 * sh::kPi * sh::kY1));
-  const glm::vec3 nsum(sh_area[3] * k, sh_area[1] * k, sh_area[2] * k);
-  return glm::dot(nsum, nsum) > (kClusterFlatness * a) * (kClusterFlatness * a);
+  const sh::FirstMoments m = sh::AreaAndNormalSum(sh_area);
+  return glm::dot(m.normal_sum, m.normal_sum) >
+         (kClusterFlatness * m.area) * (kClusterFlatness * m.area);
 }
 
 // The cut for one node: `cut`, with max_solid_angle scaled by curved_scale when the node is not

@@ -162,8 +162,8 @@ struct PixelCoverage {
 // (leaves, grass), or a two-sided surfel (a piece of a leaf); its layer's coverage is
 // composited as an independent one's. Back: with hitsides both, a one-sided element seen from
 // behind; it counts only where no element seen from the front came before it in the pixel
-// (the inside of a closed object shows only through gaps of its front's footprints). See
-// Rasterizer::Layer().
+// (behind its near side, the inside of a closed object must not fill the gaps that side's
+// footprints leave). See Rasterizer::Layer().
 inline constexpr uint8_t kSplatPorous = 1;
 inline constexpr uint8_t kSplatBack = 2;
 // One element ready to splat (local frame), kept in the MicroBuffer to avoid allocation.

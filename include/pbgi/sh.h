@@ -63,6 +63,17 @@ inline T Eval(const C& c, const glm::vec<3, T>& w) {
   return v;
 }
 
+// Bands 0 and 1 of a projected-area SH c (the sum of clamped cosine lobes A_i max(0, n_i.w)):
+// band 0 holds pi Y0 sum A_i, band 1 holds (2 pi / 3) Y1 N for N = sum A_i n_i.
+struct FirstMoments {
+  float area;            // sum A_i
+  glm::vec3 normal_sum;  // N = sum A_i n_i
+};
+inline FirstMoments AreaAndNormalSum(const float* c) {
+  const float k = static_cast<float>(3.0 / (2.0 * kPi * kY1));
+  return {c[0] * static_cast<float>(1.0 / (kPi * kY0)), glm::vec3(c[3] * k, c[1] * k, c[2] * k)};
+}
+
 // The second moment M = sum A_i n_i n_i^T of a projected-area SH c (the sum of clamped cosine
 // lobes A_i max(0, n_i.w), band 0 holding pi Y0 sum A_i): bands 0 and 2 hold it exactly, and
 // trace M = sum A_i. Returned as {xx, yy, zz, xy, yz, xz}.
