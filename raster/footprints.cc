@@ -354,7 +354,7 @@ void Rasterizer::PrepareSurfelGroups(const Gathered& g, ShadeResult* out) {
       const float spacing = static_cast<float>(std::sqrt(area / count));
       // Drawn, the receiver's own surface seen from behind covered up to half the hemisphere
       // (+0.03 of the +0.055 excess on Wuson.ply; bug: own_surface_seen_from_behind).
-      if (OwnSurfaceFromBehind(first.two_sided, side, spacing)) {
+      if (OwnSurfaceFromBehind(first.two_sided, normal, rel, spacing)) {
         out->culled += count;
         continue;
       }
