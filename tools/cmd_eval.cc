@@ -58,7 +58,7 @@ struct EvalArgs {
   std::string cache = "auto";
   int threads = 0;
   uint64_t seed = 1;
-  bool keep_hidden = false;     // database surfels inside solid geometry too (the old sampler)
+  bool keep_hidden = false;  // database surfels inside solid geometry too (the old sampler)
   // A CSV of every receiver (position, normal, reference, PBGI of the default row): where the
   // error sits, receiver by receiver.
   std::string dump_receivers;

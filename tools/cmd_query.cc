@@ -233,10 +233,10 @@ absl::Status PrintBlame(const Args& a, const QueryRun& q, const ShadeReceiver& s
          absl::StrFormat("cluster depth %u points [%llu, +%llu) area %g band0 %g band1 (%g %g "
                          "%g) centre (%g, %g, %g) extent (%g, %g, %g) distance %g",
                          c.depth, static_cast<unsigned long long>(c.first_point),
-                         static_cast<unsigned long long>(c.point_count), c.area, c.sh_area[0],
-                         n.x, n.y, n.z, c.bounds.Center().x, c.bounds.Center().y,
-                         c.bounds.Center().z, c.bounds.Extent().x, c.bounds.Extent().y,
-                         c.bounds.Extent().z, glm::length(c.bounds.Center() - sr.position))});
+                         static_cast<unsigned long long>(c.point_count), c.area, c.sh_area[0], n.x,
+                         n.y, n.z, c.bounds.Center().x, c.bounds.Center().y, c.bounds.Center().z,
+                         c.bounds.Extent().x, c.bounds.Extent().y, c.bounds.Extent().z,
+                         glm::length(c.bounds.Center() - sr.position))});
   }
   // Leaves: surfels that share surfel_leaf (or each surfel, without leaf cells).
   std::vector<uint32_t> leaf(g.surfels.size());
@@ -257,8 +257,8 @@ absl::Status PrintBlame(const Args& a, const QueryRun& q, const ShadeReceiver& s
         const Surfel& s = g.surfels[i];
         const glm::vec3 rel = s.position - sr.position;
         list += absl::StrFormat(
-            "\n    surfel (%g, %g, %g) n (%.3f %.3f %.3f) r %g %s distance %g side %g", s.position.x,
-            s.position.y, s.position.z, s.normal.x, s.normal.y, s.normal.z, s.radius,
+            "\n    surfel (%g, %g, %g) n (%.3f %.3f %.3f) r %g %s distance %g side %g",
+            s.position.x, s.position.y, s.position.z, s.normal.x, s.normal.y, s.normal.z, s.radius,
             s.two_sided ? "two-sided" : "one-sided", glm::length(rel),
             -glm::dot(glm::normalize(s.normal), rel));
         continue;

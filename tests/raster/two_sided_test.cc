@@ -284,7 +284,6 @@ TEST(TwoSidedTest, OwnSurfaceSeenFromBehind) {
               want, 0.03 * want);
 }
 
-
 // A thin sheet bent convexly through the receiver (an open pipe, a sheet folded over an edge:
 // Material::thin, so two-sided surfels) hides nothing from a receiver on it: every other part
 // of it lies behind the receiver's tangent plane. A neighbour's disk, tilted by the bend,
@@ -301,8 +300,7 @@ TEST(TwoSidedTest, ConvexThinSheetDoesNotCoverItsReceiver) {
   double worst = 0.0;
   for (int k = 0; k < 8; ++k) {
     const glm::mat3 rot = Rotation(glm::vec3(1.0f, 2.0f, 3.0f), 0.37f * static_cast<float>(k));
-    const Gathered g = InLeafCells(Transform(shell, rot, 1.0f, glm::vec3(0.0f, 0.0f, -1.0f)),
-                                   0.5f);
+    const Gathered g = InLeafCells(Transform(shell, rot, 1.0f, glm::vec3(0.0f, 0.0f, -1.0f)), 0.5f);
     for (HitSides sides : {HitSides::kFront, HitSides::kBoth}) {
       const double got =
           MustShade(g, glm::vec3(0.0f, 0.0f, 1e-4f), Options(Footprint::kPolygons, sides))
@@ -334,9 +332,9 @@ TEST(TwoSidedTest, ConvexThinSheetDoesNotCoverItsReceiver) {
   // Within a spacing of the edge (what the rule reaches; farther out the side's disks still
   // show: 0.034 at a pitch, 0.014 at 1.7 pitches).
   for (float x : {-0.02f, -0.05f}) {
-    const double got = MustShade(fg, glm::vec3(x, 0.013f, 1e-4f),
-                                 Options(Footprint::kPolygons, HitSides::kFront))
-                           .occlusion;
+    const double got =
+        MustShade(fg, glm::vec3(x, 0.013f, 1e-4f), Options(Footprint::kPolygons, HitSides::kFront))
+            .occlusion;
     EXPECT_LT(got, 0.01) << x;
   }
   // A two-sided card a third of its spacing above the receiver (a decal over a panel).
