@@ -105,7 +105,7 @@ void Rasterizer::PrepareSurfel(const Surfel& sf, ShadeResult* out) {
   const bool visible = (sides == HitSides::kFront && side > 0.0f) ||
                        (sides == HitSides::kBack && side < 0.0f) ||
                        (sides == HitSides::kBoth && side != 0.0f);
-  if (!(top > 0.0f) || !visible || OwnSurfaceFromBehind(sf.two_sided, side, r) ||
+  if (!(top > 0.0f) || !visible || OwnSurfaceFromBehind(sf.two_sided, normal, rel, r) ||
       !std::isfinite(d2) || d > o_.max_distance) {
     ++out->culled;
     return;

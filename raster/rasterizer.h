@@ -118,12 +118,23 @@ class Rasterizer {
   // clipped to its hemisphere, to s's polygons.
   void AddPolygon(const Polygon& world_rel, PreparedSplat* s);
   void Integrate(const ShadeReceiver& r, ShadeResult* out);
-  // With hitsides both, whether a one-sided surfel or co-planar group whose plane lies at
-  // signed distance `side` from the receiver (> 0: in front) is the receiver's own surface
-  // seen from behind, its plane passing within `reach` (a radius, a spacing): a receiver never
-  // sees that, so it is culled.
-  bool OwnSurfaceFromBehind(bool two_sided, float side, float reach) const {
-    return o_.hitsides == HitSides::kBoth && !two_sided && side < 0.0f && -side < reach;
+  // Whether a surfel or co-planar group (unit `normal`, centre at `rel` from the receiver) is
+  // the receiver's own surface seen from behind, its plane passing within `reach` (a radius, a
+  // spacing) of the receiver: a receiver never sees that, so it is culled.
+  // - One-sided, with hitsides both: the receiver lies behind its plane (with front it is
+  //   culled as a back face anyway).
+  // - Two-sided, in every mode: its centre lies behind the receiver's tangent plane (so it
+  //   and the receiver's surface are one sheet bent convexly, or folded over a convex edge)
+  //   and its plane passes within `reach` of the receiver on either side. Its disk, tilted by
+  //   the bend, passes just above the receiver, and drawn from its back (a two-sided surfel
+  //   shows both) it covered up to the whole hemisphere (bug:
+  //   convex_thin_sheet_covers_its_receiver). A separate sheet over the receiver (a decal over
+  //   a panel, a leaf over the ground) has its centre in front and still occludes.
+  bool OwnSurfaceFromBehind(bool two_sided, const glm::vec3& normal, const glm::vec3& rel,
+                            float reach) const {
+    const float side = -glm::dot(normal, rel);  // > 0: the receiver is in front
+    if (!two_sided) return o_.hitsides == HitSides::kBoth && side < 0.0f && -side < reach;
+    return std::fabs(side) < reach && glm::dot(n_, rel) < 0.0f;
   }
   // PreparedSplat::flags of a surfel or co-planar group: a two-sided one is a piece of a leaf
   // (porous); with hitsides both, a one-sided one seen from behind is kSplatBack. See Layer().

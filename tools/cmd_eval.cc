@@ -58,7 +58,10 @@ struct EvalArgs {
   std::string cache = "auto";
   int threads = 0;
   uint64_t seed = 1;
-  bool keep_hidden = false;     // database surfels inside solid geometry too (the old sampler)
+  bool keep_hidden = false;  // database surfels inside solid geometry too (the old sampler)
+  // A CSV of every receiver (position, normal, reference, PBGI of the default row): where the
+  // error sits, receiver by receiver.
+  std::string dump_receivers;
   int size = 0;                 // scene scale (city blocks, forest trees per side); 0: default
   std::string up = "z";         // a mesh file's up axis (y: glTF)
   std::string orient = "auto";  // a mesh file: auto | none (pbgi import --orient)
@@ -376,6 +379,26 @@ ShadeOptions EvalShadeOptions(const EvalArgs& a, const EvalSetup& e, float msa, 
   return so;
 }
 
+// Writes one CSV line per receiver: position, normal, the converged reference and `pbgi` (the
+// mean of the three channels).
+absl::Status DumpReceivers(const std::string& path, const EvalSetup& e,
+                           const std::vector<glm::dvec3>& pbgi) {
+  std::FILE* f = std::fopen(path.c_str(), "w");
+  if (f == nullptr) return absl::InternalError(absl::StrFormat("cannot write %s", path));
+  std::fprintf(f, "i,x,y,z,nx,ny,nz,reference,pbgi,error\n");
+  for (size_t i = 0; i < e.receivers.size(); ++i) {
+    const Receiver& r = e.receivers[i];
+    const double t = (e.truth[i].x + e.truth[i].y + e.truth[i].z) / 3.0;
+    const double p = (pbgi[i].x + pbgi[i].y + pbgi[i].z) / 3.0;
+    std::fprintf(f, "%zu,%.9g,%.9g,%.9g,%.6g,%.6g,%.6g,%.6f,%.6f,%+.6f\n", i, r.position.x,
+                 r.position.y, r.position.z, r.normal.x, r.normal.y, r.normal.z, t, p, p - t);
+  }
+  const bool ok = std::fclose(f) == 0;
+  if (!ok) return absl::InternalError(absl::StrFormat("cannot write %s", path));
+  std::fprintf(stderr, "eval: wrote %s (every receiver at the default setting)\n", path.c_str());
+  return absl::OkStatus();
+}
+
 // PBGI's sweep of cut, resolution and max_solid_angle, appended to `rows`; returns the index of
 // the default row (the first of the default settings, or the first PBGI row when the sweep
 // lacks the default).
@@ -425,6 +448,10 @@ absl::StatusOr<size_t> PbgiRows(const EvalArgs& a, const EvalSetup& e, Database&
         r.clusters = double(st.query.clusters) / n;
         r.surfels = double(st.query.surfels) / n;
         rows->push_back(r);
+        if (!a.dump_receivers.empty() && res == 12 && std::abs(msa - 0.03f) < 1e-6f &&
+            cut == (e.glossy ? "plain" : "cosine")) {
+          PBGI_RETURN_IF_ERROR(DumpReceivers(a.dump_receivers, e, v));
+        }
         // Glossy's default cut is the plain one (as `pbgi shade`'s: the lobe is not the cosine).
         const bool is_default =
             res == 12 && std::abs(msa - 0.03f) < 1e-6f && cut == (e.glossy ? "plain" : "cosine");
@@ -881,6 +908,9 @@ CommandSetup Setup() {
                     "Time every setting this many times and report the median")
         ->check(CLI::Range(1, 100))
         ->capture_default_str();
+    app->add_option("--dump-receivers", a->dump_receivers,
+                    "A CSV of every receiver at the default setting (msa 0.03, res 12): "
+                    "position, normal, reference, PBGI, error");
     app->add_flag("--keep-hidden", a->keep_hidden,
                   "Keep database surfels inside solid geometry (receivers never are)");
     app->add_flag("--view", a->view,

@@ -1,5 +1,6 @@
 // `pbgi query DB --at X,Y,Z --normal X,Y,Z`: gathers the cut for one receiver and prints what
 // was gathered and what it cost (nodes visited, pages touched per level, cache hits).
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <limits>
@@ -17,6 +18,7 @@
 #include "tools/args.h"
 #include "tools/budget.h"
 #include "tools/command.h"
+#include "tools/footprint_flags.h"
 #include "tools/report.h"
 
 namespace pbgi::tools {
@@ -49,6 +51,9 @@ struct Args {
   int raster_res = 12;
   bool json = false;
   bool list = false;
+  FootprintFlags footprint;
+  std::string hitsides = "front";
+  int blame = 0;  // list the elements whose removal lowers the occlusion most
 };
 
 // One receiver's gather, cold then warm, and what it cost.
@@ -204,6 +209,76 @@ void PrintQuery(const Args& a, const Database& db, const QueryRun& q) {
   }
 }
 
+// Which elements make the occlusion: the cut shaded once without each cluster, and once
+// without each leaf's surfels; the `a.blame` largest drops are listed.
+absl::Status PrintBlame(const Args& a, const QueryRun& q, const ShadeReceiver& sr,
+                        const RasterOptions& ro) {
+  const Gathered& g = q.gathered;
+  struct Blame {
+    double drop;
+    std::string what;
+  };
+  std::vector<Blame> blames;
+  MicroBuffer buffer;
+  Gathered without;
+  ShadeResult res;
+  for (size_t i = 0; i < g.clusters.size(); ++i) {
+    without = g;
+    without.clusters.erase(without.clusters.begin() + static_cast<std::ptrdiff_t>(i));
+    PBGI_RETURN_IF_ERROR(Shade(without, sr, ro, &buffer, &res));
+    const Cluster& c = g.clusters[i];
+    const glm::vec3 n(c.sh_area[3], c.sh_area[1], c.sh_area[2]);  // band 1: y, z, x
+    blames.push_back(
+        {q.shaded.occlusion - res.occlusion,
+         absl::StrFormat("cluster depth %u points [%llu, +%llu) area %g band0 %g band1 (%g %g "
+                         "%g) centre (%g, %g, %g) extent (%g, %g, %g) distance %g",
+                         c.depth, static_cast<unsigned long long>(c.first_point),
+                         static_cast<unsigned long long>(c.point_count), c.area, c.sh_area[0], n.x,
+                         n.y, n.z, c.bounds.Center().x, c.bounds.Center().y, c.bounds.Center().z,
+                         c.bounds.Extent().x, c.bounds.Extent().y, c.bounds.Extent().z,
+                         glm::length(c.bounds.Center() - sr.position))});
+  }
+  // Leaves: surfels that share surfel_leaf (or each surfel, without leaf cells).
+  std::vector<uint32_t> leaf(g.surfels.size());
+  for (size_t i = 0; i < leaf.size(); ++i) {
+    leaf[i] = g.surfel_leaf.empty() ? static_cast<uint32_t>(i) : g.surfel_leaf[i];
+  }
+  std::vector<uint32_t> leaves = leaf;
+  std::sort(leaves.begin(), leaves.end());
+  leaves.erase(std::unique(leaves.begin(), leaves.end()), leaves.end());
+  for (uint32_t l : leaves) {
+    without = g;
+    without.surfels.clear();
+    without.surfel_ids.clear();
+    without.surfel_leaf.clear();
+    std::string list;
+    for (size_t i = 0; i < g.surfels.size(); ++i) {
+      if (leaf[i] == l) {
+        const Surfel& s = g.surfels[i];
+        const glm::vec3 rel = s.position - sr.position;
+        list += absl::StrFormat(
+            "\n    surfel (%g, %g, %g) n (%.3f %.3f %.3f) r %g %s distance %g side %g",
+            s.position.x, s.position.y, s.position.z, s.normal.x, s.normal.y, s.normal.z, s.radius,
+            s.two_sided ? "two-sided" : "one-sided", glm::length(rel),
+            -glm::dot(glm::normalize(s.normal), rel));
+        continue;
+      }
+      without.surfels.push_back(g.surfels[i]);
+      without.surfel_ids.push_back(g.surfel_ids[i]);
+      if (!g.surfel_leaf.empty()) without.surfel_leaf.push_back(g.surfel_leaf[i]);
+    }
+    PBGI_RETURN_IF_ERROR(Shade(without, sr, ro, &buffer, &res));
+    blames.push_back({q.shaded.occlusion - res.occlusion, absl::StrFormat("leaf %u:%s", l, list)});
+  }
+  std::sort(blames.begin(), blames.end(),
+            [](const Blame& x, const Blame& y) { return x.drop > y.drop; });
+  std::printf("blame (occlusion without the element, largest drops first):\n");
+  for (size_t i = 0; i < blames.size() && i < static_cast<size_t>(a.blame); ++i) {
+    std::printf("  %+.5f %s\n", -blames[i].drop, blames[i].what.c_str());
+  }
+  return absl::OkStatus();
+}
+
 absl::Status Run(const Args& a) {
   PBGI_ASSIGN_OR_RETURN(glm::vec3 p, ParseVec3("--at", a.at));
   PBGI_ASSIGN_OR_RETURN(glm::vec3 n, ParseVec3("--normal", a.normal));
@@ -220,6 +295,9 @@ absl::Status Run(const Args& a) {
   PBGI_ASSIGN_OR_RETURN(std::unique_ptr<Reader> reader, db->NewReader());
   Cut cut{a.max_solid_angle, a.max_distance};
   cut.cosine_weighted = a.cut == "cosine";
+  ShadeOptions so;
+  ApplyFootprintFlags(a.footprint, &so);
+  cut.curved_scale = so.cut.curved_scale;
   const Receiver receiver{p, glm::normalize(n)};
   PBGI_ASSIGN_OR_RETURN(QueryRun q, GatherColdAndWarm(*reader, receiver, cut));
   // The values `pbgi shade` writes for this receiver, from the same cut.
@@ -228,14 +306,19 @@ absl::Status Run(const Args& a) {
   ro.max_distance = a.max_distance;
   q.radiance = HasRadiance(db->meta().channels);
   ro.compute_radiance = q.radiance;
+  ro.footprint = so.raster.footprint;
+  ro.hitsides = a.hitsides == "back"   ? HitSides::kBack
+                : a.hitsides == "both" ? HitSides::kBoth
+                                       : HitSides::kFront;
   MicroBuffer buffer;
-  PBGI_RETURN_IF_ERROR(Shade(q.gathered, ShadeReceiver{p, receiver.normal, receiver.normal}, ro,
-                             &buffer, &q.shaded));
+  const ShadeReceiver sr{p, receiver.normal, receiver.normal};
+  PBGI_RETURN_IF_ERROR(Shade(q.gathered, sr, ro, &buffer, &q.shaded));
   if (a.json) {
     std::fputs(DumpJson(QueryJson(a, q)).c_str(), stdout);
   } else {
     PrintQuery(a, *db, q);
   }
+  if (a.blame > 0) PBGI_RETURN_IF_ERROR(PrintBlame(a, q, sr, ro));
   return absl::OkStatus();
 }
 
@@ -263,6 +346,13 @@ CommandSetup Setup() {
         ->capture_default_str();
     app->add_flag("--json", args->json, "Print JSON");
     app->add_flag("--list", args->list, "Also list every cluster and surfel");
+    AddFootprintFlags(app, &args->footprint);
+    app->add_option("--hitsides", args->hitsides, "Sides of one-sided surfels that occlude")
+        ->check(CLI::IsMember({"front", "back", "both"}))
+        ->capture_default_str();
+    app->add_option("--blame", args->blame,
+                    "List the N elements (clusters, leaves' surfels) whose removal lowers the "
+                    "occlusion most");
     return [args]() { return Run(*args); };
   };
 }
