@@ -51,15 +51,15 @@ int Fail(const absl::Status& s) {
 
 void Detail(const Worst& w, Reader& reader, const Tracer& tracer, const Cut& cut,
             const RasterOptions& ro, MicroBuffer& mb) {
-  std::printf("worst receiver at %.6f,%.6f,%.6f normal %.4f,%.4f,%.4f: truth %.4f\n", w.p.x,
-              w.p.y, w.p.z, w.n.x, w.n.y, w.n.z, w.truth);
+  std::printf("worst receiver at %.6f,%.6f,%.6f normal %.4f,%.4f,%.4f: truth %.4f\n", w.p.x, w.p.y,
+              w.p.z, w.n.x, w.n.y, w.n.z, w.truth);
   for (float sign : {-1.0f, 1.0f}) {
     glm::vec3 o = w.p;
     for (int k = 0; k < 3; ++k) {
       const Hit h = tracer.Intersect(o, sign * w.n, 1e30f);
       if (!h.hit) break;
-      std::printf("  ray along %+g normal: surface at %.6f, %s side, normals' cosine %+.3f\n",
-                  sign, glm::dot(h.position - w.p, sign * w.n), h.front ? "front" : "back",
+      std::printf("  ray along %+g normal: surface at %.6f, %s side, normals' cosine %+.3f\n", sign,
+                  glm::dot(h.position - w.p, sign * w.n), h.front ? "front" : "back",
                   glm::dot(h.normal, w.n));
       o = h.position + 1e-5f * sign * w.n;
     }
@@ -111,19 +111,20 @@ void Detail(const Worst& w, Reader& reader, const Tracer& tracer, const Cut& cut
       if (g.surfel_leaf[i] != part.index) continue;
       const Surfel& s = g.surfels[i];
       ++shown;
-      std::printf("    surfel at %.5f, above the receiver's plane %+.5f, receiver above its "
-                  "plane %+.5f, normals' cosine %+.3f, radius %.4f%s\n",
-                  glm::length(s.position - w.p), glm::dot(s.position - w.p, w.n),
-                  glm::dot(w.p - s.position, s.normal), glm::dot(s.normal, w.n), s.radius,
-                  s.two_sided ? ", two-sided" : "");
+      std::printf(
+          "    surfel at %.5f, above the receiver's plane %+.5f, receiver above its "
+          "plane %+.5f, normals' cosine %+.3f, radius %.4f%s\n",
+          glm::length(s.position - w.p), glm::dot(s.position - w.p, w.n),
+          glm::dot(w.p - s.position, s.normal), glm::dot(s.normal, w.n), s.radius,
+          s.two_sided ? ", two-sided" : "");
     }
   }
 }
 
 int Run(const Args& a) {
   ImportReport report;
-  auto scene = a.scene.find('.') != std::string::npos ? ImportMesh(a.scene, &report)
-                                                      : MakeScene(a.scene);
+  auto scene =
+      a.scene.find('.') != std::string::npos ? ImportMesh(a.scene, &report) : MakeScene(a.scene);
   if (!scene.ok()) return Fail(scene.status());
   auto shared = std::make_shared<const Scene>(std::move(scene).value());
   auto tracer = Tracer::Create(*shared);
@@ -213,10 +214,11 @@ int Run(const Args& a) {
     worst.push_back({float(got - want), p, n, float(want)});
   }
   const double count = static_cast<double>(samples.size());
-  std::printf("%zu receivers, msa %g, res %d, %d x %d rays per pixel: PBGI %.5f, truth %.5f, "
-              "bias %+.5f, MAE %.5f\n",
-              samples.size(), a.msa, a.res, a.sub, a.sub, sum_pbgi / count, sum_truth / count,
-              (sum_pbgi - sum_truth) / count, sum_abs / count);
+  std::printf(
+      "%zu receivers, msa %g, res %d, %d x %d rays per pixel: PBGI %.5f, truth %.5f, "
+      "bias %+.5f, MAE %.5f\n",
+      samples.size(), a.msa, a.res, a.sub, a.sub, sum_pbgi / count, sum_truth / count,
+      (sum_pbgi - sum_truth) / count, sum_abs / count);
   const char* name[3] = {"empty", "partial", "full"};
   std::printf("bias by pixel class (share of the cosine weight, contribution to the bias):\n");
   for (int ci = 0; ci < 3; ++ci) {
@@ -235,8 +237,8 @@ int Run(const Args& a) {
   std::printf("worst receivers:\n");
   for (size_t i = 0; i < std::min<size_t>(8, worst.size()); ++i) {
     const Worst& w = worst[i];
-    std::printf("  %+.4f (truth %.4f) at %.5f,%.5f,%.5f normal %.4f,%.4f,%.4f\n", w.error,
-                w.truth, w.p.x, w.p.y, w.p.z, w.n.x, w.n.y, w.n.z);
+    std::printf("  %+.4f (truth %.4f) at %.5f,%.5f,%.5f normal %.4f,%.4f,%.4f\n", w.error, w.truth,
+                w.p.x, w.p.y, w.p.z, w.n.x, w.n.y, w.n.z);
   }
   if (a.detail && !worst.empty()) Detail(worst[0], **reader, **tracer, cut, ro, mb);
   return 0;
@@ -257,15 +259,24 @@ int main(int argc, char** argv) {
       }
       return argv[++i];
     };
-    if (arg == "--receivers") a.receivers = std::atoi(value());
-    else if (arg == "--msa") a.msa = std::strtof(value(), nullptr);
-    else if (arg == "--res") a.res = std::atoi(value());
-    else if (arg == "--sub") a.sub = std::atoi(value());
-    else if (arg == "--seed") a.seed = std::strtoull(value(), nullptr, 10);
-    else if (arg == "--hitsides") a.sides = std::strcmp(value(), "both") == 0 ? pbgi::HitSides::kBoth : pbgi::HitSides::kFront;
-    else if (arg == "--detail") a.detail = true;
-    else if (positional == 0) a.scene = arg, ++positional;
-    else if (positional == 1) a.db = arg, ++positional;
+    if (arg == "--receivers")
+      a.receivers = std::atoi(value());
+    else if (arg == "--msa")
+      a.msa = std::strtof(value(), nullptr);
+    else if (arg == "--res")
+      a.res = std::atoi(value());
+    else if (arg == "--sub")
+      a.sub = std::atoi(value());
+    else if (arg == "--seed")
+      a.seed = std::strtoull(value(), nullptr, 10);
+    else if (arg == "--hitsides")
+      a.sides = std::strcmp(value(), "both") == 0 ? pbgi::HitSides::kBoth : pbgi::HitSides::kFront;
+    else if (arg == "--detail")
+      a.detail = true;
+    else if (positional == 0)
+      a.scene = arg, ++positional;
+    else if (positional == 1)
+      a.db = arg, ++positional;
     else {
       std::fprintf(stderr, "pixel_error: unexpected argument %s\n", arg.c_str());
       return 2;

@@ -424,9 +424,9 @@ TEST(TwoSidedTest, OwnSheetSeenFromBehind) {
     const glm::vec3 at = mid + glm::vec3(0.0f, 0.0f, z0);
     // The square above: 0.1 wide at height h spacings.
     const double want = RectangleFormFactor(-0.05, 0.05, -0.05, 0.05, h * pitch);
-    const double got = MustShade(InLeafCells(sheets, 0.1f), at,
-                                 Options(Footprint::kPolygons, HitSides::kFront))
-                           .occlusion;
+    const double got =
+        MustShade(InLeafCells(sheets, 0.1f), at, Options(Footprint::kPolygons, HitSides::kFront))
+            .occlusion;
     EXPECT_NEAR(got, want, 0.05) << "sheet " << h << " spacings above";
   }
 }
