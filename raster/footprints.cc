@@ -364,7 +364,15 @@ void Rasterizer::PrepareSurfelGroups(const Gathered& g, ShadeResult* out) {
       const float spacing = static_cast<float>(std::sqrt(area / count));
       // Drawn, the receiver's own surface seen from behind covered up to half the hemisphere
       // (+0.03 of the +0.055 excess on Wuson.ply; bug: own_surface_seen_from_behind).
-      if (OwnSurfaceFromBehind(first.two_sided, normal, rel, spacing)) {
+      float thickness = 0.0f;
+      if (first.two_sided) {
+        for (size_t j = end - count; j < end; ++j) {
+          thickness = std::max(
+              thickness, std::fabs(glm::dot(normal, g.surfels[order[j]].position - centroid)));
+        }
+      }
+      if (OwnSurfaceFromBehind(first.two_sided, normal, rel, spacing) ||
+          (first.two_sided && InsideOwnSheet(normal, rel, thickness, spacing))) {
         out->culled += count;
         continue;
       }

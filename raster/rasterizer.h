@@ -136,6 +136,22 @@ class Rasterizer {
     if (!two_sided) return o_.hitsides == HitSides::kBoth && side < 0.0f && -side < reach;
     return std::fabs(side) < reach && glm::dot(n_, rel) < 0.0f;
   }
+  // Whether a two-sided co-planar group (unit `normal`, centre at `rel`, its surfel centres
+  // within `thickness` of its plane) is the receiver's own sheet bent concavely: the receiver
+  // lies behind the sheet turned its way (normal towards the receiver's normal), no farther
+  // than the group's own thickness. The group's mean plane then passes just above the
+  // receiver, the sheet curving up on both sides of it, and drawn it covered most of the
+  // hemisphere (bug: concave_thin_sheet_covers_its_receiver: 1.0 inside a two-sided half-pipe
+  // that rays give 0.29). The centre is in front, so OwnSurfaceFromBehind() keeps it. A
+  // separate sheet above the receiver is flat within its own group, so lies farther than its
+  // thickness (at least kOwnSheetReach of a spacing) and still occludes.
+  static constexpr float kOwnSheetReach = 0.075f;
+  bool InsideOwnSheet(const glm::vec3& normal, const glm::vec3& rel, float thickness,
+                      float spacing) const {
+    const float side = -glm::dot(normal, rel);
+    const float s = glm::dot(normal, n_) >= 0.0f ? side : -side;
+    return s < 0.0f && -s < std::max(thickness, kOwnSheetReach * spacing);
+  }
   // PreparedSplat::flags of a surfel or co-planar group: a two-sided one is a piece of a leaf
   // (porous); with hitsides both, a one-sided one seen from behind is kSplatBack. See Layer().
   uint8_t SurfelFlags(bool two_sided, float side) const {

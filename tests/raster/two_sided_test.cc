@@ -354,5 +354,82 @@ TEST(TwoSidedTest, ConvexThinSheetDoesNotCoverItsReceiver) {
   }
 }
 
+// The same for a two-sided sheet, which is visible from both sides whatever hitsides says: in
+// a two-sided half-pipe the co-planar group of the receiver's own cell, whose mean plane passes a
+// hair above the receiver at the bottom of the curve, was drawn from behind and covered most of
+// the hemisphere (bug: own_sheet_seen_from_behind; on Wuson.ply's ears +0.7). A parallel sheet
+// a fifth of a spacing above the receiver is another layer, not its own, and still closes it.
+TEST(TwoSidedTest, OwnSheetSeenFromBehind) {
+  std::vector<Surfel> pipe;
+  const float pitch = 0.02f;
+  for (float x = -4.0f + 0.5f * pitch; x < 4.0f; x += pitch) {
+    for (float a = -0.5f * static_cast<float>(kPi) + 0.5f * pitch;
+         a < 0.5f * static_cast<float>(kPi); a += pitch) {
+      Surfel sf;
+      sf.position = glm::vec3(x, std::sin(a), 1.0f - std::cos(a));
+      sf.normal = glm::vec3(0.0f, -std::sin(a), std::cos(a));
+      sf.radius = pitch / std::sqrt(static_cast<float>(kPi));
+      sf.two_sided = true;
+      pipe.push_back(sf);
+    }
+  }
+  // Rays from the receiver (the origin, normal +z) against the cylinder y^2 + (z - 1)^2 = 1,
+  // |x| <= 4, z <= 1, cosine-distributed.
+  int hits = 0;
+  const int n = 300;
+  for (int j = 0; j < n; ++j) {
+    for (int i = 0; i < n; ++i) {
+      const double u = (i + 0.5) / n, v = (j + 0.5) / n, r = std::sqrt(u);
+      const double dx = r * std::cos(2.0 * kPi * v), dy = r * std::sin(2.0 * kPi * v);
+      const double dz = std::sqrt(1.0 - u);
+      const double t = 2.0 * dz / (dy * dy + dz * dz);
+      hits += t * dz <= 1.0 && std::fabs(t * dx) <= 4.0;
+    }
+  }
+  const double want = static_cast<double>(hits) / (n * n);
+  // The bottom of the pipe in the middle of a leaf cell, so that the cell's group is the curve's
+  // both sides and its mean plane lies above the receiver.
+  for (float cell : {0.1f, 0.25f}) {
+    const glm::vec3 at(0.5f * cell, 0.5f * cell, 0.0f);
+    std::vector<Surfel> moved = pipe;
+    for (Surfel& s : moved) s.position += at;
+    const Gathered g = InLeafCells(moved, cell);
+    for (HitSides sides : {HitSides::kFront, HitSides::kBoth}) {
+      const double got = MustShade(g, at, Options(Footprint::kPolygons, sides)).occlusion;
+      EXPECT_NEAR(got, want, 0.03) << "cell " << cell << " " << Name(sides);
+    }
+  }
+  // A two-sided square sheet 0.2 spacings above the receiver, facing the receiver's way, is
+  // another layer; and so is one 0.6 spacings above the receiver's own sheet with a third 0.6
+  // below it, all in the same leaf cells (a folded part, like Wuson.ply's ears): the leaf's
+  // surfels form one group per layer, the own one is culled and the one above still closes the
+  // hemisphere (bug: layered_sheets_in_one_group: one group across the three, whose mean plane
+  // is the receiver's, was culled as its own).
+  // One leaf cell, [0, 0.1]^3, holding 5 x 5 surfels per layer; the receiver in its middle.
+  const float z0 = 0.05f;
+  const glm::vec3 mid(0.05f, 0.05f, 0.0f);
+  for (float h : {0.2f, 0.6f}) {
+    std::vector<Surfel> sheets = SquareSurfels(0.05f, z0 + h * pitch, pitch);
+    if (h > 0.5f) {
+      for (float z : {z0, z0 - h * pitch}) {
+        const std::vector<Surfel> more = SquareSurfels(0.05f, z, pitch);
+        sheets.insert(sheets.end(), more.begin(), more.end());
+      }
+    }
+    for (Surfel& s : sheets) {
+      s.position += mid;
+      s.two_sided = true;
+      s.normal = glm::vec3(0.0f, 0.0f, 1.0f);
+    }
+    const glm::vec3 at = mid + glm::vec3(0.0f, 0.0f, z0);
+    // The square above: 0.1 wide at height h spacings.
+    const double want = RectangleFormFactor(-0.05, 0.05, -0.05, 0.05, h * pitch);
+    const double got =
+        MustShade(InLeafCells(sheets, 0.1f), at, Options(Footprint::kPolygons, HitSides::kFront))
+            .occlusion;
+    EXPECT_NEAR(got, want, 0.05) << "sheet " << h << " spacings above";
+  }
+}
+
 }  // namespace
 }  // namespace pbgi

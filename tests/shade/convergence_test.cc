@@ -111,14 +111,15 @@ class SceneUnderTest {
   std::vector<float> truth_;
 };
 
-// The goal in small: at msa 0.005 with 4x the surfels the error is at most half the
-// default's (msa 0.03), and the finer settings never do worse than the coarser ones.
-void ExpectConverges(SceneUnderTest& s, int64_t points) {
+// The goal in small: at msa 0.005 with 4x the surfels the error is at most `ratio` of
+// the default's (msa 0.03; the goal is half), and the finer settings never do worse than the
+// coarser ones.
+void ExpectConverges(SceneUnderTest& s, int64_t points, double ratio = 0.5) {
   const Errors coarse = s.Shade(points, 0.03f);
   const Errors finer_cut = s.Shade(points, 0.005f);
   const Errors finer = s.Shade(4 * points, 0.005f);
   EXPECT_LE(finer_cut.mae, coarse.mae * 1.05);
-  EXPECT_LE(finer.mae, 0.5 * coarse.mae);
+  EXPECT_LE(finer.mae, ratio * coarse.mae);
   EXPECT_LE(std::fabs(finer.bias), std::fabs(coarse.bias) + 0.001);
 }
 
@@ -130,6 +131,20 @@ TEST(ConvergenceTest, CornellErrorFallsWithTheCutAndTheDensity) {
   ASSERT_NE(s, nullptr);
   ASSERT_GT(s->receivers(), 250u);
   ExpectConverges(*s, 20000);
+}
+
+// The same on a mesh we did not design for (Wuson.ply, 3,732 triangles: ears folded in layers
+// thinner than a spacing, a tail, creases). Here the finer error is 0.73 of the coarse one, not
+// yet the goal's half (docs/eval.md, "Session 8"): the test holds it at 0.8, so that the error
+// falling with the cut and the density is checked on a mesh.
+TEST(ConvergenceTest, MeshErrorFallsWithTheCutAndTheDensity) {
+  ImportReport report;
+  auto scene = ImportMesh("/usr/share/assimp/models/PLY/Wuson.ply", &report);
+  ASSERT_TRUE(scene.ok()) << scene.status();
+  auto s = SceneUnderTest::Make(std::make_shared<const Scene>(std::move(scene).value()), 300, 8192);
+  ASSERT_NE(s, nullptr);
+  ASSERT_GT(s->receivers(), 250u);
+  ExpectConverges(*s, 50000, 0.8);
 }
 
 // A closed mesh (Wuson.ply, wound outward by the import) shows no back faces to a receiver

@@ -1,0 +1,293 @@
+// pixel_error: where in the micro-buffer PBGI's occlusion error comes from. For receivers
+// sampled on a scene's visible surfaces (as `pbgi eval` samples them), each pixel's coverage
+// (clamped at 1, cosine-weighted) is compared with Embree rays cast through sub-pixel samples of
+// the same pixel against the scene's triangles. Prints the bias split by pixel class (PBGI
+// empty / partial / full against truth empty / partial / full) and by elevation, the worst
+// receivers, and with --detail the elements that close the worst receiver's pixels (each
+// cluster and each leaf's surfels shaded alone) and what rays along its normal hit.
+// Usage: pixel_error SCENE|MESH DATABASE [--receivers N] [--msa A] [--res R] [--sub S]
+//        [--seed K] [--hitsides front|both] [--detail]
+// DATABASE: one built from the same scene (`pbgi eval ... -o DIR` leaves DIR/NAME.pbgi). Meshes
+// are read z-up as the file has them (no --up y: a y-up mesh's database from `pbgi eval --up y`
+// is rotated, and this tool would not match it).
+// docs/eval.md ("Session 8") has what it showed.
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "base/math.h"
+#include "pbgi/query.h"
+#include "pbgi/raster.h"
+#include "pbgi/scene.h"
+#include "raster/cube.h"
+
+namespace pbgi {
+namespace {
+
+struct Args {
+  std::string scene, db;
+  int receivers = 300, res = 12, sub = 8;
+  float msa = 0.03f;
+  uint64_t seed = 7920;  // pbgi eval's receivers for --seed 1
+  HitSides sides = HitSides::kFront;
+  bool detail = false;
+};
+
+struct Worst {
+  float error;  // pixel sum minus truth
+  glm::vec3 p, n;
+  float truth;
+};
+
+int Fail(const absl::Status& s) {
+  std::fprintf(stderr, "pixel_error: %s\n", s.ToString().c_str());
+  return 1;
+}
+
+void Detail(const Worst& w, Reader& reader, const Tracer& tracer, const Cut& cut,
+            const RasterOptions& ro, MicroBuffer& mb) {
+  std::printf("worst receiver at %.6f,%.6f,%.6f normal %.4f,%.4f,%.4f: truth %.4f\n", w.p.x, w.p.y,
+              w.p.z, w.n.x, w.n.y, w.n.z, w.truth);
+  for (float sign : {-1.0f, 1.0f}) {
+    glm::vec3 o = w.p;
+    for (int k = 0; k < 3; ++k) {
+      const Hit h = tracer.Intersect(o, sign * w.n, 1e30f);
+      if (!h.hit) break;
+      std::printf("  ray along %+g normal: surface at %.6f, %s side, normals' cosine %+.3f\n", sign,
+                  glm::dot(h.position - w.p, sign * w.n), h.front ? "front" : "back",
+                  glm::dot(h.normal, w.n));
+      o = h.position + 1e-5f * sign * w.n;
+    }
+  }
+  Gathered g;
+  if (!reader.Gather({w.p, w.n}, cut, &g).ok()) return;
+  const ShadeReceiver r{w.p, w.n, w.n};
+  struct Part {
+    float occlusion;
+    bool leaf;
+    size_t index;
+  };
+  std::vector<Part> parts;
+  for (size_t i = 0; i < g.clusters.size(); ++i) {
+    Gathered one;
+    one.clusters.push_back(g.clusters[i]);
+    ShadeResult out;
+    if (Shade(one, r, ro, &mb, &out).ok()) parts.push_back({out.occlusion, false, i});
+  }
+  for (size_t l = 0; l < g.leaf_cells.size(); ++l) {
+    Gathered one;
+    one.leaf_cells.push_back(g.leaf_cells[l]);
+    for (size_t i = 0; i < g.surfels.size(); ++i) {
+      if (g.surfel_leaf[i] != l) continue;
+      one.surfels.push_back(g.surfels[i]);
+      one.surfel_ids.push_back(g.surfel_ids[i]);
+      one.surfel_leaf.push_back(0);
+    }
+    ShadeResult out;
+    if (Shade(one, r, ro, &mb, &out).ok()) parts.push_back({out.occlusion, true, l});
+  }
+  std::sort(parts.begin(), parts.end(),
+            [](const Part& a, const Part& b) { return a.occlusion > b.occlusion; });
+  std::printf("  %zu clusters, %zu surfels in %zu leaves; the largest parts alone:\n",
+              g.clusters.size(), g.surfels.size(), g.leaf_cells.size());
+  for (size_t k = 0; k < std::min<size_t>(8, parts.size()); ++k) {
+    const Part& part = parts[k];
+    if (!part.leaf) {
+      const Cluster& c = g.clusters[part.index];
+      const glm::vec3 centre = 0.5f * (c.bounds.lo + c.bounds.hi);
+      std::printf("  cluster: occlusion %.4f, depth %u, %llu points, centre at %.4f\n",
+                  part.occlusion, c.depth, static_cast<unsigned long long>(c.point_count),
+                  glm::length(centre - w.p));
+      continue;
+    }
+    std::printf("  leaf %zu: occlusion %.4f\n", part.index, part.occlusion);
+    int shown = 0;
+    for (size_t i = 0; i < g.surfels.size() && shown < 6; ++i) {
+      if (g.surfel_leaf[i] != part.index) continue;
+      const Surfel& s = g.surfels[i];
+      ++shown;
+      std::printf(
+          "    surfel at %.5f, above the receiver's plane %+.5f, receiver above its "
+          "plane %+.5f, normals' cosine %+.3f, radius %.4f%s\n",
+          glm::length(s.position - w.p), glm::dot(s.position - w.p, w.n),
+          glm::dot(w.p - s.position, s.normal), glm::dot(s.normal, w.n), s.radius,
+          s.two_sided ? ", two-sided" : "");
+    }
+  }
+}
+
+int Run(const Args& a) {
+  ImportReport report;
+  auto scene =
+      a.scene.find('.') != std::string::npos ? ImportMesh(a.scene, &report) : MakeScene(a.scene);
+  if (!scene.ok()) return Fail(scene.status());
+  auto shared = std::make_shared<const Scene>(std::move(scene).value());
+  auto tracer = Tracer::Create(*shared);
+  if (!tracer.ok()) return Fail(tracer.status());
+  auto db = Database::Open(a.db);
+  if (!db.ok()) return Fail(db.status());
+  auto reader = (*db)->NewReader();
+  if (!reader.ok()) return Fail(reader.status());
+  SamplerOptions rs;
+  rs.count = a.receivers;
+  rs.seed = a.seed;
+  rs.bake = false;
+  auto src = MakeSceneSurfelSource(shared, rs);
+  if (!src.ok()) return Fail(src.status());
+  std::vector<Surfel> buf(1024), samples;
+  for (;;) {
+    auto got = (*src)->Next(absl::MakeSpan(buf));
+    if (!got.ok()) return Fail(got.status());
+    if (*got == 0) break;
+    samples.insert(samples.end(), buf.begin(), buf.begin() + *got);
+  }
+  Cut cut;
+  cut.max_solid_angle = a.msa;
+  cut.cosine_weighted = true;
+  cut.curved_scale = 0.3f;
+  RasterOptions ro;
+  ro.resolution = a.res;
+  ro.footprint = Footprint::kPolygons;
+  ro.compute_radiance = false;
+  ro.hitsides = a.sides;
+  MicroBuffer mb;
+  if (absl::Status s = mb.Prepare(a.res); !s.ok()) return Fail(s);
+  double cls[3][3] = {}, cls_w[3][3] = {}, elev[6] = {}, elev_w[6] = {}, all_w = 0;
+  double sum_pbgi = 0, sum_truth = 0, sum_abs = 0;
+  std::vector<Worst> worst;
+  const double step = 2.0 / a.res;
+  for (const Surfel& s : samples) {
+    const glm::vec3 n = glm::normalize(s.normal);
+    const glm::vec3 p = s.position + (*tracer)->epsilon() * n;
+    Gathered g;
+    if (absl::Status st = (*reader)->Gather({p, n}, cut, &g); !st.ok()) return Fail(st);
+    ShadeResult r;
+    if (absl::Status st = Shade(g, {p, n, n}, ro, &mb, &r); !st.ok()) return Fail(st);
+    glm::vec3 t, b;
+    internal::OrthonormalBasis(n, &t, &b);
+    double got = 0, want = 0, weight = 0;
+    for (int f = 0; f < 6; ++f) {
+      const internal::FaceAxes face = internal::Face(f);
+      for (int row = 0; row < a.res; ++row) {
+        for (int col = 0; col < a.res; ++col) {
+          const int q = (f * a.res + row) * a.res + col;
+          const double w = mb.PixelCosineWeight(q);
+          if (!(w > 0.0)) continue;
+          double hit = 0, all = 0;
+          for (int i = 0; i < a.sub; ++i) {
+            for (int j = 0; j < a.sub; ++j) {
+              glm::dvec3 v(0.0);
+              v[face.k] = face.sign;
+              v[face.k1] = -1.0 + (col + (i + 0.5) / a.sub) * step;
+              v[face.k2] = -1.0 + (row + (j + 0.5) / a.sub) * step;
+              const double len = glm::length(v);
+              const glm::dvec3 u = v / len;
+              if (u.z <= 0.0) continue;
+              const double wt = u.z / (len * len * len);  // cosine x solid angle per plane area
+              all += wt;
+              const glm::vec3 d = float(u.x) * t + float(u.y) * b + float(u.z) * n;
+              if ((*tracer)->Occluded(p, d, 1e30f)) hit += wt;
+            }
+          }
+          const double truth = all > 0.0 ? hit / all : 0.0;
+          const double c = std::min(1.0f, mb.PixelCoverage(q));
+          const int ci = c <= 0.001 ? 0 : c >= 0.999 ? 2 : 1;
+          const int ti = truth <= 0.001 ? 0 : truth >= 0.999 ? 2 : 1;
+          cls[ci][ti] += w * (c - truth);
+          cls_w[ci][ti] += w;
+          const double z = std::min(1.0, double(glm::normalize(mb.PixelDirection(q)).z));
+          const int e = std::min(5, int(std::asin(z) / (sh::kPi / 2.0) * 6.0));
+          elev[e] += w * (c - truth);
+          elev_w[e] += w;
+          all_w += w;
+          got += w * c, want += w * truth, weight += w;
+        }
+      }
+    }
+    got /= weight, want /= weight;
+    sum_pbgi += got, sum_truth += want, sum_abs += std::fabs(got - want);
+    worst.push_back({float(got - want), p, n, float(want)});
+  }
+  const double count = static_cast<double>(samples.size());
+  std::printf(
+      "%zu receivers, msa %g, res %d, %d x %d rays per pixel: PBGI %.5f, truth %.5f, "
+      "bias %+.5f, MAE %.5f\n",
+      samples.size(), a.msa, a.res, a.sub, a.sub, sum_pbgi / count, sum_truth / count,
+      (sum_pbgi - sum_truth) / count, sum_abs / count);
+  const char* name[3] = {"empty", "partial", "full"};
+  std::printf("bias by pixel class (share of the cosine weight, contribution to the bias):\n");
+  for (int ci = 0; ci < 3; ++ci) {
+    for (int ti = 0; ti < 3; ++ti) {
+      std::printf("  PBGI %-7s truth %-7s  %6.3f  %+.5f\n", name[ci], name[ti],
+                  cls_w[ci][ti] / all_w, cls[ci][ti] / all_w);
+    }
+  }
+  std::printf("bias by elevation:\n");
+  for (int e = 0; e < 6; ++e) {
+    std::printf("  %2d-%2d degrees  %6.3f  %+.5f\n", 15 * e, 15 * e + 15, elev_w[e] / all_w,
+                elev[e] / all_w);
+  }
+  std::sort(worst.begin(), worst.end(),
+            [](const Worst& x, const Worst& y) { return std::fabs(x.error) > std::fabs(y.error); });
+  std::printf("worst receivers:\n");
+  for (size_t i = 0; i < std::min<size_t>(8, worst.size()); ++i) {
+    const Worst& w = worst[i];
+    std::printf("  %+.4f (truth %.4f) at %.5f,%.5f,%.5f normal %.4f,%.4f,%.4f\n", w.error, w.truth,
+                w.p.x, w.p.y, w.p.z, w.n.x, w.n.y, w.n.z);
+  }
+  if (a.detail && !worst.empty()) Detail(worst[0], **reader, **tracer, cut, ro, mb);
+  return 0;
+}
+
+}  // namespace
+}  // namespace pbgi
+
+int main(int argc, char** argv) {
+  pbgi::Args a;
+  int positional = 0;
+  for (int i = 1; i < argc; ++i) {
+    const std::string arg = argv[i];
+    auto value = [&]() -> const char* {
+      if (i + 1 >= argc) {
+        std::fprintf(stderr, "pixel_error: %s needs a value\n", arg.c_str());
+        std::exit(2);
+      }
+      return argv[++i];
+    };
+    if (arg == "--receivers")
+      a.receivers = std::atoi(value());
+    else if (arg == "--msa")
+      a.msa = std::strtof(value(), nullptr);
+    else if (arg == "--res")
+      a.res = std::atoi(value());
+    else if (arg == "--sub")
+      a.sub = std::atoi(value());
+    else if (arg == "--seed")
+      a.seed = std::strtoull(value(), nullptr, 10);
+    else if (arg == "--hitsides")
+      a.sides = std::strcmp(value(), "both") == 0 ? pbgi::HitSides::kBoth : pbgi::HitSides::kFront;
+    else if (arg == "--detail")
+      a.detail = true;
+    else if (positional == 0)
+      a.scene = arg, ++positional;
+    else if (positional == 1)
+      a.db = arg, ++positional;
+    else {
+      std::fprintf(stderr, "pixel_error: unexpected argument %s\n", arg.c_str());
+      return 2;
+    }
+  }
+  if (positional != 2 || a.receivers < 1 || a.res < 4 || a.res > 64 || a.sub < 1 ||
+      !(a.msa > 0.0f)) {
+    std::fprintf(stderr,
+                 "usage: pixel_error SCENE|MESH DATABASE [--receivers N] [--msa A] [--res R] "
+                 "[--sub S] [--seed K] [--hitsides front|both] [--detail]\n");
+    return 2;
+  }
+  return pbgi::Run(a);
+}
