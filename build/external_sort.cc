@@ -412,9 +412,6 @@ absl::Status ExternalSorter::SpillBuffer(const SortRecord* recs, uint64_t n) {
     offset += k * sizeof(SortRecord);
     i += k;
   }
-  if (!run.path.empty() && fsync(run.fd) != 0) {
-    return ErrnoError(absl::StrFormat("fsync of the sort run %s", run.path), errno);
-  }
   runs_.back().count = n;
   runs_.back().crc = crc;
   spill_bytes_ += offset;

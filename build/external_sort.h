@@ -6,7 +6,9 @@
 // same input produce identical databases. Temporary files are unlinked as soon as they are
 // created and only held open: nothing is left behind on success, error, Ctrl-C or a crash.
 // Except with Options::run_dir (a resumable build, docs/format.md "Resume"): the runs the input
-// pass spills are then named files there, checksummed as they are written and fsynced, which
+// pass spills are then named files there, checksummed as they are written (not fsynced: an
+// interrupted or killed process leaves them in the page cache; after a power loss a lost run
+// fails its checksum instead of costing every build a wait for the disk), which
 // the caller may keep (KeepRuns) and a later sorter may merge again (ResumeFrom); the merge
 // checks each kept run's CRC-32C as it reads it.
 //
