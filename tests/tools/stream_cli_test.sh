@@ -36,14 +36,14 @@ same() {  # same NAME DB_A DB_B
 }
 b() { "$pbgi" build "$@" --memory 32M >/dev/null 2>>"$dir/builds.err"; }
 
-# City, hidden samples dropped (the count is known only after sampling), spilled at 32 MiB (4 runs).
-"$pbgi" generate city -n 200000 --seed 2 -o "$dir/c.ply" >/dev/null 2>&1 || fail "generate to a file"
-"$pbgi" generate city -n 200000 --seed 2 -o - 2>/dev/null >"$dir/s.ply" || fail "generate -o -"
+# City, hidden samples dropped (the count is known only after sampling), spilled at 32 MiB (3 runs).
+"$pbgi" generate city -n 120000 --seed 2 -o "$dir/c.ply" >/dev/null 2>&1 || fail "generate to a file"
+"$pbgi" generate city -n 120000 --seed 2 -o - 2>/dev/null >"$dir/s.ply" || fail "generate -o -"
 cmp -s <(grep -av '^comment pbgi date' "$dir/c.ply") <(grep -av '^comment pbgi date' "$dir/s.ply") &&
   ok || fail "generate -o - writes other bytes than -o FILE"
 grep -aq '^comment pbgi bounds ' "$dir/c.ply" && ok || fail "generate wrote no bounds comment"
 b "$dir/c.ply" -o "$dir/file.db" && ok || fail "build from the file: $(tail -n 2 "$dir/builds.err")"
-"$pbgi" generate city -n 200000 --seed 2 -o - 2>/dev/null | b - -o "$dir/pipe.db" &&
+"$pbgi" generate city -n 120000 --seed 2 -o - 2>/dev/null | b - -o "$dir/pipe.db" &&
   ok || fail "generate | build -: $(tail -n 2 "$dir/builds.err")"
 same "stdin with header bounds" "$dir/file.db" "$dir/pipe.db"
 
@@ -95,9 +95,9 @@ refuse nothing 'nothing to resume' \
 # A stream resumes too (its identity is its header, without the date generate stamps). The
 # resumed build reads only the header, so generate then ends on a closed pipe: the build's own
 # status is what counts.
-"$pbgi" generate city -n 200000 --seed 2 -o - 2>/dev/null |
+"$pbgi" generate city -n 120000 --seed 2 -o - 2>/dev/null |
   "$pbgi" build - -o "$dir/sres.db" --memory 32M --tmp "$dir/tmp" --stop-after-sort >/dev/null 2>&1
-"$pbgi" generate city -n 200000 --seed 2 -o - 2>/dev/null |
+"$pbgi" generate city -n 120000 --seed 2 -o - 2>/dev/null |
   "$pbgi" build - -o "$dir/sres.db" --memory 32M --tmp "$dir/tmp" --resume >/dev/null \
   2>"$dir/sresume.err"
 [ "${PIPESTATUS[1]}" = 0 ] && ok || fail "stream resume: $(tail -n 2 "$dir/sresume.err")"
