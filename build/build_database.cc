@@ -14,6 +14,7 @@
 #include "base/proc.h"
 #include "base/stopwatch.h"
 #include "build/builder.h"
+#include "build/run_manifest.h"
 #include "pbgi/build.h"
 #include "pbgi/status.h"
 #include "pbgi/store.h"
@@ -141,23 +142,38 @@ uint64_t DirectoryBytes(const std::string& path) {
 
 }  // namespace
 
+std::string BuildTempDir(const std::string& db_path, const BuildOptions& options) {
+  if (!options.tmp_dir.empty()) return options.tmp_dir;
+  std::error_code ec;
+  // The database's parent directory, or its nearest ancestor that exists yet.
+  std::filesystem::path parent = std::filesystem::absolute(db_path).parent_path();
+  while (!parent.empty() && parent != parent.root_path() &&
+         !std::filesystem::is_directory(parent, ec)) {
+    parent = parent.parent_path();
+  }
+  return parent.empty() ? std::string(".") : parent.string();
+}
+
+std::string BuildRunDirectory(const std::string& db_path, const BuildOptions& options) {
+  return internal::RunDirectory(BuildTempDir(db_path, options), db_path);
+}
+
 absl::StatusOr<BuildStats> BuildDatabase(SurfelSource& source, const std::string& db_path,
                                          const BuildOptions& options) {
-  std::string tmp_dir = options.tmp_dir;
+  const std::string tmp_dir = BuildTempDir(db_path, options);
   std::error_code ec;
-  if (tmp_dir.empty()) {
-    // The database's parent directory, or its nearest ancestor that exists yet.
-    std::filesystem::path parent = std::filesystem::absolute(db_path).parent_path();
-    while (!parent.empty() && parent != parent.root_path() &&
-           !std::filesystem::is_directory(parent, ec)) {
-      parent = parent.parent_path();
-    }
-    tmp_dir = parent.empty() ? std::string(".") : parent.string();
-  }
   if (!std::filesystem::is_directory(tmp_dir, ec)) {
     return absl::InvalidArgumentError(
         absl::StrFormat("temporary directory '%s' does not exist", tmp_dir));
   }
+  if (options.resumable.resume && options.resumable.input_identity.empty()) {
+    return absl::InvalidArgumentError(
+        "a build resumes only with BuildOptions::resumable.input_identity (what the kept runs "
+        "were made from)");
+  }
+  const std::string run_dir = options.resumable.input_identity.empty()
+                                  ? std::string()
+                                  : internal::RunDirectory(tmp_dir, db_path);
   StoreOptions so;
   so.page_size = options.page_size;
   const internal::MemoryPlan plan = internal::PlanMemory(options, source.KnownCount());
@@ -168,16 +184,20 @@ absl::StatusOr<BuildStats> BuildDatabase(SurfelSource& source, const std::string
   internal::Stopwatch finish;
   if (plan.threads > 1) {
     AsyncWriterSink sink(std::move(writer), kWriterSlots);
-    PBGI_ASSIGN_OR_RETURN(stats, internal::BuildToSink(source, sink, options, tmp_dir, &meta));
+    PBGI_ASSIGN_OR_RETURN(stats,
+                          internal::BuildToSink(source, sink, options, tmp_dir, &meta, run_dir));
     finish.Restart();
     PBGI_RETURN_IF_ERROR(sink.Finish(meta));
   } else {
     internal::StoreWriterSink sink(writer.get());
-    PBGI_ASSIGN_OR_RETURN(stats, internal::BuildToSink(source, sink, options, tmp_dir, &meta));
+    PBGI_ASSIGN_OR_RETURN(stats,
+                          internal::BuildToSink(source, sink, options, tmp_dir, &meta, run_dir));
     finish.Restart();
     PBGI_RETURN_IF_ERROR(writer->Finish(meta));
     writer.reset();
   }
+  // The database is complete: the kept runs are no longer needed.
+  if (!run_dir.empty()) std::filesystem::remove_all(run_dir, ec);
   stats.seconds_finish = finish.Seconds();
   stats.seconds_total += stats.seconds_finish;
   stats.bytes_on_disk = DirectoryBytes(db_path);

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <filesystem>
 #include <string>
 #include <vector>
 
@@ -12,6 +13,7 @@
 #include "build/neighbour_estimate.h"
 #include "build/node_packer.h"
 #include "build/octree_builder.h"
+#include "build/run_manifest.h"
 #include "build/sort_record.h"
 #include "pbgi/status.h"
 #include "tree/format.h"
@@ -146,9 +148,39 @@ MemoryPlan PlanMemory(const BuildOptions& o, int64_t known_count) {
   return many;
 }
 
+namespace {
+
+// Removes a resumable build's run directory when the build ends before its runs were kept
+// (declared before the sorter, so that the sorter has closed and unlinked its runs first).
+struct RunDirGuard {
+  std::string dir;
+  bool keep = false;
+  ~RunDirGuard() {
+    std::error_code ec;
+    if (!dir.empty() && !keep) std::filesystem::remove_all(dir, ec);
+  }
+};
+
+// Points may lie outside declared bounds by float rounding (a sampled point on a triangle's
+// edge), never by more: a margin of 1e-5 of the box (and 1e-6 of its coordinates) catches a
+// stale or wrong declaration without refusing rounding.
+Bounds DeclaredBoundsTolerance(const Bounds& b) {
+  const glm::vec3 e = b.Extent();
+  const float m = std::max({e.x, e.y, e.z});
+  const float c = std::max({std::abs(b.lo.x), std::abs(b.lo.y), std::abs(b.lo.z), std::abs(b.hi.x),
+                            std::abs(b.hi.y), std::abs(b.hi.z)});
+  const float pad = 1e-5f * m + 1e-6f * c;
+  Bounds out = b;
+  out.lo -= glm::vec3(pad);
+  out.hi += glm::vec3(pad);
+  return out;
+}
+
+}  // namespace
+
 absl::StatusOr<BuildStats> BuildToSink(SurfelSource& source, PageSink& sink,
                                        const BuildOptions& options, const std::string& tmp_dir,
-                                       StoreMeta* meta) {
+                                       StoreMeta* meta, const std::string& run_dir) {
   const Stopwatch total;
   PBGI_RETURN_IF_ERROR(CheckOptions(options, sink.page_size()));
   const bool radiance = HasRadiance(options.channels);
@@ -188,10 +220,42 @@ absl::StatusOr<BuildStats> BuildToSink(SurfelSource& source, PageSink& sink,
     return absl::OkStatus();
   };
 
+  const bool resume = !run_dir.empty() && options.resumable.resume;
+  RunDirGuard run_guard;
+  std::error_code ec;
+  if (!run_dir.empty() && !resume) {
+    // A fresh resumable build replaces what an earlier one kept.
+    std::filesystem::remove_all(run_dir, ec);
+    std::filesystem::create_directories(run_dir, ec);
+    if (ec) {
+      return absl::InternalError(
+          absl::StrFormat("cannot create the run directory %s: %s", run_dir, ec.message()));
+    }
+    run_guard.dir = run_dir;
+  }
+
   // Pass 1: bounds, unless the source knows them.
   Bounds bounds = source.KnownBounds();
+  const bool declared = !bounds.Empty();
   Stopwatch t;
-  if (bounds.Empty()) {
+  RunManifest kept;
+  if (resume) {
+    absl::StatusOr<RunManifest> m = ReadManifest(run_dir);
+    if (absl::IsNotFound(m.status())) {
+      return absl::NotFoundError(absl::StrFormat(
+          "nothing to resume: no sort runs are kept in %s (the interrupted build did not finish "
+          "its sort pass, did not spill, or used another --tmp); build without --resume",
+          run_dir));
+    }
+    PBGI_RETURN_IF_ERROR(m.status());
+    kept = *std::move(m);
+    PBGI_RETURN_IF_ERROR(CheckResumable(kept, ManifestFor(options, bounds, declared), run_dir));
+    bounds = kept.key_bounds;
+    stats.skipped = kept.skipped;
+    stats.seconds_bounds = kept.seconds_bounds;
+    stats.seconds_sort = kept.seconds_sort;
+    stats.resumed = true;
+  } else if (!declared) {
     PBGI_RETURN_IF_ERROR(for_each_valid("bounds", [&](const Surfel& s, uint64_t) {
       bounds.Extend(s.position);
       return absl::OkStatus();
@@ -201,39 +265,78 @@ absl::StatusOr<BuildStats> BuildToSink(SurfelSource& source, PageSink& sink,
 
   // Pass 2: keys and sorted runs.
   t.Restart();
-  const MemoryPlan plan = PlanMemory(options, known);
-  stats.run_capacity = plan.run_capacity;
+  const MemoryPlan plan = PlanMemory(options, resume ? kept.known_count : known);
+  stats.run_capacity = resume ? kept.run_capacity : plan.run_capacity;
   stats.threads = plan.threads;
-  ExternalSorter sorter(
-      ExternalSorter::Options{tmp_dir, plan.run_capacity, plan.merge_bytes, plan.threads});
-  const MortonQuantizer quant(bounds);
-  // Records are made in place in the sorter's run buffer.
-  absl::Span<SortRecord> slots;
-  size_t used = 0;
+  ExternalSorter::Options sort_options;
+  sort_options.tmp_dir = tmp_dir;
+  sort_options.run_capacity = plan.run_capacity;
+  sort_options.merge_bytes = plan.merge_bytes;
+  sort_options.threads = plan.threads;
+  ExternalSorter::RunsWritten runs_written;
+  if (!run_dir.empty() && !resume) {
+    runs_written = [&](const std::vector<KeptRun>& runs) -> absl::Status {
+      RunManifest m = ManifestFor(options, bounds, declared);
+      for (const KeptRun& r : runs) m.records += r.records;
+      m.skipped = stats.skipped;
+      m.known_count = known;
+      m.run_capacity = plan.run_capacity;
+      m.seconds_bounds = stats.seconds_bounds;
+      m.seconds_sort = t.Seconds();
+      m.runs = runs;
+      PBGI_RETURN_IF_ERROR(WriteManifest(run_dir, m));
+      run_guard.keep = true;
+      return absl::OkStatus();
+    };
+  }
+  ExternalSorter sorter(sort_options);
+  if (!run_dir.empty()) sorter.SetRunDirectory(run_dir, std::move(runs_written));
   InputRangeCheck range;
-  PBGI_RETURN_IF_ERROR(
-      for_each_valid("sort", [&](const Surfel& in, uint64_t index) -> absl::Status {
-        PBGI_RETURN_IF_ERROR(options.estimate.radius ? range.AddPosition(in, index)
-                                                     : range.Add(in, index, radiance));
-        if (used == slots.size()) {
-          sorter.Commit(used);
-          used = 0;
-          PBGI_ASSIGN_OR_RETURN(slots, sorter.Reserve(kBatch));
-        }
-        Surfel s = in;
-        if (options.estimate.normals) {
-          s.normal = glm::vec3(0.0f);
-        } else {
-          s.normal = glm::vec3(glm::normalize(glm::dvec3(s.normal)));
-        }
-        if (options.estimate.radius) s.radius = 0.0f;
-        if (!radiance) s.radiance = glm::vec3(0.0f);
-        slots[used++] = MakeSortRecord(quant.Key(s.position), s);
-        return absl::OkStatus();
-      }));
-  sorter.Commit(used);
-  PBGI_RETURN_IF_ERROR(sorter.FinishInput());
-  stats.seconds_sort = t.Seconds();
+  if (resume) {
+    PBGI_RETURN_IF_ERROR(sorter.ResumeFrom(kept.runs));
+  } else {
+    const MortonQuantizer quant(bounds);
+    const Bounds inside = DeclaredBoundsTolerance(bounds);
+    // Records are made in place in the sorter's run buffer.
+    absl::Span<SortRecord> slots;
+    size_t used = 0;
+    PBGI_RETURN_IF_ERROR(
+        for_each_valid("sort", [&](const Surfel& in, uint64_t index) -> absl::Status {
+          PBGI_RETURN_IF_ERROR(options.estimate.radius ? range.AddPosition(in, index)
+                                                       : range.Add(in, index, radiance));
+          if (declared && !inside.Contains(in.position)) {
+            return absl::InvalidArgumentError(absl::StrFormat(
+                "input surfel %d (counting from 0) at (%g, %g, %g) lies outside the bounds the "
+                "source declared, (%g, %g, %g) to (%g, %g, %g) (a PLY's `comment pbgi bounds` "
+                "line or --bounds): give bounds that hold every point, or none",
+                index, in.position.x, in.position.y, in.position.z, bounds.lo.x, bounds.lo.y,
+                bounds.lo.z, bounds.hi.x, bounds.hi.y, bounds.hi.z));
+          }
+          if (used == slots.size()) {
+            sorter.Commit(used);
+            used = 0;
+            PBGI_ASSIGN_OR_RETURN(slots, sorter.Reserve(kBatch));
+          }
+          Surfel s = in;
+          if (options.estimate.normals) {
+            s.normal = glm::vec3(0.0f);
+          } else {
+            s.normal = glm::vec3(glm::normalize(glm::dvec3(s.normal)));
+          }
+          if (options.estimate.radius) s.radius = 0.0f;
+          if (!radiance) s.radiance = glm::vec3(0.0f);
+          slots[used++] = MakeSortRecord(quant.Key(s.position), s);
+          return absl::OkStatus();
+        }));
+    sorter.Commit(used);
+    PBGI_RETURN_IF_ERROR(sorter.FinishInput());
+    stats.seconds_sort = t.Seconds();
+    if (run_guard.keep && options.resumable.stop_after_sort) {
+      return absl::CancelledError(
+          "stopped after the sort pass (BuildOptions::resumable.stop_after_sort): the runs are "
+          "kept for --resume");
+    }
+  }
   stats.runs_spilled = sorter.runs_spilled();
   stats.merge_passes = sorter.merge_passes();
   stats.spill_bytes = sorter.spill_bytes();
@@ -330,6 +433,7 @@ absl::StatusOr<BuildStats> BuildToSink(SurfelSource& source, PageSink& sink,
                                     bounds.hi.x, bounds.hi.y, bounds.hi.z);
   m["upper_records"] = absl::StrFormat("%d", stats.upper_records);
   m["early_upper_writes"] = absl::StrFormat("%d", stats.early_upper_writes);
+  if (stats.resumed) m["resumed"] = "1";
   const std::string knn = absl::StrFormat("estimated from %d nearest neighbours",
                                           std::clamp(options.estimate.neighbours, 3, 64));
   if (options.estimate.radius) m["radius"] = knn;

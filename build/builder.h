@@ -30,10 +30,12 @@ int ThreadCount(const BuildOptions& options);
 MemoryPlan PlanMemory(const BuildOptions& options, int64_t known_count);
 
 // Runs bounds, sort and the octree pass; pages go to `sink`, and `meta` receives everything
-// Finish() needs. `tmp_dir` is where sort runs go.
+// Finish() needs. `tmp_dir` is where sort runs go. `run_dir`: where a resumable build
+// (options.resumable) keeps its runs (created or replaced; resumed from); empty: not resumable.
+// The caller removes run_dir after the store is finished.
 absl::StatusOr<BuildStats> BuildToSink(SurfelSource& source, PageSink& sink,
                                        const BuildOptions& options, const std::string& tmp_dir,
-                                       StoreMeta* meta);
+                                       StoreMeta* meta, const std::string& run_dir = "");
 
 }  // namespace pbgi::internal
 

@@ -1,6 +1,7 @@
 #include "build/external_sort.h"
 
 #include <fcntl.h>
+#include <sys/stat.h>
 #include <unistd.h>
 
 #include <algorithm>
@@ -9,6 +10,7 @@
 #include <utility>
 
 #include "absl/strings/str_format.h"
+#include "store/crc32c.h"
 
 namespace pbgi::internal {
 namespace {
@@ -107,6 +109,16 @@ class ExternalSorter::RunReader {
     if (len_ == 0) return absl::OkStatus();
     const uint64_t offset = next_ * sizeof(SortRecord), bytes = len_ * sizeof(SortRecord);
     PBGI_RETURN_IF_ERROR(ReadAll(run_.fd, buf_.get(), bytes, offset, *dir_));
+    if (run_.checked) {
+      crc_ = Crc32c(crc_, buf_.get(), bytes);
+      if (next_ + len_ == run_.count && crc_ != run_.crc) {
+        return absl::DataLossError(absl::StrFormat(
+            "kept sort run %s does not match its checksum in the manifest (CRC-32C %08x, the "
+            "manifest says %08x): it was changed or damaged; remove its directory and build "
+            "again without --resume",
+            run_.path, crc_, run_.crc));
+      }
+    }
     // Read once: drop the pages from the page cache (a memory cgroup counts them).
     (void)posix_fadvise(run_.fd, static_cast<off_t>(offset), static_cast<off_t>(bytes),
                         POSIX_FADV_DONTNEED);
@@ -126,6 +138,7 @@ class ExternalSorter::RunReader {
   size_t cap_;
   size_t pos_ = 0, len_ = 0;
   uint64_t next_ = 0;  // records read from the file so far
+  uint32_t crc_ = 0;   // of the bytes read so far (checked runs)
   const std::string* dir_;
 };
 
@@ -275,6 +288,9 @@ ExternalSorter::~ExternalSorter() {
   for (Run& r : runs_) {
     if (r.fd >= 0) close(r.fd);
   }
+  if (!keep_runs_) {
+    for (const std::string& p : named_) unlink(p.c_str());
+  }
 }
 
 void ExternalSorter::SortBuffer(const SortRecord* recs, uint64_t n) {
@@ -283,7 +299,17 @@ void ExternalSorter::SortBuffer(const SortRecord* recs, uint64_t n) {
                               absl::Span<KeyIndex>(scratch_.get(), n));
 }
 
-absl::StatusOr<ExternalSorter::Run> ExternalSorter::NewRunFile() {
+absl::StatusOr<ExternalSorter::Run> ExternalSorter::NewRunFile(bool named) {
+  if (named) {
+    Run r;
+    r.path = absl::StrFormat("%s/run-%06d", run_dir_, named_.size());
+    r.fd = open(r.path.c_str(), O_CREAT | O_TRUNC | O_RDWR | O_CLOEXEC, 0600);
+    if (r.fd < 0) {
+      return ErrnoError(absl::StrFormat("cannot create the sort run %s", r.path), errno);
+    }
+    named_.push_back(r.path);
+    return r;
+  }
   const std::string& dir = options_.tmp_dir.empty() ? std::string(".") : options_.tmp_dir;
   int fd = open(dir.c_str(), O_TMPFILE | O_RDWR | O_CLOEXEC, 0600);
   if (fd < 0) {
@@ -362,8 +388,9 @@ void ExternalSorter::StopSpiller() {
 absl::Status ExternalSorter::SpillBuffer(const SortRecord* recs, uint64_t n) {
   if (n == 0) return absl::OkStatus();
   SortBuffer(recs, n);
-  PBGI_ASSIGN_OR_RETURN(Run run, NewRunFile());
+  PBGI_ASSIGN_OR_RETURN(Run run, NewRunFile(!run_dir_.empty()));
   runs_.push_back(run);
+  uint32_t crc = 0;
   std::vector<SortRecord> chunk(std::min<uint64_t>(kWriteChunkRecords, n));
   uint64_t offset = 0;
   for (uint64_t i = 0; i < n;) {
@@ -373,6 +400,7 @@ absl::Status ExternalSorter::SpillBuffer(const SortRecord* recs, uint64_t n) {
       if (i + j + 16 < n) __builtin_prefetch(&recs[sorted_[i + j + 16].index]);
       chunk[j] = recs[sorted_[i + j].index];
     }
+    if (!run.path.empty()) crc = Crc32c(crc, chunk.data(), k * sizeof(SortRecord));
     absl::Status s =
         WriteAll(run.fd, chunk.data(), k * sizeof(SortRecord), offset, options_.tmp_dir);
     if (!s.ok()) {
@@ -385,6 +413,7 @@ absl::Status ExternalSorter::SpillBuffer(const SortRecord* recs, uint64_t n) {
     i += k;
   }
   runs_.back().count = n;
+  runs_.back().crc = crc;
   spill_bytes_ += offset;
   ++runs_spilled_;
   total_ += n;
@@ -401,7 +430,7 @@ void ExternalSorter::FreeBuffers() {
 
 absl::Status ExternalSorter::MergeRuns(std::vector<Run> in, size_t buffer_records, Run* out) {
   PBGI_ASSIGN_OR_RETURN(auto merger, Merger::Create(in, buffer_records, &options_.tmp_dir));
-  PBGI_ASSIGN_OR_RETURN(*out, NewRunFile());
+  PBGI_ASSIGN_OR_RETURN(*out, NewRunFile(/*named=*/false));
   std::vector<SortRecord> chunk(std::max<size_t>(buffer_records, 1));
   uint64_t offset = 0;
   for (;;) {
@@ -434,6 +463,50 @@ absl::Status ExternalSorter::FinishInput() {
   PBGI_RETURN_IF_ERROR(SpillBuffer(records_.get(), size_));
   size_ = 0;
   FreeBuffers();
+  if (!run_dir_.empty() && runs_written_) {
+    std::vector<KeptRun> kept;
+    for (const Run& r : runs_) {
+      kept.push_back({r.path.substr(r.path.rfind('/') + 1), r.count, r.crc});
+    }
+    PBGI_RETURN_IF_ERROR(runs_written_(kept));
+    keep_runs_ = true;
+  }
+  return MergeSpilled();
+}
+
+absl::Status ExternalSorter::ResumeFrom(const std::vector<KeptRun>& runs) {
+  if (finished_) return absl::FailedPreconditionError("ExternalSorter::ResumeFrom after input");
+  if (runs.empty()) return absl::InvalidArgumentError("no sort runs to resume from");
+  finished_ = true;
+  keep_runs_ = true;  // until the caller removes them: an interrupted resume can resume again
+  FreeBuffers();
+  for (const KeptRun& k : runs) {
+    Run r;
+    r.path = run_dir_ + "/" + k.name;
+    r.count = k.records;
+    r.crc = k.crc;
+    r.checked = true;
+    r.fd = open(r.path.c_str(), O_RDONLY | O_CLOEXEC);
+    if (r.fd < 0) {
+      return ErrnoError(absl::StrFormat("cannot open the kept sort run %s", r.path), errno);
+    }
+    runs_.push_back(r);
+    named_.push_back(r.path);
+    struct stat st;
+    if (fstat(r.fd, &st) != 0) return ErrnoError("fstat of " + r.path, errno);
+    if (uint64_t(st.st_size) != k.records * sizeof(SortRecord)) {
+      return absl::DataLossError(absl::StrFormat(
+          "kept sort run %s holds %d bytes, the manifest says %d records (%d bytes): remove its "
+          "directory and build again without --resume",
+          r.path, st.st_size, k.records, k.records * sizeof(SortRecord)));
+    }
+    total_ += k.records;
+  }
+  runs_spilled_ = runs.size();
+  return MergeSpilled();
+}
+
+absl::Status ExternalSorter::MergeSpilled() {
   const uint64_t fan_in = std::max<uint64_t>(2, options_.merge_bytes / kMinMergeBufferBytes);
   while (runs_.size() > fan_in) {
     // Merge consecutive groups, in order, so that ties still resolve to the earlier input.

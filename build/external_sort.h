@@ -5,6 +5,12 @@
 // The sort is stable (equal keys keep their input order), so spilled and in-memory builds of the
 // same input produce identical databases. Temporary files are unlinked as soon as they are
 // created and only held open: nothing is left behind on success, error, Ctrl-C or a crash.
+// Except with Options::run_dir (a resumable build, docs/format.md "Resume"): the runs the input
+// pass spills are then named files there, checksummed as they are written (not fsynced: an
+// interrupted or killed process leaves them in the page cache; after a power loss a lost run
+// fails its checksum instead of costing every build a wait for the disk), which
+// the caller may keep (KeepRuns) and a later sorter may merge again (ResumeFrom); the merge
+// checks each kept run's CRC-32C as it reads it.
 //
 // Threads (Options::threads > 1): a full run buffer is handed to a background thread that
 // radix-sorts and spills it while the caller fills a second buffer (double buffering inside the
@@ -85,6 +91,13 @@ class BlockPipe {
   std::thread thread_;
 };
 
+// A sorted run kept as a named file (Options::run_dir).
+struct KeptRun {
+  std::string name;  // file name inside run_dir
+  uint64_t records = 0;
+  uint32_t crc = 0;  // CRC-32C of its bytes
+};
+
 class ExternalSorter {
  public:
   struct Options {
@@ -97,6 +110,16 @@ class ExternalSorter {
   ~ExternalSorter();
   ExternalSorter(const ExternalSorter&) = delete;
   ExternalSorter& operator=(const ExternalSorter&) = delete;
+
+  using RunsWritten = std::function<absl::Status(const std::vector<KeptRun>&)>;
+  // Before any Add (or ResumeFrom): the input pass's runs become named files in `dir` (an
+  // existing directory), removed by the destructor unless kept. Intermediate merge outputs stay
+  // unlinked. `runs_written` is called by FinishInput once every input run is on disk, before
+  // any merge; when it succeeds the runs are kept (KeepRuns).
+  void SetRunDirectory(std::string dir, RunsWritten runs_written) {
+    run_dir_ = std::move(dir);
+    runs_written_ = std::move(runs_written);
+  }
 
   absl::Status Add(const SortRecord& r) {
     if (size_ == options_.run_capacity) PBGI_RETURN_IF_ERROR(SpillRun());
@@ -117,6 +140,13 @@ class ExternalSorter {
   // Ends the input: sorts the last run, and with spilled runs merges them down to a count the
   // merge buffers can serve at once.
   absl::Status FinishInput();
+  // Instead of any Add and FinishInput: merges the runs a previous sorter kept in
+  // Options::run_dir (opened read-only; a size that is not records x 48 bytes is refused at once,
+  // a checksum mismatch when the merge reaches the run's end). REQUIRES: SetRunDirectory.
+  absl::Status ResumeFrom(const std::vector<KeptRun>& runs);
+  // The named runs survive the sorter (the caller removes run_dir when it no longer needs them).
+  void KeepRuns() { keep_runs_ = true; }
+
   // After FinishInput: fills `out` with the next records in key order; 0 at the end. Use either
   // Next or NextBlock to drain a sorter, not both.
   absl::StatusOr<size_t> Next(absl::Span<SortRecord> out);
@@ -133,6 +163,9 @@ class ExternalSorter {
   struct Run {
     int fd = -1;
     uint64_t count = 0;
+    std::string path;     // a named run (run_dir), else empty
+    uint32_t crc = 0;     // of its bytes, when `checked`
+    bool checked = false;  // compare the CRC as the run is read back
   };
   class RunReader;
   class Merger;
@@ -147,7 +180,9 @@ class ExternalSorter {
   void SpillerLoop();
   void StopSpiller();
   absl::StatusOr<size_t> Produce(absl::Span<SortRecord> out);
-  absl::StatusOr<Run> NewRunFile();
+  absl::StatusOr<Run> NewRunFile(bool named);
+  // The merge passes and the final merger over runs_ (after the input, or ResumeFrom).
+  absl::Status MergeSpilled();
   absl::Status MergeRuns(std::vector<Run> in, size_t buffer_records, Run* out);
   void FreeBuffers();
 
@@ -162,6 +197,10 @@ class ExternalSorter {
   uint64_t merge_passes_ = 0;
   uint64_t spill_bytes_ = 0;
   bool finished_ = false;
+  bool keep_runs_ = false;
+  std::string run_dir_;
+  RunsWritten runs_written_;
+  std::vector<std::string> named_;  // paths of the named runs, to remove unless kept
   uint64_t emitted_ = 0;  // in-memory mode: records returned so far
   std::unique_ptr<Merger> merger_;
   // NextBlock without threads: a block of the in-memory gather.

@@ -1,6 +1,7 @@
 // PLY reader (binary little- and big-endian, and ASCII) and writer. See pbgi/ply.h.
 #include "pbgi/ply.h"
 
+#include <fcntl.h>
 #include <sys/stat.h>
 #include <unistd.h>
 
@@ -221,7 +222,7 @@ bool IsHeaderKeyword(absl::string_view w) {
 class PlyFileReader final : public PlySource {
  public:
   ~PlyFileReader() override {
-    if (file_ != nullptr) std::fclose(file_);
+    if (file_ != nullptr && file_ != stdin) std::fclose(file_);
   }
 
   static absl::StatusOr<std::unique_ptr<PlyFileReader>> Open(const std::string& path,
@@ -231,12 +232,24 @@ class PlyFileReader final : public PlySource {
     src->path_ = path;
     src->options_ = options;
     src->header_.path = path;
-    src->file_ = std::fopen(path.c_str(), "rb");
-    if (src->file_ == nullptr) {
-      return absl::NotFoundError(
-          absl::StrFormat("%s: cannot open: %s", path, std::strerror(errno)));
+    if (path == "-") {
+      // Standard input: read once, front to back (see PlyReadOptions::spill_dir).
+      src->path_ = "standard input";
+      src->file_ = stdin;
+      struct stat st;
+      src->seekable_ = fstat(fileno(stdin), &st) == 0 && S_ISREG(st.st_mode);
+    } else {
+      src->file_ = std::fopen(path.c_str(), "rb");
+      if (src->file_ == nullptr) {
+        return absl::NotFoundError(
+            absl::StrFormat("%s: cannot open: %s", path, std::strerror(errno)));
+      }
     }
     PBGI_RETURN_IF_ERROR(src->ReadHeader(header_only));
+    if (!header_only && !src->seekable_ && src->KnownBounds().Empty() &&
+        !options.spill_dir.empty()) {
+      PBGI_RETURN_IF_ERROR(src->SpillBody(options.spill_dir));
+    }
     return src;
   }
 
@@ -251,6 +264,7 @@ class PlyFileReader final : public PlySource {
     if (record_ >= count_ && !end_checked_) {
       end_checked_ = true;
       PBGI_RETURN_IF_ERROR(CheckAsciiEnd());
+      PBGI_RETURN_IF_ERROR(CheckStreamEnd());
     }
     if (!ascii_ && all_float_in_order_ && reflections.empty()) return NextBinaryFloats(out);
     size_t n = 0;
@@ -269,6 +283,15 @@ class PlyFileReader final : public PlySource {
   }
 
   absl::Status Rewind() override {
+    if (!seekable_) {
+      // A pipe can be "rewound" only to where it already is: its first record.
+      if (record_ == 0 && file_pos_ == body_offset_ && buf_len_ == 0) return absl::OkStatus();
+      return absl::FailedPreconditionError(absl::StrFormat(
+          "%s: cannot read a stream twice: the build needs the bounds of the points first; "
+          "give them as `comment pbgi bounds XMIN YMIN ZMIN XMAX YMAX ZMAX` in the header "
+          "(pbgi generate and pbgi import write it), or --bounds, or spill the stream to --tmp",
+          path_));
+    }
     if (std::fseek(file_, body_offset_, SEEK_SET) != 0) {
       return absl::InternalError(
           absl::StrFormat("%s: cannot seek: %s", path_, std::strerror(errno)));
@@ -283,9 +306,62 @@ class PlyFileReader final : public PlySource {
 
   int64_t KnownCount() const override { return static_cast<int64_t>(count_); }
   bool HasRadiance() const override { return has_color_; }
+  Bounds KnownBounds() const override {
+    return options_.bounds.Empty() ? header_.bounds : options_.bounds;
+  }
 
  private:
   PlyFileReader() = default;
+
+  // Copies the rest of a stream (the body and anything after it) to an unlinked file in `dir`
+  // and reads from there, so that the builder can read the records twice (docs/format.md,
+  // "Streamed input").
+  absl::Status SpillBody(const std::string& dir) {
+    int fd = open(dir.c_str(), O_TMPFILE | O_RDWR | O_CLOEXEC, 0600);
+    if (fd < 0) {
+      std::string tmpl = dir + "/pbgi-stdin-XXXXXX";
+      fd = mkostemp(tmpl.data(), O_CLOEXEC);
+      if (fd < 0) {
+        return absl::InternalError(absl::StrFormat("cannot create a file in '%s' to spill %s: %s",
+                                                   dir, path_, std::strerror(errno)));
+      }
+      unlink(tmpl.c_str());
+    }
+    std::FILE* spill = fdopen(fd, "w+b");
+    if (spill == nullptr) {
+      close(fd);
+      return absl::InternalError(absl::StrFormat("fdopen: %s", std::strerror(errno)));
+    }
+    // The body keeps its stream offset (a hole before it), so errors name the stream's offsets.
+    if (std::fseek(spill, body_offset_, SEEK_SET) != 0) {
+      std::fclose(spill);
+      return absl::InternalError(absl::StrFormat("seek in a spill file: %s", std::strerror(errno)));
+    }
+    std::vector<char> chunk(size_t{1} << 20);
+    uint64_t copied = 0;
+    for (;;) {
+      const size_t r = std::fread(chunk.data(), 1, chunk.size(), file_);
+      if (r == 0) break;
+      if (std::fwrite(chunk.data(), 1, r, spill) != r) {
+        const std::string why = std::strerror(errno);
+        std::fclose(spill);
+        return absl::InternalError(absl::StrFormat(
+            "spilling %s to '%s' failed after %d bytes: %s", path_, dir, copied, why));
+      }
+      copied += r;
+    }
+    if (std::ferror(file_) || std::fflush(spill) != 0 ||
+        std::fseek(spill, body_offset_, SEEK_SET) != 0) {
+      const std::string why = std::strerror(errno);
+      std::fclose(spill);
+      return absl::InternalError(absl::StrFormat("spilling %s: %s", path_, why));
+    }
+    file_ = spill;
+    seekable_ = true;
+    header_.spilled_bytes = copied;
+    if (!ascii_) PBGI_RETURN_IF_ERROR(CheckBinaryBodySize());
+    return absl::OkStatus();
+  }
 
   absl::Status HeaderError(const std::string& what) const {
     return absl::InvalidArgumentError(
@@ -301,6 +377,7 @@ class PlyFileReader final : public PlySource {
     bool any = false;
     while ((c = std::fgetc(file_)) != EOF) {
       any = true;
+      ++header_bytes_;
       if (c == '\n') break;
       if (line->size() >= kMaxHeaderLine) {
         *too_long = true;
@@ -340,6 +417,9 @@ class PlyFileReader final : public PlySource {
       if (tok[0] == "comment" || tok[0] == "obj_info") {
         const size_t at = line.find(std::string(tok[0])) + tok[0].size();
         header_.comments.push_back(std::string(absl::StripAsciiWhitespace(line.substr(at))));
+        if (tok.size() >= 3 && tok[1] == "pbgi" && tok[2] == "bounds") {
+          PBGI_RETURN_IF_ERROR(ParseBoundsComment(tok));
+        }
         continue;
       }
       if (tok[0] == "end_header") break;
@@ -480,7 +560,8 @@ class PlyFileReader final : public PlySource {
     }
     float_prefix_bytes_ = prefix * sizeof(float);
     header_lines_ = line_;
-    body_offset_ = std::ftell(file_);
+    // Counted rather than asked (ftell), which a pipe cannot answer.
+    body_offset_ = static_cast<long>(header_bytes_);
     file_pos_ = body_offset_;
     if (!header_only) {
       // Room for at least two records, whatever their size.
@@ -524,6 +605,19 @@ class PlyFileReader final : public PlySource {
     return absl::OkStatus();
   }
 
+  // A binary stream cannot be measured up front (CheckBinaryBodySize): after its last vertex,
+  // nothing may follow when the header declares nothing else.
+  absl::Status CheckStreamEnd() {
+    if (ascii_ || seekable_ || later_records_) return absl::OkStatus();
+    if (buf_len_ - buf_pos_ > 0 || Fill(1) > 0) {
+      return absl::InvalidArgumentError(absl::StrFormat(
+          "%s: the header says %d vertices of %d bytes, but more bytes follow at byte offset %d: "
+          "a wrong vertex count, or a body that is not %s",
+          path_, count_, stride_, file_pos_, header_.format));
+    }
+    return absl::OkStatus();
+  }
+
   // After the last vertex of an ASCII file that holds nothing else, only blank lines may
   // follow: more records mean the header's count is too small.
   absl::Status CheckAsciiEnd() {
@@ -541,6 +635,27 @@ class PlyFileReader final : public PlySource {
       ++buf_pos_;
       ++file_pos_;
     }
+  }
+
+  // `comment pbgi bounds XMIN YMIN ZMIN XMAX YMAX ZMAX` (PlyHeader::bounds).
+  absl::Status ParseBoundsComment(const std::vector<absl::string_view>& tok) {
+    float v[6];
+    bool ok = tok.size() == 9;
+    for (int i = 0; ok && i < 6; ++i) ok = absl::SimpleAtof(tok[size_t(3 + i)], &v[i]) &&
+                                          std::isfinite(v[i]);
+    Bounds b;
+    if (ok) {
+      b.lo = glm::vec3(v[0], v[1], v[2]);
+      b.hi = glm::vec3(v[3], v[4], v[5]);
+      ok = !b.Empty();
+    }
+    if (!ok) {
+      return HeaderError(
+          "malformed bounds comment (want `comment pbgi bounds XMIN YMIN ZMIN XMAX YMAX ZMAX`, "
+          "six finite numbers, each minimum at most its maximum)");
+    }
+    header_.bounds = b;
+    return absl::OkStatus();
   }
 
   // Ensures `want` bytes are buffered; returns how many are.
@@ -686,6 +801,8 @@ class PlyFileReader final : public PlySource {
   int line_ = 0;
   int header_lines_ = 0;
   long body_offset_ = 0;
+  uint64_t header_bytes_ = 0;  // bytes of the header read so far
+  bool seekable_ = true;       // false for a pipe (until spilled)
   long file_pos_ = 0;  // file offset of buf_[buf_pos_]
   std::vector<char> buf_;
   size_t buf_pos_ = 0, buf_len_ = 0;
@@ -745,17 +862,32 @@ absl::StatusOr<std::unique_ptr<PlyWriter>> PlyWriter::Create(const std::string& 
                                                              const PlyWriterOptions& options) {
   auto w = std::unique_ptr<PlyWriter>(new PlyWriter());
   w->path_ = path;
-  // Written beside the output and renamed over it by Close(): a failed or interrupted write
-  // leaves the previous file as it was.
-  w->tmp_path_ = absl::StrFormat("%s.tmp-%d", path, getpid());
   w->options_ = options;
-  w->file_ = std::fopen(w->tmp_path_.c_str(), "wb");
-  if (w->file_ == nullptr) {
-    return absl::InvalidArgumentError(
-        absl::StrFormat("%s: cannot create: %s", w->tmp_path_, std::strerror(errno)));
+  if (path == "-") {
+    if (options.vertex_count < 0) {
+      return absl::InvalidArgumentError(
+          "a PLY written to standard output needs its vertex count in advance");
+    }
+    w->tmp_path_ = "standard output";
+    w->file_ = stdout;
+  } else {
+    // Written beside the output and renamed over it by Close(): a failed or interrupted write
+    // leaves the previous file as it was.
+    w->tmp_path_ = absl::StrFormat("%s.tmp-%d", path, getpid());
+    w->file_ = std::fopen(w->tmp_path_.c_str(), "wb");
+    if (w->file_ == nullptr) {
+      return absl::InvalidArgumentError(
+          absl::StrFormat("%s: cannot create: %s", w->tmp_path_, std::strerror(errno)));
+    }
   }
   std::string h = absl::StrFormat("ply\nformat %s 1.0\ncomment pbgi surfels\n",
                                   options.ascii ? "ascii" : "binary_little_endian");
+  if (!options.bounds.Empty()) {
+    // %.9g round-trips every float.
+    const Bounds& b = options.bounds;
+    absl::StrAppendFormat(&h, "comment pbgi bounds %.9g %.9g %.9g %.9g %.9g %.9g\n", b.lo.x,
+                          b.lo.y, b.lo.z, b.hi.x, b.hi.y, b.hi.z);
+  }
   for (const std::string& c : options.comments) {
     // One line each: a newline would end the comment and start a header line of its own.
     std::string line = c;
@@ -765,7 +897,8 @@ absl::StatusOr<std::unique_ptr<PlyWriter>> PlyWriter::Create(const std::string& 
   }
   h += "element vertex ";
   w->count_offset_ = static_cast<long>(h.size());
-  h += std::string(kCountDigits, '0') + "\n";
+  h += options.vertex_count >= 0 ? absl::StrFormat("%0*d\n", kCountDigits, options.vertex_count)
+                                 : std::string(kCountDigits, '0') + "\n";
   for (const char* p : {"x", "y", "z", "nx", "ny", "nz", "radius"}) {
     absl::StrAppend(&h, "property float ", p, "\n");
   }
@@ -784,7 +917,9 @@ absl::StatusOr<std::unique_ptr<PlyWriter>> PlyWriter::Create(const std::string& 
 }
 
 PlyWriter::~PlyWriter() {
-  if (file_ != nullptr) {
+  if (file_ == stdout) {
+    std::fflush(stdout);  // a short stream: the reader's count check names it
+  } else if (file_ != nullptr) {
     std::fclose(file_);
     std::remove(tmp_path_.c_str());
   }
@@ -840,6 +975,21 @@ absl::Status PlyWriter::Close() {
   if (file_ == nullptr) return absl::OkStatus();
   std::FILE* f = file_;
   file_ = nullptr;
+  if (options_.vertex_count >= 0 && count_ != uint64_t(options_.vertex_count)) {
+    if (f != stdout) {
+      std::fclose(f);
+      std::remove(tmp_path_.c_str());
+    }
+    return absl::InternalError(absl::StrFormat("%s: %d surfels written, the header promised %d",
+                                               tmp_path_, count_, options_.vertex_count));
+  }
+  if (f == stdout) {
+    if (std::fflush(f) != 0) {
+      return absl::InternalError(
+          absl::StrFormat("writing standard output failed: %s", std::strerror(errno)));
+    }
+    return absl::OkStatus();
+  }
   const std::string digits = absl::StrFormat("%0*d", kCountDigits, count_);
   bool ok = std::fflush(f) == 0 && std::fseek(f, count_offset_, SEEK_SET) == 0 &&
             std::fwrite(digits.data(), 1, digits.size(), f) == digits.size() &&

@@ -1,5 +1,5 @@
 // `pbgi generate SCENE -n POINTS -o OUT.ply [--seed S]`: streams a procedural scene's surfels,
-// with direct light baked, to a PLY file in constant memory.
+// with direct light baked, to a PLY file (or, with `-o -`, standard output) in constant memory.
 #include <cmath>
 #include <cstdio>
 #include <memory>
@@ -43,11 +43,13 @@ std::vector<std::string> ProvenanceComments(const std::map<std::string, std::str
 }
 
 absl::Status Run(const Options& o) {
-  if (!absl::EndsWith(o.out, ".ply")) {
-    return absl::InvalidArgumentError(
-        absl::StrFormat("-o %s: the output is a PLY point file (-o NAME.ply)", o.out));
+  const bool to_stdout = o.out == "-";
+  if (!to_stdout && !absl::EndsWith(o.out, ".ply")) {
+    return absl::InvalidArgumentError(absl::StrFormat(
+        "-o %s: the output is a PLY point file (-o NAME.ply, or -o - for standard output)",
+        o.out));
   }
-  PBGI_RETURN_IF_ERROR(CheckOutsideStores(o.out));
+  if (!to_stdout) PBGI_RETURN_IF_ERROR(CheckOutsideStores(o.out));
   PBGI_ASSIGN_OR_RETURN(int64_t count, ParseCount(o.points, "-n"));
   if (count <= 0) return absl::InvalidArgumentError("-n must be at least 1");
   SceneOptions so;
@@ -73,7 +75,31 @@ absl::Status Run(const Options& o) {
   fields["tool"] = kToolVersion;
   fields["date"] = NowIso8601();
   wo.comments = ProvenanceComments(fields);
+  // The sampler's bounds hold every surfel: `pbgi build` then needs no bounds pass, and can
+  // read the file from a pipe (docs/format.md, "Streamed input").
+  wo.bounds = source->KnownBounds();
   const InterruptGuard interrupt;
+  if (to_stdout) {
+    wo.vertex_count = source->KnownCount();
+    if (wo.vertex_count < 0) {
+      // Hidden samples are dropped, so the count is known only after sampling: count them first
+      // without baking (which decides nothing about which samples are kept; the writer checks
+      // that the second pass makes as many).
+      SamplerOptions count_only = sampler;
+      count_only.bake = false;
+      PBGI_ASSIGN_OR_RETURN(std::unique_ptr<SurfelSource> counter,
+                            MakeSceneSurfelSource(shared, count_only));
+      std::vector<Surfel> buf(1 << 16);
+      int64_t n = 0;
+      for (;;) {
+        PBGI_RETURN_IF_ERROR(interrupt.Check("pbgi generate"));
+        PBGI_ASSIGN_OR_RETURN(size_t k, counter->Next(absl::MakeSpan(buf)));
+        if (k == 0) break;
+        n += static_cast<int64_t>(k);
+      }
+      wo.vertex_count = n;
+    }
+  }
   PBGI_ASSIGN_OR_RETURN(std::unique_ptr<PlyWriter> writer, PlyWriter::Create(o.out, wo));
 
   absl::FPrintF(stderr, "pbgi generate: %s, %d triangles (%d instances), area %.6g, %s\n",
@@ -101,8 +127,8 @@ absl::Status Run(const Options& o) {
   PBGI_RETURN_IF_ERROR(writer->Close());
   progress.Finish(static_cast<uint64_t>(done));
   const double secs = start.Seconds();
-  absl::PrintF(
-      "%s: %d points%s, %.2f s, %.0f points/s, peak memory %s\n", o.out.c_str(), done,
+  absl::FPrintF(
+      to_stdout ? stderr : stdout, "%s: %d points%s, %.2f s, %.0f points/s, peak memory %s\n", o.out.c_str(), done,
       exact ? "" : absl::StrFormat(" (%d asked; samples inside solid geometry dropped)", count),
       secs, static_cast<double>(done) / secs, FormatBytes(internal::PeakRssBytes()).c_str());
   return absl::OkStatus();
@@ -117,7 +143,8 @@ CommandSetup Setup() {
     app->add_option("-n,--points", o->points, "Number of surfels (50k, 10M, 1e8, ...)")
         ->check(CountValidator(1))
         ->capture_default_str();
-    app->add_option("-o,--output", o->out, "Output PLY file")->required();
+    app->add_option("-o,--output", o->out, "Output PLY file, or - for standard output")
+        ->required();
     app->add_option("--seed", o->seed, "Seed of the scene layout and the sampling")
         ->capture_default_str();
     app->add_option("--size", o->size,

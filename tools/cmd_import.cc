@@ -143,6 +143,9 @@ absl::Status Run(const Options& o) {
   fields["tool"] = kToolVersion;
   fields["date"] = NowIso8601();
   for (const auto& [k, v] : fields) wo.comments.push_back(absl::StrFormat("pbgi %s %s", k, v));
+  // The sampler's bounds hold every surfel: `pbgi build` then needs no bounds pass
+  // (docs/format.md, "Streamed input").
+  wo.bounds = source->KnownBounds();
   const InterruptGuard interrupt;
   PBGI_ASSIGN_OR_RETURN(std::unique_ptr<PlyWriter> writer, PlyWriter::Create(o.out, wo));
   const int64_t count = source->KnownCount();

@@ -19,7 +19,11 @@
 //   104 bytes per node, about one node per leaf_size/2 points): they exist only to measure what
 //   coherence buys, not to build huge databases. kCoherent and kPostOrder stream.
 // - Temporary run files are unlinked as soon as they are created and only kept open, so they
-//   disappear on success, on error, on Ctrl-C and even on a crash.
+//   disappear on success, on error, on Ctrl-C and even on a crash. Except in a resumable build
+//   (BuildOptions::resumable): the sort pass's runs are then named files in a directory of
+//   tmp_dir (RunDirectory), kept with a manifest once the sort pass is done, so that a build
+//   interrupted later (error, Ctrl-C, crash) can resume; removed after success, and replaced by
+//   the next build of the same database that does not resume.
 #ifndef PBGI_BUILD_H_
 #define PBGI_BUILD_H_
 
@@ -88,6 +92,19 @@ struct BuildOptions {
     bool towards_viewpoint = false;
     glm::vec3 viewpoint{0.0f};
   } estimate;
+  // Resumable builds (docs/format.md, "Resume"). With a non-empty input_identity, a build that
+  // spills keeps its sorted runs and a manifest (what made them: this identity and the options
+  // that decide the records and keys) in tmp_dir; with `resume`, the build reads no surfel from
+  // the source but merges the kept runs of the same database path, after checking the manifest
+  // against this build (FailedPrecondition naming what differs; NotFound when nothing is kept).
+  // Options that act after the sort (leaf size, page size, layout, memory, threads) may differ.
+  struct Resumable {
+    std::string input_identity;  // e.g. the input file's path, size, mtime and header hash
+    bool resume = false;
+    // Test hook: stop with a Cancelled error right after the manifest is written (an
+    // interruption after the sort pass).
+    bool stop_after_sort = false;
+  } resumable;
   // 1: everything on the calling thread. >= 2: a background sort/spill thread (double-buffered
   // runs inside the same budget), a merge thread running ahead of the octree pass, and (in
   // BuildDatabase) a thread for the LMDB writes. 0: 1 (measured faster on 2 cores under load;
@@ -121,6 +138,7 @@ struct BuildStats {
   // upper subtrees were written before the end to stay within the memory budget.
   uint64_t upper_records = 0;
   uint64_t early_upper_writes = 0;
+  bool resumed = false;  // merged the runs a previous build kept (the sort times are its)
 };
 
 // The smallest memory_bytes within which a build's peak stays: its fixed buffers, the smallest
@@ -132,6 +150,12 @@ uint64_t MinimumBuildMemory(const BuildOptions& options);
 // Errors name the surfel (record number) or page concerned. An empty input is an error.
 absl::StatusOr<BuildStats> BuildDatabase(SurfelSource& source, const std::string& db_path,
                                          const BuildOptions& options);
+
+// The temporary directory a build of `db_path` uses: options.tmp_dir, or the database's parent
+// directory (its nearest ancestor that exists).
+std::string BuildTempDir(const std::string& db_path, const BuildOptions& options);
+// Where a resumable build of `db_path` keeps its runs, inside BuildTempDir.
+std::string BuildRunDirectory(const std::string& db_path, const BuildOptions& options);
 
 // Checks the tree invariants of a finished store: every point in exactly one leaf, leaves in
 // depth-first order cover the points in order, node bounds contain their children and points,

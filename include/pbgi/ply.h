@@ -58,6 +58,12 @@ struct PlyHeader {
   bool has_color = false;
   bool has_reflection = false;  // rx ry rz
   bool has_two_sided = false;   // two_sided
+  // From a `comment pbgi bounds XMIN YMIN ZMIN XMAX YMAX ZMAX` line (what pbgi generate and
+  // pbgi import write: the box of the sampled triangles, which holds every point); empty when
+  // the header has none. The source's KnownBounds(), so the builder needs no bounds pass.
+  Bounds bounds;
+  // Standard input copied to PlyReadOptions::spill_dir (0: not spilled).
+  uint64_t spilled_bytes = 0;
   // Comments of the form `pbgi KEY VALUE` (what pbgi's own writers record about where the
   // points came from: the scene, its seed, ...).
   std::map<std::string, std::string> Provenance() const;
@@ -72,6 +78,15 @@ struct PlyReadOptions {
   bool allow_missing_radius = false;
   bool allow_missing_normals = false;
   float uniform_radius = 0.0f;
+  // When not empty: the source's KnownBounds() instead of the header's (`pbgi build --bounds`).
+  // The builder refuses points outside them.
+  Bounds bounds;
+  // Path "-" reads standard input, which can be read only once. When the bounds are known (the
+  // header's or `bounds`), the builder needs only one pass and nothing is spilled. Otherwise,
+  // when this is a directory, the stream's body is first copied to an unlinked file there
+  // (about the size of the PLY) and read from it; when empty, Rewind() after the first record
+  // fails (naming the ways out).
+  std::string spill_dir;
 };
 
 // A SurfelSource over a PLY file, with its header and the receivers' reflection directions.
@@ -84,7 +99,7 @@ class PlySource : public SurfelSource {
                                                      absl::Span<glm::vec3> reflections) = 0;
 };
 
-// Opens `path` and reads its header. The source's KnownCount() is the header's vertex count and
+// Opens `path` ("-": standard input, see PlyReadOptions::spill_dir) and reads its header. The source's KnownCount() is the header's vertex count and
 // HasRadiance() tells whether the file has colour properties (surfels without get zero radiance).
 absl::StatusOr<std::unique_ptr<PlySource>> OpenPlyFile(const std::string& path,
                                                        const PlyReadOptions& options = {});
@@ -112,11 +127,19 @@ struct PlyWriterOptions {
   std::vector<std::string> comments;
   // Write each surfel's Surfel::two_sided as a last property `uchar two_sided` (0 or 1).
   bool two_sided = false;
+  // When not empty: a `comment pbgi bounds ...` line (PlyHeader::bounds), floats written exactly.
+  // REQUIRES: every written position inside (the writer does not check; the builder does).
+  Bounds bounds;
+  // The number of surfels that will be written, when known in advance (>= 0): it goes into the
+  // header at once and Close() checks it. Required for path "-" (standard output), which cannot
+  // be patched afterwards.
+  int64_t vertex_count = -1;
 };
 
 // Streams surfels to a PLY file with float properties x y z nx ny nz radius [r g b] [extra...]
 // [uchar red green blue] [uchar two_sided]. The vertex count is patched into the header by Close(),
-// so the count need not be known in advance. REQUIRES: Close() to finish the file; a writer
+// so the count need not be known in advance, except for path "-": standard output, written in
+// place, with PlyWriterOptions::vertex_count. REQUIRES: Close() to finish the file; a writer
 // destroyed without Close() removes its temporary file and leaves `path` as it was.
 class PlyWriter {
  public:
