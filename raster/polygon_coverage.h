@@ -146,9 +146,13 @@ inline int ClipToPyramid(float* a, float* b, float* w, int n, float* ta, float* 
 }  // namespace polygon_coverage
 
 // RasterizePolygon() (raster/polygon.h) with each covered pixel passed to sink(pixel, coverage)
-// in the same order as RasterizePolygon() appends them.
-template <class Sink>
-inline void RasterizePolygonTo(const Polygon& p, int res, std::vector<float>* acc, Sink&& sink) {
+// in the same order as RasterizePolygon() appends them, except on a face where
+// skip(first, col0, col1, row0, row1) says that the pixels first + row * res + col of the
+// polygon's bounding rectangle there need none (the caller's pixels that a fragment cannot
+// change): its coverage is not computed.
+template <class Sink, class Skip>
+inline void RasterizePolygonTo(const Polygon& p, int res, std::vector<float>* acc, Sink&& sink,
+                               Skip&& skip) {
   using namespace polygon_coverage;  // NOLINT(build/namespaces): this file's own helpers
 
   if (p.n < 3) return;
@@ -215,6 +219,7 @@ inline void RasterizePolygonTo(const Polygon& p, int res, std::vector<float>* ac
     const int y0 = std::min(res - 1, static_cast<int>(miny));
     const int y1 = std::min(res - 1, std::max(y0, CeilPos(maxy) - 1));
     const uint32_t base = static_cast<uint32_t>(f * res * res);
+    if (skip(base, x0, x1, y0, y1)) continue;
     auto emit = [&](int col, int row, float area2) {
       const float cov = std::min(1.0f, 0.5f * std::fabs(area2));
       if (cov > 1e-6f) sink(base + static_cast<uint32_t>(row * res + col), cov);
@@ -273,6 +278,11 @@ inline void RasterizePolygonTo(const Polygon& p, int res, std::vector<float>* ac
       }
     }
   }
+}
+
+template <class Sink>
+inline void RasterizePolygonTo(const Polygon& p, int res, std::vector<float>* acc, Sink&& sink) {
+  RasterizePolygonTo(p, res, acc, sink, [](uint32_t, int, int, int, int) { return false; });
 }
 
 }  // namespace pbgi::internal

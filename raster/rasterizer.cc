@@ -151,10 +151,18 @@ void Rasterizer::SplatPolygons(const PreparedSplat& s) {
   const Frag fr = FragOf(s);
   const Polygon* polys = mb_.polygons_.data() + s.poly_first;
   const float alpha = s.alpha;
+  auto emit = [&](uint32_t pixel, float cov) { Emit<kClamp, kRad>(pixel, alpha * cov, fr); };
   for (uint32_t k = 0; k < s.poly_count; ++k) {
-    RasterizePolygonTo(polys[k], res_, &mb_.accumulation_, [&](uint32_t pixel, float cov) {
-      Emit<kClamp, kRad>(pixel, alpha * cov, fr);
-    });
+    if constexpr (kClamp) {
+      // Fragments arrive front to back: where every pixel of the polygon's rectangle is closed
+      // and already as near, Emit() would change nothing (bit for bit the same result).
+      RasterizePolygonTo(polys[k], res_, &mb_.accumulation_, emit,
+                         [&](uint32_t first, int col0, int col1, int row0, int row1) {
+                           return RectClosed(first, col0, col1, row0, row1, fr.depth);
+                         });
+    } else {
+      RasterizePolygonTo(polys[k], res_, &mb_.accumulation_, emit);
+    }
   }
 }
 
@@ -457,6 +465,17 @@ inline void Rasterizer::Integrate(const ShadeReceiver& r, ShadeResult* out) {
     out->irradiance = glm::max(out->irradiance, glm::vec3(0.0f));
     out->glossy = glm::max(out->glossy, glm::vec3(0.0f));
   }
+}
+
+inline bool Rasterizer::RectClosed(uint32_t first, int col0, int col1, int row0, int row1,
+                                   float depth) const {
+  for (int row = row0; row <= row1; ++row) {
+    const PixelState* px = px_ + first + static_cast<uint32_t>(row * res_);
+    for (int col = col0; col <= col1; ++col) {
+      if (!(px[col].closed >= 1.0f) || !(px[col].depth <= depth)) return false;
+    }
+  }
+  return true;
 }
 
 template <bool kClamp, bool kRad>

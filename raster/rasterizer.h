@@ -114,6 +114,9 @@ class Rasterizer {
   void PrepareSurfelGroups(const Gathered& g, ShadeResult* out);
   // The prepared clusters' footprint polygons (raster/footprints.cc).
   void BuildClusterFootprints(const Gathered& g);
+  // Whether every pixel first + row * res + col, col0 <= col <= col1, row0 <= row <= row1, is
+  // closed (closed >= 1, where Emit() only lowers depth) with depth <= `depth`.
+  bool RectClosed(uint32_t first, int col0, int col1, int row0, int row1, float depth) const;
   // Appends a polygon given relative to the receiver in world axes, in the receiver's frame and
   // clipped to its hemisphere, to s's polygons.
   void AddPolygon(const Polygon& world_rel, PreparedSplat* s);
