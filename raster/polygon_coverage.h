@@ -174,13 +174,23 @@ inline void RasterizePolygonTo(const Polygon& p, int res, std::vector<float>* ac
   // The -z face lies below the horizon, which the caller clipped away.
   const int f_first = one_face ? home : 0, f_last = one_face ? home : 4;
   for (int f = f_first; f <= f_last; ++f) {
-    const int k = f / 2, k1 = k == 0 ? 1 : 0, k2 = k == 2 ? 1 : 2;
+    const int k = f / 2;
     const float sign = (f % 2) ? -1.0f : 1.0f;
     // The face's homogeneous coordinates: (a, b) / w is the point on the face's plane.
     float a[kMaxPolygonVertices], b[kMaxPolygonVertices], w[kMaxPolygonVertices];
     int n = p.n;
-    for (int i = 0; i < n; ++i) {
-      a[i] = coords[3 * i + k1], b[i] = coords[3 * i + k2], w[i] = sign * coords[3 * i + k];
+    // One loop per axis: with constant offsets the copy is a third of the instructions.
+    auto copy = [&](int o1, int o2, int o) [[gnu::always_inline]] {
+      for (int i = 0; i < n; ++i) {
+        a[i] = coords[3 * i + o1], b[i] = coords[3 * i + o2], w[i] = sign * coords[3 * i + o];
+      }
+    };
+    if (k == 0) {
+      copy(1, 2, 0);
+    } else if (k == 1) {
+      copy(0, 2, 1);
+    } else {
+      copy(0, 1, 2);
     }
     if (!one_face) {
       // Rejected at once when every vertex lies outside one side of the face's pyramid.
