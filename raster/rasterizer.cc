@@ -21,6 +21,10 @@ namespace {
 constexpr float kRampSlope = 1.0f;
 // Splats up to this many pixels' solid angle are spread bilinearly (at most a full pixel each).
 constexpr float kBilinearMax = 1.0f;
+// Draw() looks for hidden clusters once this many layers have closed behind a nearer one: in a
+// scene with little behind what is seen first (a room), the test would cost ~80 instructions
+// per cluster and find almost nothing (cornell: 4% hidden, city 45%).
+constexpr uint32_t kMinClosesToTest = 64;
 }  // namespace
 
 // LSD radix sort of (depth, index) on the top 20 bits of the depth (positive floats sort as
@@ -501,7 +505,7 @@ void Rasterizer::Draw(const Gathered& g, uint32_t count) {
       // skipped before its footprint is built (Emit() would only have lowered depth: the same
       // result bit for bit).
       if constexpr (kClamp) {
-        if (BilinearConeClosed(s) && ClusterHidden(c, s)) return;
+        if (closes_ >= kMinClosesToTest && BilinearConeClosed(s) && ClusterHidden(c, s)) return;
       }
       BuildClusterFootprint(c, s);
     }
@@ -560,6 +564,7 @@ absl::Status Rasterizer::Run(const Gathered& g, const ShadeReceiver& r, ShadeRes
   out->clusters_drawn = count_;
   cluster_count_ = count_;
   poly_count_ = 0;
+  closes_ = 0;
   out->culled = static_cast<uint32_t>(g.clusters.size()) - count_;
   if (clamp_) {
     if (radiance_) {

@@ -279,6 +279,7 @@ class Rasterizer {
     }
     if (lo > px.far && px.open > 0.0f) {
       Close<kRad>(px, /*behind=*/true, free_layer_);
+      ++closes_;
       if (px.closed >= 1.0f) return;
     }
     if (!(px.open > 0.0f)) {
@@ -360,6 +361,9 @@ class Rasterizer {
   uint32_t count_ = 0;       // prepared splats in mb_.splats_
   uint32_t poly_count_ = 0;     // polygons in mb_.polygons_
   uint32_t cluster_count_ = 0;  // mb_.splats_[0, cluster_count_) are clusters'
+  // Layers closed by a fragment behind them so far (Layer()): until there are a few, no pixel
+  // is closed and Draw() does not look for hidden clusters.
+  uint32_t closes_ = 0;
   const bool polygons_;      // Footprint::kPolygons
   const bool free_layer_;    // !polygons_: the first layer sums freely
 };
