@@ -358,14 +358,14 @@ class Rasterizer {
   const bool avx2_;        // run the AVX2 builds (UseAvx2())
   glm::vec3 origin_, t_, b_, n_;
   glm::vec3 world_x_, world_y_, world_z_;  // the world axes x, y, z in the receiver's frame
-  uint32_t count_ = 0;       // prepared splats in mb_.splats_
-  uint32_t poly_count_ = 0;     // polygons in mb_.polygons_
-  uint32_t cluster_count_ = 0;  // mb_.splats_[0, cluster_count_) are clusters'
+  uint32_t count_ = 0;                     // prepared splats in mb_.splats_
+  uint32_t poly_count_ = 0;                // polygons in mb_.polygons_
+  uint32_t cluster_count_ = 0;             // mb_.splats_[0, cluster_count_) are clusters'
   // Layers closed by a fragment behind them so far (Layer()): until there are a few, no pixel
   // is closed and Draw() does not look for hidden clusters.
   uint32_t closes_ = 0;
-  const bool polygons_;      // Footprint::kPolygons
-  const bool free_layer_;    // !polygons_: the first layer sums freely
+  const bool polygons_;    // Footprint::kPolygons
+  const bool free_layer_;  // !polygons_: the first layer sums freely
 };
 
 }  // namespace pbgi::internal

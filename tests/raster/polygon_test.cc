@@ -88,13 +88,12 @@ TEST(PolygonTest, SkipIsAskedAboutARectangleHoldingEveryCoveredPixel) {
     // A random quad: a square of random size and tilt around a random point above the horizon.
     const glm::vec3 c(u(rng), u(rng), 0.2f + std::fabs(u(rng)));
     const glm::vec3 n = glm::normalize(glm::vec3(u(rng), u(rng), u(rng)) + 1e-3f);
-    const glm::vec3 e1 = glm::normalize(glm::cross(n, std::fabs(n.x) < 0.9f
-                                                          ? glm::vec3(1.0f, 0.0f, 0.0f)
-                                                          : glm::vec3(0.0f, 1.0f, 0.0f)));
+    const glm::vec3 e1 = glm::normalize(glm::cross(
+        n, std::fabs(n.x) < 0.9f ? glm::vec3(1.0f, 0.0f, 0.0f) : glm::vec3(0.0f, 1.0f, 0.0f)));
     const glm::vec3 e2 = glm::cross(n, e1);
     const float r = trial % 3 == 0 ? 0.8f * std::fabs(u(rng)) : 0.05f * std::fabs(u(rng));
-    Polygon p = Quad(c - r * e1 - r * e2, c + r * e1 - r * e2, c + r * e1 + r * e2,
-                     c - r * e1 + r * e2);
+    Polygon p =
+        Quad(c - r * e1 - r * e2, c + r * e1 - r * e2, c + r * e1 + r * e2, c - r * e1 + r * e2);
     ClipHalfSpace(glm::vec3(0.0f, 0.0f, 1.0f), &p);
     if (p.n < 3) continue;
     struct Rect {
@@ -104,7 +103,10 @@ TEST(PolygonTest, SkipIsAskedAboutARectangleHoldingEveryCoveredPixel) {
     std::vector<float> acc;
     std::vector<PixelCoverage> covered;
     RasterizePolygonTo(
-        p, res, &acc, [&](uint32_t pixel, float cov) { covered.push_back({pixel, cov}); },
+        p, res, &acc,
+        [&](uint32_t pixel, float cov) {
+          covered.push_back({pixel, cov});
+        },
         [&](uint32_t first, int col0, int col1, int row0, int row1) {
           rects[first] = Rect{col0, col1, row0, row1};
           return false;
