@@ -63,6 +63,12 @@ bool CellHolds(const Bounds& cell, const Bounds& b) {
          glm::all(glm::lessThanEqual(b.hi, cell.hi + tol));
 }
 
+// The spacing of a cluster's surfels, by which its footprint box grows (FootprintBox).
+float ClusterSpacing(const Cluster& c) {
+  return std::sqrt(std::max(0.0f, c.area) /
+                   static_cast<float>(std::max<uint64_t>(1, c.point_count)));
+}
+
 }  // namespace
 
 Bounds FootprintBox(const Bounds& centres, const Bounds& cell, float spacing,
@@ -169,14 +175,72 @@ void Rasterizer::AddPolygon(const Polygon& world_rel, PreparedSplat* s) {
   ++s->poly_count;
 }
 
-void Rasterizer::BuildClusterFootprints(const Gathered& g) {
-  poly_count_ = 0;
-  PreparedSplat* splats = mb_.splats_.data();
-  for (uint32_t i = 0; i < count_; ++i) {
-    PreparedSplat& s = splats[i];
-    const Cluster& c = g.clusters[s.source];
-    const float spacing = std::sqrt(std::max(0.0f, c.area) /
-                                    static_cast<float>(std::max<uint64_t>(1, c.point_count)));
+bool Rasterizer::BoxClosed(const glm::vec3& lo, const glm::vec3& hi, float depth) const {
+  // The corners in the receiver's frame, from the centre and the three half sides (conservative
+  // to within the margins below, not to the bit), all strictly on the pyramid of the centre's
+  // face: then so is all of the box, and every polygon in it lies on that face alone
+  // (RasterizePolygonTo's one_face).
+  const glm::vec3 c = ToLocal(0.5f * (lo + hi) - origin_);
+  const glm::vec3 h = 0.5f * (hi - lo);
+  const glm::vec3 hx = h.x * world_x_, hy = h.y * world_y_, hz = h.z * world_z_;
+  const glm::vec3 ac(std::fabs(c.x), std::fabs(c.y), std::fabs(c.z));
+  const int k = ac.x >= ac.y ? (ac.x >= ac.z ? 0 : 2) : (ac.y >= ac.z ? 1 : 2);
+  const int k1 = k == 0 ? 1 : 0, k2 = k == 2 ? 1 : 2;
+  const float sign = c[k] < 0.0f ? -1.0f : 1.0f;
+  float amin = 1e30f, amax = -1e30f, bmin = 1e30f, bmax = -1e30f;
+  for (int i = 0; i < 8; ++i) {
+    const glm::vec3 x = c + ((i & 1) ? hx : -hx) + ((i & 2) ? hy : -hy) + ((i & 4) ? hz : -hz);
+    const float w = sign * x[k];
+    // A margin of 1e-3 of w keeps clear of the pyramid's sides.
+    if (!(w > 0.0f) || !(std::fabs(x[k1]) < 0.999f * w) || !(std::fabs(x[k2]) < 0.999f * w)) {
+      return false;
+    }
+    const float inv = 1.0f / w;
+    const float a = x[k1] * inv, b = x[k2] * inv;
+    amin = std::min(amin, a), amax = std::max(amax, a);
+    bmin = std::min(bmin, b), bmax = std::max(bmax, b);
+  }
+  // The polygon's pixel rectangle (RasterizePolygonTo) lies in the corners' one; 1e-2 pixel
+  // more keeps clear of rounding (here and in the clipped vertices).
+  const float half = 0.5f * static_cast<float>(res_);
+  auto pixel = [&](float t, float margin) {
+    return std::clamp(static_cast<int>((t + 1.0f) * half + margin), 0, res_ - 1);
+  };
+  const int face = 2 * k + (sign < 0.0f ? 1 : 0);
+  return RectClosed(static_cast<uint32_t>(face * res_ * res_), pixel(amin, -1e-2f),
+                    pixel(amax, 1e-2f), pixel(bmin, -1e-2f), pixel(bmax, 1e-2f), depth);
+}
+
+bool Rasterizer::ClusterHidden(const Cluster& c, const PreparedSplat& s) const {
+  // The caller checked the cone splat's pixels (BilinearConeClosed), for where the footprint
+  // falls back to it.
+  const float spacing = ClusterSpacing(c);
+  if (s.flat) {
+    const float cosw = std::fabs(glm::dot(s.normal, s.dir));
+    if (!(cosw > 0.0f)) return false;  // the cone splat, done
+    // FlatFootprint's box: FootprintBox's, grown on its free sides by at most a spacing past
+    // the centres (and PlaneBoxPolygon's pad, 5e-5 of its largest side, at most).
+    const glm::vec3 mean_world = s.normal.x * t_ + s.normal.y * b_ + s.normal.z * n_;
+    bool full = false;
+    int snapped = 0;
+    Bounds box = FootprintBox(c.bounds, c.cell, spacing, mean_world, &full, &snapped);
+    for (int k = 0; k < 3; ++k) {
+      if (!(snapped & (1 << (2 * k)))) box.lo[k] = std::min(box.lo[k], c.bounds.lo[k] - spacing);
+      if (!(snapped & (2 << (2 * k)))) box.hi[k] = std::max(box.hi[k], c.bounds.hi[k] + spacing);
+    }
+    const glm::vec3 e = box.hi - box.lo;
+    const float pad = 1e-4f * std::max({e.x, e.y, e.z});
+    return BoxClosed(box.lo - pad, box.hi + pad, s.depth);
+  }
+  // BoxSilhouette's vertices are the corners of FootprintBox's box, or the cone splat when the
+  // receiver is inside it (the corners then span more than one face).
+  const Bounds box = FootprintBox(c.bounds, c.cell, spacing, glm::vec3(0.0f), nullptr);
+  return BoxClosed(box.lo, box.hi, s.depth);
+}
+
+void Rasterizer::BuildClusterFootprint(const Cluster& c, PreparedSplat& s) {
+  {
+    const float spacing = ClusterSpacing(c);
     const uint32_t first = poly_count_;
     s.poly_count = 0;
     s.poly_first = first;
@@ -184,14 +248,14 @@ void Rasterizer::BuildClusterFootprints(const Gathered& g) {
     if (s.flat) {
       // The mean plane (through the box centre, s.plane in the receiver's frame), cut by the box.
       const float cosw = std::fabs(glm::dot(s.normal, s.dir));
-      if (!(cosw > 0.0f)) continue;  // keeps the cone splat
+      if (!(cosw > 0.0f)) return;  // keeps the cone splat
       // The projected area toward the receiver, as the cut and the splat measured it.
       const float seen = s.omega * s.depth * s.depth;
       const glm::vec3 mean_world = s.normal.x * t_ + s.normal.y * b_ + s.normal.z * n_;
       Polygon p;
       const float alpha =
           FlatFootprint(c.bounds, c.cell, spacing, mean_world, s.plane, origin_, seen / cosw, &p);
-      if (p.n < 3) continue;  // keeps the cone splat
+      if (p.n < 3) return;  // keeps the cone splat
       s.alpha = alpha;
       AddPolygon(p, &s);
     } else {
@@ -203,7 +267,7 @@ void Rasterizer::BuildClusterFootprints(const Gathered& g) {
       const glm::vec3 ext = hi - lo;
       bool inside = true;
       for (int k = 0; k < 3; ++k) inside &= lo[k] <= 0.0f && hi[k] >= 0.0f;
-      if (inside) continue;  // keeps the cone splat
+      if (inside) return;  // keeps the cone splat
       // Opacity: the cluster's solid angle over the faces' (exact: the silhouette's), so that a
       // receiver close to the box, whose near faces subtend far more than the content behind
       // them, is not over-occluded by a parallel projection's ratio.
@@ -216,7 +280,7 @@ void Rasterizer::BuildClusterFootprints(const Gathered& g) {
       Polygon q;
       BoxSilhouette(lo, hi, drawn, &q);
       const float faces = q.n >= 3 ? ConeSolidAngle(q) : 0.0f;
-      if (!(faces > 0.0f)) continue;  // keeps the cone splat
+      if (!(faces > 0.0f)) return;  // keeps the cone splat
       AddPolygon(q, &s);
       s.alpha = std::min(1.0f, s.omega / faces);
     }

@@ -71,11 +71,16 @@ void PlaneBoxPolygon(const glm::vec3& normal, float offset, const glm::vec3& lo,
   }
   // The plane's crossings of the box's 12 edges (corner i has bit k set where it is at bhi[k]),
   // then ordered by angle around their mean in the plane.
+  // s[i] = dot(normal, corner i) - offset from six products (the same sums, in glm::dot's
+  // order).
+  const float px[2] = {normal.x * blo.x, normal.x * bhi.x};
+  const float py[2] = {normal.y * blo.y, normal.y * bhi.y};
+  const float pz[2] = {normal.z * blo.z, normal.z * bhi.z};
   float s[8];
   glm::vec3 c[8];
   for (int i = 0; i < 8; ++i) {
     c[i] = glm::vec3((i & 1) ? bhi.x : blo.x, (i & 2) ? bhi.y : blo.y, (i & 4) ? bhi.z : blo.z);
-    s[i] = glm::dot(normal, c[i]) - offset;
+    s[i] = px[i & 1] + py[(i >> 1) & 1] + pz[i >> 2] - offset;
   }
   glm::vec3 pts[12];
   int n = 0;

@@ -112,8 +112,31 @@ class Rasterizer {
   void PrepareSurfel(const Surfel& s, ShadeResult* out);
   // Surfels grouped by leaf and normal into co-planar polygons (raster/footprints.cc).
   void PrepareSurfelGroups(const Gathered& g, ShadeResult* out);
-  // The prepared clusters' footprint polygons (raster/footprints.cc).
-  void BuildClusterFootprints(const Gathered& g);
+  // The footprint polygons of prepared cluster splat s (raster/footprints.cc), built as it is
+  // drawn, so that a hidden cluster costs none.
+  void BuildClusterFootprint(const Cluster& c, PreparedSplat& s);
+  // With clamp, whether drawing cluster splat s (not yet built), whose BilinearConeClosed()
+  // holds, would change nothing: every pixel that its footprint, or the cone splat it may fall
+  // back to, could reach is closed and already as near (raster/footprints.cc). False when that
+  // is not certain.
+  bool ClusterHidden(const Cluster& c, const PreparedSplat& s) const;
+  // Whether every pixel that a polygon inside the box [lo, hi] (world axes) could cover is
+  // closed, with depth <= `depth`; false when the box is not on one face's pyramid.
+  bool BoxClosed(const glm::vec3& lo, const glm::vec3& hi, float depth) const;
+  // Whether s's cone splat is a bilinear one (SplatCone) whose four pixels are closed, with
+  // depth <= s.depth.
+  bool BilinearConeClosed(const PreparedSplat& s) const;
+  // Whether every pixel first + row * res + col, col0 <= col <= col1, row0 <= row <= row1, is
+  // closed (closed >= 1, where Emit() only lowers depth) with depth <= `depth`.
+  bool RectClosed(uint32_t first, int col0, int col1, int row0, int row1, float depth) const {
+    for (int row = row0; row <= row1; ++row) {
+      const PixelState* px = px_ + first + static_cast<uint32_t>(row * res_);
+      for (int col = col0; col <= col1; ++col) {
+        if (!(px[col].closed >= 1.0f) || !(px[col].depth <= depth)) return false;
+      }
+    }
+    return true;
+  }
   // Appends a polygon given relative to the receiver in world axes, in the receiver's frame and
   // clipped to its hemisphere, to s's polygons.
   void AddPolygon(const Polygon& world_rel, PreparedSplat* s);
@@ -183,7 +206,7 @@ class Rasterizer {
                 (s.flags & kSplatBack) != 0};
   }
   template <bool kClamp, bool kRad>
-  void Draw(uint32_t count);
+  void Draw(const Gathered& g, uint32_t count);
   // Everything after cluster preparation: Reset(), the surfels, Draw(), Integrate(); on the
   // AVX2 build when avx2_ is set.
   template <bool kClamp, bool kRad>
@@ -283,6 +306,7 @@ class Rasterizer {
     }
     if (lo > px.far && px.open > 0.0f) {
       Close<kRad>(px, /*behind=*/true, free_layer_);
+      ++closes_;
       if (px.closed >= 1.0f) return;
     }
     if (!(px.open > 0.0f)) {
@@ -360,10 +384,15 @@ class Rasterizer {
   const float max_width_;  // the largest pixel's angular width
   const bool avx2_;        // run the AVX2 builds (UseAvx2())
   glm::vec3 origin_, t_, b_, n_;
-  uint32_t count_ = 0;       // prepared splats in mb_.splats_
-  uint32_t poly_count_ = 0;  // polygons in mb_.polygons_
-  const bool polygons_;      // Footprint::kPolygons
-  const bool free_layer_;    // !polygons_: the first layer sums freely
+  glm::vec3 world_x_, world_y_, world_z_;  // the world axes x, y, z in the receiver's frame
+  uint32_t count_ = 0;                     // prepared splats in mb_.splats_
+  uint32_t poly_count_ = 0;                // polygons in mb_.polygons_
+  uint32_t cluster_count_ = 0;             // mb_.splats_[0, cluster_count_) are clusters'
+  // Layers closed by a fragment behind them so far (Layer()): until there are a few, no pixel
+  // is closed and Draw() does not look for hidden clusters.
+  uint32_t closes_ = 0;
+  const bool polygons_;    // Footprint::kPolygons
+  const bool free_layer_;  // !polygons_: the first layer sums freely
 };
 
 }  // namespace pbgi::internal

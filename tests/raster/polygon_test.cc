@@ -9,6 +9,7 @@
 #include "glm/geometric.hpp"
 #include "gtest/gtest.h"
 #include "pbgi/raster.h"
+#include "raster/polygon_coverage.h"
 
 namespace pbgi::internal {
 namespace {
@@ -73,6 +74,63 @@ TEST(PolygonTest, CoverageSumsToTheAreaOfAnyConvexPolygon) {
     }
     EXPECT_NEAR(sum, PolygonArea(p), 2e-5 + 1e-4 * PolygonArea(p)) << trial;
   }
+}
+
+TEST(PolygonTest, SkipIsAskedAboutARectangleHoldingEveryCoveredPixel) {
+  // The rasterizer skips a face's coverage when every pixel of the rectangle that skip() is
+  // given is closed: that rectangle must hold every pixel the polygon covers there, on one face
+  // and across several, and a face skipped must emit nothing.
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<float> u(-1.0f, 1.0f);
+  const int res = 12;
+  int checked = 0, multi_face = 0;
+  for (int trial = 0; trial < 300; ++trial) {
+    // A random quad: a square of random size and tilt around a random point above the horizon.
+    const glm::vec3 c(u(rng), u(rng), 0.2f + std::fabs(u(rng)));
+    const glm::vec3 n = glm::normalize(glm::vec3(u(rng), u(rng), u(rng)) + 1e-3f);
+    const glm::vec3 e1 = glm::normalize(glm::cross(
+        n, std::fabs(n.x) < 0.9f ? glm::vec3(1.0f, 0.0f, 0.0f) : glm::vec3(0.0f, 1.0f, 0.0f)));
+    const glm::vec3 e2 = glm::cross(n, e1);
+    const float r = trial % 3 == 0 ? 0.8f * std::fabs(u(rng)) : 0.05f * std::fabs(u(rng));
+    Polygon p =
+        Quad(c - r * e1 - r * e2, c + r * e1 - r * e2, c + r * e1 + r * e2, c - r * e1 + r * e2);
+    ClipHalfSpace(glm::vec3(0.0f, 0.0f, 1.0f), &p);
+    if (p.n < 3) continue;
+    struct Rect {
+      int col0, col1, row0, row1;
+    };
+    std::map<uint32_t, Rect> rects;  // by the face's first pixel
+    std::vector<float> acc;
+    std::vector<PixelCoverage> covered;
+    RasterizePolygonTo(
+        p, res, &acc,
+        [&](uint32_t pixel, float cov) {
+          covered.push_back({pixel, cov});
+        },
+        [&](uint32_t first, int col0, int col1, int row0, int row1) {
+          rects[first] = Rect{col0, col1, row0, row1};
+          return false;
+        });
+    multi_face += rects.size() > 1;
+    for (const PixelCoverage& pc : covered) {
+      const uint32_t first = pc.pixel / (res * res) * (res * res);
+      ASSERT_TRUE(rects.count(first)) << trial;
+      const Rect& rc = rects[first];
+      const int row = int(pc.pixel - first) / res, col = int(pc.pixel - first) % res;
+      EXPECT_TRUE(col >= rc.col0 && col <= rc.col1 && row >= rc.row0 && row <= rc.row1)
+          << trial << " pixel " << pc.pixel;
+      ++checked;
+    }
+    // The same pixels as RasterizePolygon's, and none where every face is skipped.
+    EXPECT_EQ(covered.size(), Coverage(p, res).size()) << trial;
+    int skipped_emits = 0;
+    RasterizePolygonTo(
+        p, res, &acc, [&](uint32_t, float) { ++skipped_emits; },
+        [](uint32_t, int, int, int, int) { return true; });
+    EXPECT_EQ(skipped_emits, 0) << trial;
+  }
+  EXPECT_GT(checked, 1000);
+  EXPECT_GT(multi_face, 10);
 }
 
 TEST(PolygonTest, PolygonsSharingAnEdgeTileTheirUnion) {
