@@ -8,6 +8,7 @@
 #include <cmath>
 #include <cstddef>
 #include <cstdint>
+#include <type_traits>
 #include <vector>
 
 #include "pbgi/raster.h"
@@ -80,6 +81,9 @@ inline void Accumulate(const float* xs, const float* ys, int n, int x0, int y0, 
   }
 }
 
+// Sample rows of a coverage mask on a face: the largest resolution (64) times kMaskSide (8).
+inline constexpr int kMaxMaskRows = 64 * 8;
+
 // A polygon in a face's pixel coordinates.
 struct Poly2 {
   int n = 0;
@@ -141,6 +145,59 @@ inline int ClipToPyramid(float* a, float* b, float* w, int n, float* ta, float* 
     n = m;
   }
   return n >= 3 ? n : 0;
+}
+
+// Coverage masks: each pixel holds kMaskSide x kMaskSide sample points at the centres of its
+// sub-cells; bit j * kMaskSide + i is sample column i of sample row j. A convex polygon covers
+// a sample when the sample lies between the polygon's left and right crossings of the
+// sample's row. The crossings of every sample row that the polygon spans on a face are found
+// once (Spans), then each covered pixel's mask is read off them (Mask).
+inline constexpr int kMaskSide = 8;
+struct MaskSpans {
+  int row0 = 0, rows = 0;  // sample rows [row0, row0 + rows) in face-sample coordinates
+  // Per sample row, the first and last sample columns (face-sample coordinates) inside.
+  int16_t lo[kMaxMaskRows], hi[kMaxMaskRows];
+};
+
+// The samples of a convex polygon in face-pixel coordinates, over pixel rows [y0, y1].
+inline void Spans(const Poly2& p, int y0, int y1, MaskSpans* s) {
+  s->row0 = y0 * kMaskSide;
+  s->rows = std::min((y1 - y0 + 1) * kMaskSide, kMaxMaskRows);
+  constexpr float kInvSide = 1.0f / kMaskSide;
+  for (int j = 0; j < s->rows; ++j) {
+    const float y = (static_cast<float>(s->row0 + j) + 0.5f) * kInvSide;
+    float xl = 1e30f, xr = -1e30f;
+    for (int i = 0; i < p.n; ++i) {
+      const int k = i + 1 == p.n ? 0 : i + 1;
+      const float ay = p.y[i], by = p.y[k];
+      if ((ay <= y) == (by <= y)) continue;  // the edge does not cross the row
+      const float x = p.x[i] + (y - ay) * (p.x[k] - p.x[i]) / (by - ay);
+      xl = std::min(xl, x), xr = std::max(xr, x);
+    }
+    if (!(xl <= xr)) {
+      s->lo[j] = 1, s->hi[j] = 0;  // empty
+      continue;
+    }
+    // Sample column i of the face lies at (i + 0.5) / kMaskSide.
+    s->lo[j] = static_cast<int16_t>(CeilPos(std::max(0.0f, xl * kMaskSide - 0.5f)));
+    const float r = xr * kMaskSide - 0.5f;
+    s->hi[j] = static_cast<int16_t>(r < 0.0f ? -1 : FloorPos(r));
+  }
+}
+
+// The coverage mask of pixel (col, row), which must lie in the spans' rows.
+inline uint64_t Mask(const MaskSpans& s, int col, int row) {
+  uint64_t m = 0;
+  const int c0 = col * kMaskSide;
+  const int j0 = row * kMaskSide - s.row0;
+  for (int j = 0; j < kMaskSide; ++j) {
+    if (j0 + j >= s.rows) break;
+    const int lo = std::max(0, s.lo[j0 + j] - c0), hi = std::min(kMaskSide - 1, s.hi[j0 + j] - c0);
+    if (lo > hi) continue;
+    const uint64_t bits = ((uint64_t{1} << (hi + 1)) - 1) & ~((uint64_t{1} << lo) - 1);
+    m |= bits << (j * kMaskSide);
+  }
+  return m;
 }
 
 }  // namespace polygon_coverage
@@ -230,9 +287,24 @@ inline void RasterizePolygonTo(const Polygon& p, int res, std::vector<float>* ac
     const int y1 = std::min(res - 1, std::max(y0, CeilPos(maxy) - 1));
     const uint32_t base = static_cast<uint32_t>(f * res * res);
     if (skip(base, x0, x1, y0, y1)) continue;
+    // A sink that takes a third argument gets each pixel's coverage mask too (the face's
+    // sample spans are found on its first covered pixel).
+    constexpr bool kMasks = std::is_invocable_v<Sink, uint32_t, float, uint64_t>;
+    MaskSpans spans;
+    bool have_spans = false;
     auto emit = [&](int col, int row, float area2) {
       const float cov = std::min(1.0f, 0.5f * std::fabs(area2));
-      if (cov > 1e-6f) sink(base + static_cast<uint32_t>(row * res + col), cov);
+      if (!(cov > 1e-6f)) return;
+      const uint32_t pixel = base + static_cast<uint32_t>(row * res + col);
+      if constexpr (kMasks) {
+        if (!have_spans) {
+          Spans(whole, y0, y1, &spans);
+          have_spans = true;
+        }
+        sink(pixel, cov, Mask(spans, col, row));
+      } else {
+        sink(pixel, cov);
+      }
     };
     if (x1 - x0 <= 1 && y1 - y0 <= 1) {
       // Within a 2 x 2 block of pixels (most far footprints): the exact areas of the polygon's
@@ -281,10 +353,7 @@ inline void RasterizePolygonTo(const Polygon& p, int res, std::vector<float>* ac
       float sum = 0.0f;
       for (int c = 0; c < cw - 1; ++c) {
         sum += row[c];
-        const float cov = std::min(1.0f, std::fabs(sum));
-        if (cov > 1e-6f) {
-          sink(base + static_cast<uint32_t>((y0 + r) * res + x0 + c), cov);
-        }
+        emit(x0 + c, y0 + r, 2.0f * sum);
       }
     }
   }
