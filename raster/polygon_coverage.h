@@ -8,6 +8,7 @@
 #include <cmath>
 #include <cstddef>
 #include <cstdint>
+#include <cstring>
 #include <type_traits>
 #include <vector>
 
@@ -155,48 +156,77 @@ inline int ClipToPyramid(float* a, float* b, float* w, int n, float* ta, float* 
 inline constexpr int kMaskSide = 8;
 struct MaskSpans {
   int row0 = 0, rows = 0;  // sample rows [row0, row0 + rows) in face-sample coordinates
-  // Per sample row, the first and last sample columns (face-sample coordinates) inside.
-  int16_t lo[kMaxMaskRows], hi[kMaxMaskRows];
+  // Per sample row, the polygon's left and right crossings in face-pixel coordinates
+  // (xl > xr: none).
+  float xl[kMaxMaskRows], xr[kMaxMaskRows];
 };
 
-// The samples of a convex polygon in face-pixel coordinates, over pixel rows [y0, y1].
+// The crossings of a convex polygon in face-pixel coordinates with the sample rows of pixel
+// rows [y0, y1]: each edge is walked over the sample rows it crosses (two edges per row), one
+// division per edge.
 inline void Spans(const Poly2& p, int y0, int y1, MaskSpans* s) {
   s->row0 = y0 * kMaskSide;
   s->rows = std::min((y1 - y0 + 1) * kMaskSide, kMaxMaskRows);
-  constexpr float kInvSide = 1.0f / kMaskSide;
-  for (int j = 0; j < s->rows; ++j) {
-    const float y = (static_cast<float>(s->row0 + j) + 0.5f) * kInvSide;
-    float xl = 1e30f, xr = -1e30f;
-    for (int i = 0; i < p.n; ++i) {
-      const int k = i + 1 == p.n ? 0 : i + 1;
-      const float ay = p.y[i], by = p.y[k];
-      if ((ay <= y) == (by <= y)) continue;  // the edge does not cross the row
-      const float x = p.x[i] + (y - ay) * (p.x[k] - p.x[i]) / (by - ay);
-      xl = std::min(xl, x), xr = std::max(xr, x);
+  float* xl = s->xl;
+  float* xr = s->xr;
+  for (int j = 0; j < s->rows; ++j) xl[j] = 1e30f, xr[j] = -1e30f;
+  constexpr float kSide = kMaskSide;
+  for (int i = 0; i < p.n; ++i) {
+    const int k = i + 1 == p.n ? 0 : i + 1;
+    float ax = p.x[i], ay = p.y[i], bx = p.x[k], by = p.y[k];
+    if (ay == by) continue;
+    if (ay > by) std::swap(ax, bx), std::swap(ay, by);
+    // Sample row j (face-sample coordinates) lies at y = (j + 0.5) / kMaskSide; the edge
+    // crosses the rows with ay <= y < by.
+    const int j0 = std::max(s->row0, CeilPos(std::max(0.0f, ay * kSide - 0.5f)));
+    const int j1 = std::min(s->row0 + s->rows, CeilPos(std::max(0.0f, by * kSide - 0.5f)));
+    const float slope = (bx - ax) / (by - ay);
+    for (int j = j0; j < j1; ++j) {
+      const float y = (static_cast<float>(j) + 0.5f) / kSide;
+      const float x = ax + (y - ay) * slope;
+      xl[j - s->row0] = std::min(xl[j - s->row0], x);
+      xr[j - s->row0] = std::max(xr[j - s->row0], x);
     }
-    if (!(xl <= xr)) {
-      s->lo[j] = 1, s->hi[j] = 0;  // empty
-      continue;
-    }
-    // Sample column i of the face lies at (i + 0.5) / kMaskSide.
-    s->lo[j] = static_cast<int16_t>(CeilPos(std::max(0.0f, xl * kMaskSide - 0.5f)));
-    const float r = xr * kMaskSide - 0.5f;
-    s->hi[j] = static_cast<int16_t>(r < 0.0f ? -1 : FloorPos(r));
   }
 }
 
-// The coverage mask of pixel (col, row), which must lie in the spans' rows.
+// The coverage mask of pixel (col, row), which must lie in the spans' rows: its eight sample
+// rows in eight lanes. Sample column i of the pixel lies at x = col + (i + 0.5) / kMaskSide;
+// a row holds the columns with xl <= x <= xr.
 inline uint64_t Mask(const MaskSpans& s, int col, int row) {
-  uint64_t m = 0;
-  const int c0 = col * kMaskSide;
-  const int j0 = row * kMaskSide - s.row0;
-  for (int j = 0; j < kMaskSide; ++j) {
-    if (j0 + j >= s.rows) break;
-    const int lo = std::max(0, s.lo[j0 + j] - c0), hi = std::min(kMaskSide - 1, s.hi[j0 + j] - c0);
-    if (lo > hi) continue;
-    const uint64_t bits = ((uint64_t{1} << (hi + 1)) - 1) & ~((uint64_t{1} << lo) - 1);
-    m |= bits << (j * kMaskSide);
-  }
+  typedef float V8f __attribute__((vector_size(32)));
+  typedef int32_t V8i __attribute__((vector_size(32)));
+  typedef uint8_t V32b __attribute__((vector_size(32)));
+  typedef uint8_t V8b __attribute__((vector_size(8)));
+  static_assert(kMaskSide == 8);
+  V8f xl, xr;
+  std::memcpy(&xl, s.xl + (row * kMaskSide - s.row0), sizeof xl);
+  std::memcpy(&xr, s.xr + (row * kMaskSide - s.row0), sizeof xr);
+  const float c0 = static_cast<float>(col);
+  // In the pixel's sample units, clamped to [-1, 9] so that the conversions stay exact:
+  // the first column l = ceil(a), the last h = floor(b); l = 8 or h = -1: none.
+  V8f a = (xl - c0) * 8.0f - 0.5f, b = (xr - c0) * 8.0f - 0.5f;
+  a = a < -1.0f ? -1.0f : a;
+  a = a > 9.0f ? 9.0f : a;
+  b = b < -1.0f ? -1.0f : b;
+  b = b > 9.0f ? 9.0f : b;
+  // Truncation is floor for x >= 0; shift by 2 so that every value is (ceil and floor of
+  // x + 2, minus 2).
+  const V8f a2 = a + 2.0f, b2 = b + 2.0f;
+  const V8i ai = __builtin_convertvector(a2, V8i), bi = __builtin_convertvector(b2, V8i);
+  V8i l = (__builtin_convertvector(ai, V8f) < a2 ? ai + 1 : ai) - 2;
+  V8i h = bi - 2;
+  l = l < 0 ? 0 : l;
+  l = l > 8 ? 8 : l;
+  h = h < -1 ? -1 : h;
+  h = h > 7 ? 7 : h;
+  const V8i ff = {0xff, 0xff, 0xff, 0xff, 0xff, 0xff, 0xff, 0xff};
+  const V8i bits = (ff << l) & (ff >> (7 - h)) & ff;
+  const V8b bytes =
+      __builtin_shufflevector(reinterpret_cast<const V32b&>(bits),
+                              reinterpret_cast<const V32b&>(bits), 0, 4, 8, 12, 16, 20, 24, 28);
+  uint64_t m;
+  std::memcpy(&m, &bytes, sizeof m);
   return m;
 }
 
@@ -213,6 +243,8 @@ inline void RasterizePolygonTo(const Polygon& p, int res, std::vector<float>* ac
   using namespace polygon_coverage;  // NOLINT(build/namespaces): this file's own helpers
 
   if (p.n < 3) return;
+  // Whether the sink takes a pixel's coverage mask (a callable returning it) as a third argument.
+  constexpr bool kMasks = std::is_invocable_v<Sink, uint32_t, float, uint64_t (*)()>;
   // The face of each vertex; a polygon whose vertices all lie in one face's pyramid lies in it
   // (the pyramid is convex) and needs no clipping.
   int home = -1;
@@ -287,9 +319,9 @@ inline void RasterizePolygonTo(const Polygon& p, int res, std::vector<float>* ac
     const int y1 = std::min(res - 1, std::max(y0, CeilPos(maxy) - 1));
     const uint32_t base = static_cast<uint32_t>(f * res * res);
     if (skip(base, x0, x1, y0, y1)) continue;
-    // A sink that takes a third argument gets each pixel's coverage mask too (the face's
-    // sample spans are found on its first covered pixel).
-    constexpr bool kMasks = std::is_invocable_v<Sink, uint32_t, float, uint64_t>;
+    // A sink that takes a third argument can ask for each pixel's coverage mask, as a call
+    // (the face's sample spans are found on the first call; a pixel that the polygon covers
+    // whole holds every sample, most of a large polygon's pixels).
     MaskSpans spans;
     bool have_spans = false;
     auto emit = [&](int col, int row, float area2) {
@@ -297,11 +329,14 @@ inline void RasterizePolygonTo(const Polygon& p, int res, std::vector<float>* ac
       if (!(cov > 1e-6f)) return;
       const uint32_t pixel = base + static_cast<uint32_t>(row * res + col);
       if constexpr (kMasks) {
-        if (!have_spans) {
-          Spans(whole, y0, y1, &spans);
-          have_spans = true;
-        }
-        sink(pixel, cov, Mask(spans, col, row));
+        sink(pixel, cov, [&]() -> uint64_t {
+          if (cov >= 1.0f) return ~uint64_t{0};
+          if (!have_spans) {
+            Spans(whole, y0, y1, &spans);
+            have_spans = true;
+          }
+          return Mask(spans, col, row);
+        });
       } else {
         sink(pixel, cov);
       }
