@@ -187,18 +187,27 @@ bool Rasterizer::BoxClosed(const glm::vec3& lo, const glm::vec3& hi, float depth
   const int k = ac.x >= ac.y ? (ac.x >= ac.z ? 0 : 2) : (ac.y >= ac.z ? 1 : 2);
   const int k1 = k == 0 ? 1 : 0, k2 = k == 2 ? 1 : 2;
   const float sign = c[k] < 0.0f ? -1.0f : 1.0f;
-  float amin = 1e30f, amax = -1e30f, bmin = 1e30f, bmax = -1e30f;
+  // The eight corners in eight lanes (the same sums, in the same order, as one corner at a
+  // time: corner i takes +h along world axis j where bit j of i is set).
+  typedef float V8f __attribute__((vector_size(32)));
+  typedef int32_t V8i __attribute__((vector_size(32)));
+  const V8f sx = {-1, 1, -1, 1, -1, 1, -1, 1}, sy = {-1, -1, 1, 1, -1, -1, 1, 1},
+            sz = {-1, -1, -1, -1, 1, 1, 1, 1};
+  V8f x[3];
+  for (int j = 0; j < 3; ++j) x[j] = c[j] + sx * hx[j] + sy * hy[j] + sz * hz[j];
+  const V8f w = sign * x[k], x1 = x[k1], x2 = x[k2];
+  // A margin of 1e-3 of w keeps clear of the pyramid's sides.
+  const V8f ax1 = x1 < 0.0f ? -x1 : x1, ax2 = x2 < 0.0f ? -x2 : x2;
+  const V8i in = (w > 0.0f) & (ax1 < 0.999f * w) & (ax2 < 0.999f * w);
   for (int i = 0; i < 8; ++i) {
-    const glm::vec3 x = c + ((i & 1) ? hx : -hx) + ((i & 2) ? hy : -hy) + ((i & 4) ? hz : -hz);
-    const float w = sign * x[k];
-    // A margin of 1e-3 of w keeps clear of the pyramid's sides.
-    if (!(w > 0.0f) || !(std::fabs(x[k1]) < 0.999f * w) || !(std::fabs(x[k2]) < 0.999f * w)) {
-      return false;
-    }
-    const float inv = 1.0f / w;
-    const float a = x[k1] * inv, b = x[k2] * inv;
-    amin = std::min(amin, a), amax = std::max(amax, a);
-    bmin = std::min(bmin, b), bmax = std::max(bmax, b);
+    if (!in[i]) return false;
+  }
+  const V8f inv = 1.0f / w;
+  const V8f a = x1 * inv, b = x2 * inv;
+  float amin = a[0], amax = a[0], bmin = b[0], bmax = b[0];
+  for (int i = 1; i < 8; ++i) {
+    amin = std::min(amin, a[i]), amax = std::max(amax, a[i]);
+    bmin = std::min(bmin, b[i]), bmax = std::max(bmax, b[i]);
   }
   // The polygon's pixel rectangle (RasterizePolygonTo) lies in the corners' one; 1e-2 pixel
   // more keeps clear of rounding (here and in the clipped vertices).

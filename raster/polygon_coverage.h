@@ -8,6 +8,8 @@
 #include <cmath>
 #include <cstddef>
 #include <cstdint>
+#include <cstring>
+#include <type_traits>
 #include <vector>
 
 #include "pbgi/raster.h"
@@ -80,6 +82,9 @@ inline void Accumulate(const float* xs, const float* ys, int n, int x0, int y0, 
   }
 }
 
+// Sample rows of a coverage mask on a face: the largest resolution (64) times kMaskSide (8).
+inline constexpr int kMaxMaskRows = 64 * 8;
+
 // A polygon in a face's pixel coordinates.
 struct Poly2 {
   int n = 0;
@@ -143,6 +148,88 @@ inline int ClipToPyramid(float* a, float* b, float* w, int n, float* ta, float* 
   return n >= 3 ? n : 0;
 }
 
+// Coverage masks: each pixel holds kMaskSide x kMaskSide sample points at the centres of its
+// sub-cells; bit j * kMaskSide + i is sample column i of sample row j. A convex polygon covers
+// a sample when the sample lies between the polygon's left and right crossings of the
+// sample's row. The crossings of every sample row that the polygon spans on a face are found
+// once (Spans), then each covered pixel's mask is read off them (Mask).
+inline constexpr int kMaskSide = 8;
+struct MaskSpans {
+  int row0 = 0, rows = 0;  // sample rows [row0, row0 + rows) in face-sample coordinates
+  // Per sample row, the polygon's left and right crossings in face-pixel coordinates
+  // (xl > xr: none).
+  float xl[kMaxMaskRows], xr[kMaxMaskRows];
+};
+
+// The crossings of a convex polygon in face-pixel coordinates with the sample rows of pixel
+// rows [y0, y1]: each edge is walked over the sample rows it crosses (two edges per row), one
+// division per edge.
+inline void Spans(const Poly2& p, int y0, int y1, MaskSpans* s) {
+  s->row0 = y0 * kMaskSide;
+  s->rows = std::min((y1 - y0 + 1) * kMaskSide, kMaxMaskRows);
+  float* xl = s->xl;
+  float* xr = s->xr;
+  for (int j = 0; j < s->rows; ++j) xl[j] = 1e30f, xr[j] = -1e30f;
+  constexpr float kSide = kMaskSide;
+  for (int i = 0; i < p.n; ++i) {
+    const int k = i + 1 == p.n ? 0 : i + 1;
+    float ax = p.x[i], ay = p.y[i], bx = p.x[k], by = p.y[k];
+    if (ay == by) continue;
+    if (ay > by) std::swap(ax, bx), std::swap(ay, by);
+    // Sample row j (face-sample coordinates) lies at y = (j + 0.5) / kMaskSide; the edge
+    // crosses the rows with ay <= y < by.
+    const int j0 = std::max(s->row0, CeilPos(std::max(0.0f, ay * kSide - 0.5f)));
+    const int j1 = std::min(s->row0 + s->rows, CeilPos(std::max(0.0f, by * kSide - 0.5f)));
+    const float slope = (bx - ax) / (by - ay);
+    for (int j = j0; j < j1; ++j) {
+      const float y = (static_cast<float>(j) + 0.5f) / kSide;
+      const float x = ax + (y - ay) * slope;
+      xl[j - s->row0] = std::min(xl[j - s->row0], x);
+      xr[j - s->row0] = std::max(xr[j - s->row0], x);
+    }
+  }
+}
+
+// The coverage mask of pixel (col, row), which must lie in the spans' rows: its eight sample
+// rows in eight lanes. Sample column i of the pixel lies at x = col + (i + 0.5) / kMaskSide;
+// a row holds the columns with xl <= x <= xr.
+inline uint64_t Mask(const MaskSpans& s, int col, int row) {
+  typedef float V8f __attribute__((vector_size(32)));
+  typedef int32_t V8i __attribute__((vector_size(32)));
+  typedef uint8_t V32b __attribute__((vector_size(32)));
+  typedef uint8_t V8b __attribute__((vector_size(8)));
+  static_assert(kMaskSide == 8);
+  V8f xl, xr;
+  std::memcpy(&xl, s.xl + (row * kMaskSide - s.row0), sizeof xl);
+  std::memcpy(&xr, s.xr + (row * kMaskSide - s.row0), sizeof xr);
+  const float c0 = static_cast<float>(col);
+  // In the pixel's sample units, clamped to [-1, 9] so that the conversions stay exact:
+  // the first column l = ceil(a), the last h = floor(b); l = 8 or h = -1: none.
+  V8f a = (xl - c0) * 8.0f - 0.5f, b = (xr - c0) * 8.0f - 0.5f;
+  a = a < -1.0f ? -1.0f : a;
+  a = a > 9.0f ? 9.0f : a;
+  b = b < -1.0f ? -1.0f : b;
+  b = b > 9.0f ? 9.0f : b;
+  // Truncation is floor for x >= 0; shift by 2 so that every value is (ceil and floor of
+  // x + 2, minus 2).
+  const V8f a2 = a + 2.0f, b2 = b + 2.0f;
+  const V8i ai = __builtin_convertvector(a2, V8i), bi = __builtin_convertvector(b2, V8i);
+  V8i l = (__builtin_convertvector(ai, V8f) < a2 ? ai + 1 : ai) - 2;
+  V8i h = bi - 2;
+  l = l < 0 ? 0 : l;
+  l = l > 8 ? 8 : l;
+  h = h < -1 ? -1 : h;
+  h = h > 7 ? 7 : h;
+  const V8i ff = {0xff, 0xff, 0xff, 0xff, 0xff, 0xff, 0xff, 0xff};
+  const V8i bits = (ff << l) & (ff >> (7 - h)) & ff;
+  const V8b bytes =
+      __builtin_shufflevector(reinterpret_cast<const V32b&>(bits),
+                              reinterpret_cast<const V32b&>(bits), 0, 4, 8, 12, 16, 20, 24, 28);
+  uint64_t m;
+  std::memcpy(&m, &bytes, sizeof m);
+  return m;
+}
+
 }  // namespace polygon_coverage
 
 // RasterizePolygon() (raster/polygon.h) with each covered pixel passed to sink(pixel, coverage)
@@ -156,6 +243,8 @@ inline void RasterizePolygonTo(const Polygon& p, int res, std::vector<float>* ac
   using namespace polygon_coverage;  // NOLINT(build/namespaces): this file's own helpers
 
   if (p.n < 3) return;
+  // Whether the sink takes a pixel's coverage mask (a callable returning it) as a third argument.
+  constexpr bool kMasks = std::is_invocable_v<Sink, uint32_t, float, uint64_t (*)()>;
   // The face of each vertex; a polygon whose vertices all lie in one face's pyramid lies in it
   // (the pyramid is convex) and needs no clipping.
   int home = -1;
@@ -230,9 +319,27 @@ inline void RasterizePolygonTo(const Polygon& p, int res, std::vector<float>* ac
     const int y1 = std::min(res - 1, std::max(y0, CeilPos(maxy) - 1));
     const uint32_t base = static_cast<uint32_t>(f * res * res);
     if (skip(base, x0, x1, y0, y1)) continue;
+    // A sink that takes a third argument can ask for each pixel's coverage mask, as a call
+    // (the face's sample spans are found on the first call; a pixel that the polygon covers
+    // whole holds every sample, most of a large polygon's pixels).
+    MaskSpans spans;
+    bool have_spans = false;
     auto emit = [&](int col, int row, float area2) {
       const float cov = std::min(1.0f, 0.5f * std::fabs(area2));
-      if (cov > 1e-6f) sink(base + static_cast<uint32_t>(row * res + col), cov);
+      if (!(cov > 1e-6f)) return;
+      const uint32_t pixel = base + static_cast<uint32_t>(row * res + col);
+      if constexpr (kMasks) {
+        sink(pixel, cov, [&]() -> uint64_t {
+          if (cov >= 1.0f) return ~uint64_t{0};
+          if (!have_spans) {
+            Spans(whole, y0, y1, &spans);
+            have_spans = true;
+          }
+          return Mask(spans, col, row);
+        });
+      } else {
+        sink(pixel, cov);
+      }
     };
     if (x1 - x0 <= 1 && y1 - y0 <= 1) {
       // Within a 2 x 2 block of pixels (most far footprints): the exact areas of the polygon's
@@ -281,10 +388,7 @@ inline void RasterizePolygonTo(const Polygon& p, int res, std::vector<float>* ac
       float sum = 0.0f;
       for (int c = 0; c < cw - 1; ++c) {
         sum += row[c];
-        const float cov = std::min(1.0f, std::fabs(sum));
-        if (cov > 1e-6f) {
-          sink(base + static_cast<uint32_t>((y0 + r) * res + x0 + c), cov);
-        }
+        emit(x0 + c, y0 + r, 2.0f * sum);
       }
     }
   }

@@ -2,6 +2,7 @@
 #include "raster/rasterizer.h"
 
 #include <algorithm>
+#include <bit>
 #include <cmath>
 #include <cstring>
 #include <limits>
@@ -159,15 +160,33 @@ void Rasterizer::SplatPolygons(const PreparedSplat& s) {
   const Polygon* polys = mb_.polygons_.data() + s.poly_first;
   const float alpha = s.alpha;
   auto emit = [&](uint32_t pixel, float cov) { Emit<kClamp, kRad>(pixel, alpha * cov, fr); };
-  for (uint32_t k = 0; k < s.poly_count; ++k) {
-    if constexpr (kClamp) {
-      // Fragments arrive front to back: where every pixel of the polygon's rectangle is closed
-      // and already as near, Emit() would change nothing (bit for bit the same result).
-      RasterizePolygonTo(polys[k], res_, &mb_.accumulation_, emit,
-                         [&](uint32_t first, int col0, int col1, int row0, int row1) {
-                           return RectClosed(first, col0, col1, row0, row1, fr.depth);
-                         });
+  if constexpr (kClamp) {
+    // Fragments arrive front to back: where every pixel of the polygon's rectangle is closed
+    // and already as near, Emit() would change nothing (bit for bit the same result).
+    auto skip = [&](uint32_t first, int col0, int col1, int row0, int row1) {
+      return RectClosed(first, col0, col1, row0, row1, fr.depth);
+    };
+    // An opaque polygon's fragments carry their coverage masks (see Layer()). One of lower
+    // opacity covers an unknown part of its pixels' samples: its fragments stay scalar.
+    if (alpha >= kMaskOpacity) {
+      auto masked = [&](uint32_t pixel, float cov, auto&& mask_of) {
+        PixelState& px = px_[pixel];
+        if (px.closed >= 1.0f) {  // what Emit() would do there, without the mask
+          px.depth = std::min(px.depth, fr.depth);
+          return;
+        }
+        Emit<kClamp, kRad>(pixel, alpha * cov, fr, mask_of());
+      };
+      for (uint32_t k = 0; k < s.poly_count; ++k) {
+        RasterizePolygonTo(polys[k], res_, &mb_.accumulation_, masked, skip);
+      }
     } else {
+      for (uint32_t k = 0; k < s.poly_count; ++k) {
+        RasterizePolygonTo(polys[k], res_, &mb_.accumulation_, emit, skip);
+      }
+    }
+  } else {
+    for (uint32_t k = 0; k < s.poly_count; ++k) {
       RasterizePolygonTo(polys[k], res_, &mb_.accumulation_, emit);
     }
   }

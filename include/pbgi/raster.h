@@ -189,7 +189,7 @@ struct alignas(16) PreparedSplat {
 // A pixel's state: layers of fragments that overlap in depth (one surface) add up freely in
 // `open`; when a fragment lies wholly behind the open layer, the layer closes into `closed`.
 // Each coverage is followed by its coverage-weighted radiance, four floats that the hot loops
-// update as one vector; 64 bytes, one cache line.
+// update as one vector.
 struct alignas(16) PixelState {
   float closed;  // coverage of the closed layers
   float closed_rgb[3];
@@ -200,6 +200,11 @@ struct alignas(16) PixelState {
   float normal[3];  // the open layer's first fragment's normal (0: none)
   float porous;     // 1 when the open layer's first fragment is porous (kSplatPorous)
   float front;      // 1 once a fragment not flagged kSplatBack reached the pixel
+  // Coverage masks (polygon footprints with clamp): which of the pixel's 8 x 8 sample points
+  // the open layer's polygon fragments cover, and those of the closed layers (see
+  // Rasterizer::Layer()).
+  uint64_t open_mask;
+  uint64_t closed_mask;
 };
 struct PixelDir {
   float x, y, z;

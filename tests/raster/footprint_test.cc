@@ -400,5 +400,75 @@ TEST(FootprintTest, ACreaseIsTwoPlanes) {
   }
 }
 
+// Regression (overlapping_surfaces_add): fragments of differently facing surfaces that share a
+// pixel within one depth range added their coverages, and a layer behind filled whatever
+// coverage the nearer ones left, wherever in the pixel it lay; so where small pieces of several
+// surfaces overlapped inside pixels (the city's far blocks seen from a wall) the pixel counted
+// more than their union (city 1M from the demo camera, msa 0.003: bias +0.020). Opaque polygon
+// fragments now carry 8 x 8 coverage masks: a fragment of another surface in the open layer
+// adds only the share of its samples that the layer does not cover yet, and a layer adds only
+// what its samples leave uncovered by the nearer layers'. Here 160 opaque squares, tilted 50
+// degrees about the x or the y axis and scattered over a slab so that they overlap one
+// another a pixel or two across, each its own flat cluster in its own box; the reference
+// casts rays at the exact squares.
+TEST(FootprintTest, OverlappingSurfacesCountTheirUnion) {
+  struct Square {
+    glm::vec3 centre, u, v, n;
+  };
+  const float half = 0.15f, pitch = 0.03f;
+  std::vector<Square> squares;
+  Gathered g;
+  for (uint32_t i = 0; i < 160; ++i) {
+    const float x = 3.0f * testing_raster::Hash01(3 * i + 1) - 1.5f;
+    const float y = 3.0f * testing_raster::Hash01(3 * i + 2) - 1.5f;
+    const float z = 2.5f + 1.5f * testing_raster::Hash01(3 * i + 3);
+    // About the x or the y axis, so that the plane inside the square's box is the square.
+    const float phi = 0.5f * static_cast<float>(kPi) * static_cast<float>(i % 4);
+    const glm::mat3 rot = Rotation(glm::vec3(std::cos(phi), std::sin(phi), 0.0f),
+                                   50.0f * static_cast<float>(kPi) / 180.0f);
+    const glm::vec3 centre(x, y, z);
+    const std::vector<Surfel> sheet =
+        Transform(SquareSurfels(half, 0.0f, pitch), rot, 1.0f, centre);
+    Cluster c = testing_raster::Aggregate(sheet);
+    Square sq{centre, rot * glm::vec3(1, 0, 0), rot * glm::vec3(0, 1, 0),
+              rot * glm::vec3(0, 0, -1)};
+    // Its own box: the square's exact bounds (the plane through it is the square).
+    for (float a : {-half, half}) {
+      for (float b : {-half, half}) c.cell.Extend(centre + a * sq.u + b * sq.v);
+    }
+    g.clusters.push_back(c);
+    squares.push_back(sq);
+  }
+  const glm::vec3 p(0.0f);
+  int hits = 0;
+  const int n = 400;
+  for (int j = 0; j < n; ++j) {
+    for (int i = 0; i < n; ++i) {
+      const double u = (i + 0.5) / n, v = (j + 0.5) / n, r = std::sqrt(u);
+      const glm::vec3 d(static_cast<float>(r * std::cos(2.0 * kPi * v)),
+                        static_cast<float>(r * std::sin(2.0 * kPi * v)),
+                        static_cast<float>(std::sqrt(1.0 - u)));
+      for (const Square& sq : squares) {
+        const float t = glm::dot(sq.centre - p, sq.n) / glm::dot(d, sq.n);
+        const glm::vec3 h = p + t * d - sq.centre;
+        if (t > 0.0f && std::fabs(glm::dot(h, sq.u)) <= half &&
+            std::fabs(glm::dot(h, sq.v)) <= half) {
+          ++hits;
+          break;
+        }
+      }
+    }
+  }
+  const double want = static_cast<double>(hits) / (n * n);
+  MicroBuffer mb;
+  ShadeReceiver r = At(p);
+  const float got = MustShade(g, r, Polygons(), &mb).occlusion;
+  // Rays 0.146; scalar compositing 0.189, masks 0.160: what is left is squares of one facing,
+  // whose fragments in one layer still add (a surface's own footprints make up for their gaps
+  // with their overlaps).
+  EXPECT_GT(want, 0.1);
+  EXPECT_NEAR(got, want, 0.02);
+}
+
 }  // namespace
 }  // namespace pbgi

@@ -1,6 +1,7 @@
 // Polygon footprints (raster/polygon.h): exact area coverage, tiling, and the cube's faces.
 #include "raster/polygon.h"
 
+#include <bit>
 #include <cmath>
 #include <map>
 #include <random>
@@ -149,6 +150,58 @@ TEST(PolygonTest, PolygonsSharingAnEdgeTileTheirUnion) {
     EXPECT_NEAR(l[pixel] + r[pixel], c, 2e-5f) << pixel;
   }
   for (const auto& [pixel, c] : l) EXPECT_TRUE(a.count(pixel)) << pixel;
+}
+
+std::map<uint32_t, uint64_t> Masks(const Polygon& p, int res) {
+  std::vector<float> acc;
+  std::map<uint32_t, uint64_t> m;
+  RasterizePolygonTo(p, res, &acc,
+                     [&](uint32_t pixel, float, auto&& mask_of) { m[pixel] |= mask_of(); });
+  return m;
+}
+
+// Coverage masks (Rasterizer::Layer()): a pixel-aligned half pixel holds exactly its half of the
+// samples; the two parts of a quad cut by a line have disjoint masks whose union is the quad's
+// (so the pieces of one solid that tile a pixel add up to it, and never count a sample twice);
+// and over random polygons a mask's share of samples follows the exact coverage.
+TEST(PolygonTest, CoverageMasksSampleThePolygon) {
+  const int res = 8;  // face +z, pixel edges at x = -1 + k / 4
+  const Polygon half = Quad({-0.5f, 0.0f, 1.0f}, {-0.375f, 0.0f, 1.0f}, {-0.375f, 0.25f, 1.0f},
+                            {-0.5f, 0.25f, 1.0f});  // the left half of column 2, row 4
+  const auto hm = Masks(half, res);
+  ASSERT_EQ(hm.size(), 1u);
+  EXPECT_EQ(hm.begin()->first, 4u * res * res + 4u * res + 2u);
+  EXPECT_EQ(hm.begin()->second, 0x0f0f0f0f0f0f0f0full);  // sample columns 0..3 of every row
+
+  const Polygon whole =
+      Quad({-0.7f, -0.6f, 1.0f}, {0.5f, -0.4f, 1.0f}, {0.6f, 0.55f, 1.0f}, {-0.5f, 0.7f, 1.0f});
+  Polygon left = whole, right = whole;
+  const glm::vec3 m(1.0f, 0.3f, 0.05f);
+  ClipHalfSpace(m, &left);
+  ClipHalfSpace(-m, &right);
+  auto a = Masks(whole, 12), l = Masks(left, 12), r = Masks(right, 12);
+  for (const auto& [pixel, mask] : a) {
+    EXPECT_EQ(l[pixel] & r[pixel], 0u) << pixel;
+    EXPECT_EQ(l[pixel] | r[pixel], mask) << pixel;
+  }
+
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<float> u(-0.9f, 0.9f);
+  double err = 0.0;
+  int pixels = 0;
+  for (int trial = 0; trial < 100; ++trial) {
+    Polygon p;
+    p.n = 3;
+    for (int i = 0; i < 3; ++i) p.v[i] = glm::vec3(u(rng), u(rng), 1.0f);
+    std::vector<float> acc;
+    RasterizePolygonTo(p, 12, &acc, [&](uint32_t, float cov, auto&& mask_of) {
+      const double share = std::popcount(mask_of()) / 64.0;
+      EXPECT_NEAR(share, cov, 0.2);
+      err += std::fabs(share - cov);
+      ++pixels;
+    });
+  }
+  EXPECT_LT(err / pixels, 0.03);
 }
 
 TEST(PolygonTest, APolygonAcrossFacesKeepsItsSolidAngle) {
