@@ -11,6 +11,7 @@
 #include <vector>
 
 #include "absl/base/thread_annotations.h"
+#include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
 #include "absl/strings/str_split.h"
 #include "pbgi/query.h"
@@ -184,6 +185,19 @@ inline bool ClearlyBelowCut(const NodeHot& node, const glm::vec3& p, float max_s
   const glm::vec3 v = p - node.centre;
   const float d2 = glm::dot(v, v);
   return node.area_bound < (max_sa * d2) * (1.0f - 1e-4f);
+}
+
+// BelowCut() with a lobe (Cut::lobe): solid_angle * NodeLobeWeight() < max_sa, with the weight
+// (a pow and three square roots) computed only for the nodes that the lobe's bounds do not
+// decide: the weight lies in [min_weight, max_weight] (LobeCut), and float rounding is
+// monotone, so each shortcut gives the exact test's answer, bit for bit.
+inline bool BelowLobeCut(const NodeHot& node, const glm::vec3& p, float max_sa,
+                         const internal::LobeCut& lobe) {
+  if (ClearlyBelowCut(node, p, max_sa / lobe.max_weight)) return true;
+  const float sa = NodeSolidAngleFrom(node.centre, node.sh_area.data(), p);
+  if (sa * lobe.max_weight < max_sa) return true;
+  if (sa * lobe.min_weight >= max_sa) return false;
+  return sa * internal::NodeLobeWeight(lobe, node.near_centre, node.near_radius2, p) < max_sa;
 }
 
 namespace {
@@ -372,6 +386,11 @@ absl::Status Reader::Impl::Gather(const Receiver& receiver, const Cut& cut, Gath
     return absl::InvalidArgumentError(
         absl::StrFormat("Gather: Cut.curved_scale = %g: must be in (0, 1]", cut.curved_scale));
   }
+  if (absl::Status s = ValidateCutLobe(cut.lobe); !s.ok()) {
+    return absl::InvalidArgumentError(absl::StrCat("Gather: ", s.message()));
+  }
+  // The lobe-aware cut's per-query constants (inactive without a lobe).
+  const internal::LobeCut lobe = internal::MakeLobeCut(cut.lobe);
   const glm::vec3 n = glm::normalize(receiver.normal);
   const float max_d = cut.max_distance;
   const bool check_distance = std::isfinite(max_d);
@@ -418,9 +437,13 @@ absl::Status Reader::Impl::Gather(const Receiver& receiver, const Cut& cut, Gath
     }
     const Cut node_cut = NodeCut(cut, node.sh_area.data());
     if (!NodeNearFieldSphere(node.near_centre, node.near_radius2, p) &&
-        (ClearlyBelowCut(node, p, node_cut.max_solid_angle) ||
-         BelowCut(NodeSolidAngleFrom(node.centre, node.sh_area.data(), p), node_cut,
-                  [&] { return NodeCutCosine(node.near_centre, node.near_radius2, p, n); }))) {
+        (lobe.active
+             ? BelowLobeCut(node, p, node_cut.max_solid_angle, lobe)
+             : ClearlyBelowCut(node, p, node_cut.max_solid_angle) ||
+                   BelowCut(
+                       NodeSolidAngleFrom(node.centre, node.sh_area.data(), p), node_cut,
+                       [&] { return NodeCutCosine(node.near_centre, node.near_radius2, p, n); },
+                       [] { return 1.0f; }))) {
       // Built in place (C++20 aggregate initialization): no zeroing of ~200 bytes first.
       const float area = page->areas[slot];
 #if defined(__cpp_aggregate_paren_init)
