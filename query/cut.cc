@@ -22,6 +22,11 @@ float ClusterSolidAngle(const Cluster& c, const Receiver& r) {
 }
 
 absl::Status ValidateCutLobe(const CutLobe& lobe) {
+  // Checked without a lobe too: ShadeOptions::lobe_cut takes it from there.
+  if (!(lobe.min_weight > 0.0f) || !std::isfinite(lobe.min_weight)) {
+    return absl::InvalidArgumentError(
+        absl::StrFormat("CutLobe.min_weight = %g: must be finite and > 0", lobe.min_weight));
+  }
   switch (lobe.kind) {
     case CutLobeKind::kNone:
       return absl::OkStatus();

@@ -55,6 +55,7 @@ struct EvalArgs {
   std::vector<std::string> cuts = {"cosine"};
   std::vector<std::string> footprints = {"polygons"};  // RasterOptions::footprint
   float curved_scale = 0.3f;                           // Cut::curved_scale
+  float lobe_min_weight = CutLobe{}.min_weight;        // CutLobe::min_weight (--cuts lobe)
   std::string memory = "auto";
   std::string cache = "auto";
   int threads = 0;
@@ -366,6 +367,7 @@ ShadeOptions EvalShadeOptions(const EvalArgs& a, const EvalSetup& e, float msa, 
                               const std::string& cut) {
   ShadeOptions so;
   so.cut.curved_scale = a.curved_scale;
+  so.cut.lobe.min_weight = a.lobe_min_weight;
   so.raster.footprint = ParseFootprint(a.footprints.front());
   so.threads = e.threads;
   so.cut.max_solid_angle = msa;
@@ -429,6 +431,11 @@ absl::StatusOr<size_t> PbgiRows(const EvalArgs& a, const EvalSetup& e, Database&
   }
   size_t default_row = 0;
   bool found_default = false;
+  // --dump-receivers: the default cut's receivers, or the first cut's when it is not swept.
+  const std::string default_cut = e.glossy ? "lobe" : "cosine";
+  const std::string dump_cut = std::find(a.cuts.begin(), a.cuts.end(), default_cut) != a.cuts.end()
+                                   ? default_cut
+                                   : a.cuts.front();
   for (const std::string& cut : a.cuts) {
     for (int res : a.resolutions) {
       for (float msa : a.solid_angles) {
@@ -460,7 +467,7 @@ absl::StatusOr<size_t> PbgiRows(const EvalArgs& a, const EvalSetup& e, Database&
         r.surfels = double(st.query.surfels) / n;
         rows->push_back(r);
         if (!a.dump_receivers.empty() && res == 12 && std::abs(msa - 0.03f) < 1e-6f &&
-            cut == (e.glossy ? "lobe" : "cosine")) {
+            cut == dump_cut) {
           PBGI_RETURN_IF_ERROR(DumpReceivers(a.dump_receivers, e, v));
         }
         // Glossy's default cut is the lobe-aware one (as `pbgi shade`'s: ShadeOptions::lobe_cut).
@@ -887,6 +894,11 @@ CommandSetup Setup() {
                     "footprints, see pbgi/raster.h); --view sweeps them, the receiver sweep "
                     "takes the first")
         ->check(CLI::IsMember({"splats", "polygons"}))
+        ->capture_default_str();
+    app->add_option("--lobe-min-weight", a->lobe_min_weight,
+                    "--cuts lobe: CutLobe::min_weight, the smallest lobe weight (1: never coarser "
+                    "than the plain cut)")
+        ->check(CLI::Range(1e-3, 1e3))
         ->capture_default_str();
     app->add_option("--curved-scale", a->curved_scale,
                     "Cut::curved_scale: curved nodes are taken whole only below this times the "

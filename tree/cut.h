@@ -97,7 +97,7 @@ struct LobeCut {
   float exponent = 0.0f;    // Phong
   float k = 0.0f;           // GGX: alpha^2 - 1
   float scale = 1.0f;       // pi / integral of D over the hemisphere, D without its constant
-  float min_weight = kMinCutCosine;
+  float min_weight = 1.0f;  // CutLobe::min_weight
   float max_weight = 1.0f;
 };
 inline float LobeCutRaw(const LobeCut& l, float x) {
@@ -116,6 +116,7 @@ inline LobeCut MakeLobeCut(const CutLobe& lobe) {
   if (lobe.kind == CutLobeKind::kNone) return l;
   l.active = true;
   l.axis = glm::normalize(lobe.direction);
+  l.min_weight = lobe.min_weight;
   if (lobe.kind == CutLobeKind::kPhong) {
     l.phong = true;
     l.exponent = lobe.phong_exponent;

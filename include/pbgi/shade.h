@@ -117,7 +117,8 @@ struct ShadeOptions {
   // the cut that knows nothing of the lobe (for comparison). Ignored without a lobe, when
   // cut.lobe is set (the caller's lobe, for every receiver) and for a receiver whose reflection
   // is zero (its glossy is 0). Occlusion and irradiance come from the same gather, so with it
-  // they are those of a cut made for the lobe, not for the cosine.
+  // they are those of a cut made for the lobe, not for the cosine. The lobe's min_weight is
+  // cut.lobe.min_weight.
   bool lobe_cut = true;
 };
 

@@ -17,9 +17,13 @@ namespace {
 
 using testing::TempDatabase;
 
-CutLobe Phong(float e, glm::vec3 d = {0, 0, 1}) { return CutLobe{CutLobeKind::kPhong, d, e, 0.2f}; }
-CutLobe Ggx(float alpha, glm::vec3 d = {0, 0, 1}) {
-  return CutLobe{CutLobeKind::kGgx, d, 32.0f, alpha};
+// Lobes with the smallest weight of the cosine-weighted cut (the default, 1, clamps every
+// weight below 1 to 1).
+CutLobe Phong(float e, glm::vec3 d = {0, 0, 1}, float min_weight = kMinCutCosine) {
+  return CutLobe{CutLobeKind::kPhong, d, e, 0.2f, min_weight};
+}
+CutLobe Ggx(float alpha, glm::vec3 d = {0, 0, 1}, float min_weight = kMinCutCosine) {
+  return CutLobe{CutLobeKind::kGgx, d, 32.0f, alpha, min_weight};
 }
 
 // pi times the lobe normalized over its hemisphere: (e + 1) / 2 x^e for Phong, the cosine
@@ -32,6 +36,14 @@ TEST(LobeCut, WeightIsPiTimesTheNormalizedLobe) {
   EXPECT_EQ(LobeWeight(Phong(32), 0.5f), kMinCutCosine);
   EXPECT_EQ(LobeWeight(Phong(32), -0.5f), kMinCutCosine);
   EXPECT_EQ(LobeWeight(Ggx(0.3f), -0.1f), kMinCutCosine);
+  // The default smallest weight, 1: never coarser than the plain cut.
+  CutLobe by_default;
+  by_default.kind = CutLobeKind::kPhong;
+  EXPECT_EQ(LobeWeight(by_default, 0.5f), 1.0f);
+  EXPECT_EQ(LobeWeight(by_default, 1.0f), 16.5f);
+  by_default.kind = CutLobeKind::kGgx;
+  by_default.ggx_roughness = 1.0f;  // uniform: the weight 1/2 is clamped to 1
+  EXPECT_EQ(LobeWeight(by_default, 1.0f), 1.0f);
   // GGX alpha = 1 is the uniform lobe: 1 / 2 everywhere on the hemisphere.
   for (float x : {0.01f, 0.5f, 1.0f}) EXPECT_NEAR(LobeWeight(Ggx(1.0f), x), 0.5f, 1e-6f);
   // Over the hemisphere, the weight (before its clamp) integrates to pi for every lobe.
@@ -85,8 +97,8 @@ TEST(LobeCut, GatherRefusesABadLobe) {
   ASSERT_TRUE(reader.ok()) << reader.status();
   Gathered g;
   const Receiver r{{0.5f, 0.5f, -0.5f}, {0, 0, 1}};
-  for (const CutLobe& bad :
-       {Phong(32, {0, 0, 0}), Phong(-1), Ggx(0.0f), Ggx(1.5f), Phong(32, {NAN, 0, 1})}) {
+  for (const CutLobe& bad : {Phong(32, {0, 0, 0}), Phong(-1), Ggx(0.0f), Ggx(1.5f),
+                             Phong(32, {NAN, 0, 1}), Phong(32, {0, 0, 1}, 0.0f)}) {
     Cut cut;
     cut.lobe = bad;
     const absl::Status s = (*reader)->Gather(r, cut, &g);
@@ -131,7 +143,8 @@ TEST(LobeCut, CutIsValidAgainstBruteForceForRandomLobes) {
       const float alpha = 0.02f + 0.98f * u(rng);
       Cut coarse_cut;
       coarse_cut.max_solid_angle = 0.1f;
-      coarse_cut.lobe = i % 2 ? Phong(e, d) : Ggx(alpha, d);
+      const float min_weight = i % 3 == 1 ? 1.0f : kMinCutCosine;
+      coarse_cut.lobe = i % 2 ? Phong(e, d, min_weight) : Ggx(alpha, d, min_weight);
       if (i % 5 == 0) coarse_cut.curved_scale = 0.5f;
       if (i % 7 == 0) coarse_cut.max_distance = 0.8f;
       if (i % 4 == 0) coarse_cut.cosine_weighted = true;  // ignored with a lobe
