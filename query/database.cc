@@ -29,14 +29,14 @@
 namespace pbgi {
 
 using internal::AbsMax;
-using internal::BelowCut;
+using internal::BelowPlainCut;
 using internal::CachedPage;
 using internal::DecodedPage;
 using internal::NodeBeyondMargin;
-using internal::NodeCut;
 using internal::NodeCutCosine;
 using internal::NodeHot;
 using internal::NodeMarginOf;
+using internal::NodeMaxSolidAngle;
 using internal::NodeNearFieldSphere;
 using internal::NodeRef;
 using internal::NodeSolidAngleFrom;
@@ -267,6 +267,10 @@ struct Reader::Impl {
   absl::Status FetchSlow(Section section, uint64_t page_no, uint64_t key, int level,
                          const DecodedPage** out);
   absl::Status Gather(const Receiver& receiver, const Cut& cut, Gathered* out);
+  // Gather's traversal from the root, with (kLobe) or without a lobe.
+  template <bool kLobe>
+  [[gnu::noinline]] absl::Status Traverse(const glm::vec3& p, const glm::vec3& n, const Cut& cut,
+                        const internal::LobeCut& lobe, Gathered* out);
   absl::Status EmitLeafPoints(uint64_t first, uint64_t count, const Bounds& cell,
                               const glm::vec3& p, const glm::vec3& n, float max_distance,
                               bool check_distance, Gathered* out);
@@ -389,9 +393,17 @@ absl::Status Reader::Impl::Gather(const Receiver& receiver, const Cut& cut, Gath
   if (absl::Status s = ValidateCutLobe(cut.lobe); !s.ok()) {
     return absl::InvalidArgumentError(absl::StrCat("Gather: ", s.message()));
   }
-  // The lobe-aware cut's per-query constants (inactive without a lobe).
+  // The lobe-aware cut's per-query constants (inactive without a lobe), and a traversal of its
+  // own for each kind of cut, so that a gather without a lobe runs the loop it ran before.
   const internal::LobeCut lobe = internal::MakeLobeCut(cut.lobe);
-  const glm::vec3 n = glm::normalize(receiver.normal);
+  return lobe.active ? Traverse<true>(p, glm::normalize(receiver.normal), cut, lobe, out)
+                     : Traverse<false>(p, glm::normalize(receiver.normal), cut, lobe, out);
+}
+
+template <bool kLobe>
+absl::Status Reader::Impl::Traverse(const glm::vec3& p, const glm::vec3& n, const Cut& cut,
+                                    const internal::LobeCut& lobe, Gathered* out) {
+  const bool cosine_weighted = cut.cosine_weighted;
   const float max_d = cut.max_distance;
   const bool check_distance = std::isfinite(max_d);
   const float p_abs_max = AbsMax(p);
@@ -435,15 +447,15 @@ absl::Status Reader::Impl::Gather(const Receiver& receiver, const Cut& cut, Gath
       ++q.nodes_culled;
       continue;
     }
-    const Cut node_cut = NodeCut(cut, node.sh_area.data());
+    const float max_sa = NodeMaxSolidAngle(cut, node.sh_area.data());
     if (!NodeNearFieldSphere(node.near_centre, node.near_radius2, p) &&
-        (lobe.active
-             ? BelowLobeCut(node, p, node_cut.max_solid_angle, lobe)
-             : ClearlyBelowCut(node, p, node_cut.max_solid_angle) ||
-                   BelowCut(
-                       NodeSolidAngleFrom(node.centre, node.sh_area.data(), p), node_cut,
-                       [&] { return NodeCutCosine(node.near_centre, node.near_radius2, p, n); },
-                       [] { return 1.0f; }))) {
+        (kLobe ? BelowLobeCut(node, p, max_sa, lobe)
+               : ClearlyBelowCut(node, p, max_sa) ||
+                     BelowPlainCut(NodeSolidAngleFrom(node.centre, node.sh_area.data(), p), max_sa,
+                                   cosine_weighted, [&] {
+                                     return NodeCutCosine(node.near_centre, node.near_radius2, p,
+                                                          n);
+                                   }))) {
       // Built in place (C++20 aggregate initialization): no zeroing of ~200 bytes first.
       const float area = page->areas[slot];
 #if defined(__cpp_aggregate_paren_init)

@@ -172,23 +172,32 @@ inline bool NodeIsFlat(const float* sh_area) {
          (kClusterFlatness * m.area) * (kClusterFlatness * m.area);
 }
 
-// The cut for one node: `cut`, with max_solid_angle scaled by curved_scale when the node is not
-// flat.
+// The max_solid_angle of one node: the cut's, scaled by curved_scale when the node is not flat.
+// NodeCut is `cut` with it (the traversal reads the float alone: no copy of the Cut per node).
+inline float NodeMaxSolidAngle(const Cut& cut, const float* sh_area) {
+  if (cut.curved_scale == 1.0f || NodeIsFlat(sh_area)) return cut.max_solid_angle;
+  return cut.max_solid_angle * cut.curved_scale;
+}
 inline Cut NodeCut(const Cut& cut, const float* sh_area) {
-  if (cut.curved_scale == 1.0f || NodeIsFlat(sh_area)) return cut;
   Cut c = cut;
-  c.max_solid_angle *= cut.curved_scale;
+  c.max_solid_angle = NodeMaxSolidAngle(cut, sh_area);
   return c;
 }
 
 // Whether a node whose solid angle from the receiver is `solid_angle` passes the cut's
 // criterion; `cosine` is NodeCutCosine() of its near sphere, read only when cosine_weighted
 // and there is no lobe; `lobe_weight` NodeLobeWeight() of it, read only with a lobe.
+// BelowPlainCut is the test without a lobe, for a node's max_solid_angle `max_sa`.
+template <typename CosineFn>
+inline bool BelowPlainCut(float solid_angle, float max_sa, bool cosine_weighted,
+                          CosineFn&& cosine) {
+  if (solid_angle < max_sa) return true;
+  return cosine_weighted && solid_angle * cosine() < max_sa;
+}
 template <typename CosineFn, typename LobeFn>
 inline bool BelowCut(float solid_angle, const Cut& cut, CosineFn&& cosine, LobeFn&& lobe_weight) {
   if (cut.lobe.kind != CutLobeKind::kNone) return solid_angle * lobe_weight() < cut.max_solid_angle;
-  if (solid_angle < cut.max_solid_angle) return true;
-  return cut.cosine_weighted && solid_angle * cosine() < cut.max_solid_angle;
+  return BelowPlainCut(solid_angle, cut.max_solid_angle, cut.cosine_weighted, cosine);
 }
 
 // A conservative bound of how far a disk of a node reaches beyond its bounds: sqrt(area / pi).
