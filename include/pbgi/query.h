@@ -144,7 +144,7 @@ struct Cut {
   // LobeWeight() over its near sphere is below max_solid_angle, instead of the plain (or the
   // cosine-weighted) test: finer than the plain cut in the lobe's core (and, with a
   // CutLobe::min_weight below 1, coarser outside it).
-  CutLobe lobe;
+  CutLobe lobe{};
 };
 
 // The lobe's weight in the lobe-aware cut, for a node whose directions from the receiver come
