@@ -11,6 +11,7 @@
 #include <vector>
 
 #include "absl/base/thread_annotations.h"
+#include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
 #include "absl/strings/str_split.h"
 #include "pbgi/query.h"
@@ -28,14 +29,14 @@
 namespace pbgi {
 
 using internal::AbsMax;
-using internal::BelowCut;
+using internal::BelowPlainCut;
 using internal::CachedPage;
 using internal::DecodedPage;
 using internal::NodeBeyondMargin;
-using internal::NodeCut;
 using internal::NodeCutCosine;
 using internal::NodeHot;
 using internal::NodeMarginOf;
+using internal::NodeMaxSolidAngle;
 using internal::NodeNearFieldSphere;
 using internal::NodeRef;
 using internal::NodeSolidAngleFrom;
@@ -186,6 +187,19 @@ inline bool ClearlyBelowCut(const NodeHot& node, const glm::vec3& p, float max_s
   return node.area_bound < (max_sa * d2) * (1.0f - 1e-4f);
 }
 
+// BelowCut() with a lobe (Cut::lobe): solid_angle * NodeLobeWeight() < max_sa, with the weight
+// (a pow and three square roots) computed only for the nodes that the lobe's bounds do not
+// decide: the weight lies in [min_weight, max_weight] (LobeCut), and float rounding is
+// monotone, so each shortcut gives the exact test's answer, bit for bit.
+inline bool BelowLobeCut(const NodeHot& node, const glm::vec3& p, float max_sa,
+                         const internal::LobeCut& lobe) {
+  if (ClearlyBelowCut(node, p, max_sa / lobe.max_weight)) return true;
+  const float sa = NodeSolidAngleFrom(node.centre, node.sh_area.data(), p);
+  if (sa * lobe.max_weight < max_sa) return true;
+  if (sa * lobe.min_weight >= max_sa) return false;
+  return sa * internal::NodeLobeWeight(lobe, node.near_centre, node.near_radius2, p) < max_sa;
+}
+
 namespace {
 
 // The box whose cube the builder made the Morton keys in: build statistic "key_bounds" (six
@@ -253,6 +267,10 @@ struct Reader::Impl {
   absl::Status FetchSlow(Section section, uint64_t page_no, uint64_t key, int level,
                          const DecodedPage** out);
   absl::Status Gather(const Receiver& receiver, const Cut& cut, Gathered* out);
+  // Gather's traversal from the root, with (kLobe) or without a lobe.
+  template <bool kLobe>
+  [[gnu::noinline]] absl::Status Traverse(const glm::vec3& p, const glm::vec3& n, const Cut& cut,
+                        const internal::LobeCut& lobe, Gathered* out);
   absl::Status EmitLeafPoints(uint64_t first, uint64_t count, const Bounds& cell,
                               const glm::vec3& p, const glm::vec3& n, float max_distance,
                               bool check_distance, Gathered* out);
@@ -372,7 +390,20 @@ absl::Status Reader::Impl::Gather(const Receiver& receiver, const Cut& cut, Gath
     return absl::InvalidArgumentError(
         absl::StrFormat("Gather: Cut.curved_scale = %g: must be in (0, 1]", cut.curved_scale));
   }
-  const glm::vec3 n = glm::normalize(receiver.normal);
+  if (absl::Status s = ValidateCutLobe(cut.lobe); !s.ok()) {
+    return absl::InvalidArgumentError(absl::StrCat("Gather: ", s.message()));
+  }
+  // The lobe-aware cut's per-query constants (inactive without a lobe), and a traversal of its
+  // own for each kind of cut, so that a gather without a lobe runs the loop it ran before.
+  const internal::LobeCut lobe = internal::MakeLobeCut(cut.lobe);
+  return lobe.active ? Traverse<true>(p, glm::normalize(receiver.normal), cut, lobe, out)
+                     : Traverse<false>(p, glm::normalize(receiver.normal), cut, lobe, out);
+}
+
+template <bool kLobe>
+absl::Status Reader::Impl::Traverse(const glm::vec3& p, const glm::vec3& n, const Cut& cut,
+                                    const internal::LobeCut& lobe, Gathered* out) {
+  const bool cosine_weighted = cut.cosine_weighted;
   const float max_d = cut.max_distance;
   const bool check_distance = std::isfinite(max_d);
   const float p_abs_max = AbsMax(p);
@@ -416,11 +447,15 @@ absl::Status Reader::Impl::Gather(const Receiver& receiver, const Cut& cut, Gath
       ++q.nodes_culled;
       continue;
     }
-    const Cut node_cut = NodeCut(cut, node.sh_area.data());
+    const float max_sa = NodeMaxSolidAngle(cut, node.sh_area.data());
     if (!NodeNearFieldSphere(node.near_centre, node.near_radius2, p) &&
-        (ClearlyBelowCut(node, p, node_cut.max_solid_angle) ||
-         BelowCut(NodeSolidAngleFrom(node.centre, node.sh_area.data(), p), node_cut,
-                  [&] { return NodeCutCosine(node.near_centre, node.near_radius2, p, n); }))) {
+        (kLobe ? BelowLobeCut(node, p, max_sa, lobe)
+               : ClearlyBelowCut(node, p, max_sa) ||
+                     BelowPlainCut(NodeSolidAngleFrom(node.centre, node.sh_area.data(), p), max_sa,
+                                   cosine_weighted, [&] {
+                                     return NodeCutCosine(node.near_centre, node.near_radius2, p,
+                                                          n);
+                                   }))) {
       // Built in place (C++20 aggregate initialization): no zeroing of ~200 bytes first.
       const float area = page->areas[slot];
 #if defined(__cpp_aggregate_paren_init)

@@ -12,10 +12,13 @@ namespace pbgi::testing {
 namespace {
 
 using internal::BelowCut;
+using internal::LobeCut;
+using internal::MakeLobeCut;
 using internal::NearSphere;
 using internal::NodeBeyond;
 using internal::NodeCut;
 using internal::NodeCutCosine;
+using internal::NodeLobeWeight;
 using internal::NodeNearField;
 using internal::NodeNearSphere;
 using internal::NodeReach;
@@ -89,6 +92,8 @@ absl::Status CheckValidCut(const Gathered& result, absl::Span<const Surfel> surf
     return fail(absl::StrFormat("%d surfels but %d surfel ids", result.surfels.size(),
                                 result.surfel_ids.size()));
   }
+  if (absl::Status s = ValidateCutLobe(cut.lobe); !s.ok()) return fail(std::string(s.message()));
+  const LobeCut lobe = MakeLobeCut(cut.lobe);
   const uint64_t n = surfels.size();
   absl::StatusOr<std::vector<int64_t>> owner = Owners(result, n);
   if (!owner.ok()) return fail(std::string(owner.status().message()));
@@ -108,9 +113,13 @@ absl::Status CheckValidCut(const Gathered& result, absl::Span<const Surfel> surf
     const float sa = ClusterSolidAngle(cl, receiver);
     const NearSphere near = NodeNearSphere(cl.bounds.lo, cl.bounds.hi, reach);
     const Cut node_cut = NodeCut(cut, cl.sh_area.data());
-    if (!BelowCut(sa, node_cut, [&] { return NodeCutCosine(near.centre, near.radius2, p, nrm); })) {
-      return fail(absl::StrFormat("%s subtends %g sr (cosine weight %g), not below the cut", name,
-                                  sa, NodeCutCosine(near.centre, near.radius2, p, nrm)));
+    const auto cosine = [&] { return NodeCutCosine(near.centre, near.radius2, p, nrm); };
+    const auto lobe_weight = [&] { return NodeLobeWeight(lobe, near.centre, near.radius2, p); };
+    if (!BelowCut(sa, node_cut, cosine, lobe_weight)) {
+      return fail(
+          absl::StrFormat("%s subtends %g sr (cosine weight %g, lobe weight %g), not below "
+                          "the cut",
+                          name, sa, cosine(), lobe.active ? lobe_weight() : 1.0f));
     }
     if (NodeWhollyBehind(cl.bounds.lo, cl.bounds.hi, reach, p, nrm)) {
       return fail(name + " lies wholly behind the tangent plane");

@@ -48,7 +48,32 @@ ShadeEngine::ShadeEngine(Database& db, absl::Span<const ShadeReceiver> receivers
       out_(out),
       threads_(options.threads > 0 ? options.threads : DefaultShadeThreads()),
       arena_(threads_),
-      workers_(std::make_unique<tbb::enumerable_thread_specific<Worker>>()) {}
+      workers_(std::make_unique<tbb::enumerable_thread_specific<Worker>>()) {
+  cut_ = options.cut;
+  const RasterOptions& ro = options.raster;
+  lobe_cut_ = options.lobe_cut && ro.lobe != GlossyLobe::kNone &&
+              options.cut.lobe.kind == CutLobeKind::kNone;
+  if (lobe_cut_) {
+    cut_.lobe.kind = ro.lobe == GlossyLobe::kPhong ? CutLobeKind::kPhong : CutLobeKind::kGgx;
+    cut_.lobe.phong_exponent = ro.phong_exponent;
+    cut_.lobe.ggx_roughness = ro.ggx_roughness;
+  }
+}
+
+namespace {
+// The cut for one receiver: cut_, with the lobe centred on its reflection direction.
+inline Cut ReceiverCut(const Cut& cut, bool lobe_cut, const ShadeReceiver& r) {
+  Cut c = cut;
+  if (!lobe_cut) return c;
+  const float len2 = glm::dot(r.reflection, r.reflection);
+  if (len2 > 0.0f && std::isfinite(len2)) {
+    c.lobe.direction = r.reflection;
+  } else {
+    c.lobe.kind = CutLobeKind::kNone;  // no lobe to refine for: its glossy is 0
+  }
+  return c;
+}
+}  // namespace
 
 ShadeEngine::~ShadeEngine() = default;
 
@@ -118,7 +143,8 @@ absl::Status ShadeEngine::Shade(absl::Span<const uint32_t> indices, float* dista
                           const uint32_t i = order[k];
                           const ShadeReceiver& sr = receivers_[i];
                           const Stopwatch t;
-                          absl::Status s = w.reader->Gather({sr.position, sr.normal}, options_.cut,
+                          absl::Status s = w.reader->Gather({sr.position, sr.normal},
+                                                            ReceiverCut(cut_, lobe_cut_, sr),
                                                             &w.gathered, &w.query);
                           const double gather = t.Seconds();
                           if (!s.ok()) return Fail(std::move(s));

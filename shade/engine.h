@@ -65,6 +65,10 @@ class ShadeEngine {
   absl::Span<const ShadeReceiver> receivers_;
   const ShadeOptions& options_;
   absl::Span<ShadeResult> out_;
+  // options.cut, with the lobe-aware cut's lobe when it applies (lobe_cut_; its direction is
+  // each receiver's reflection).
+  Cut cut_;
+  bool lobe_cut_ = false;
   const Stopwatch clock_;
   const double cpu_start_ = ProcessCpuSeconds();
   const int threads_;

@@ -50,10 +50,12 @@ struct EvalArgs {
   std::vector<int> ray_sweep = {16, 64, 256, 1024};
   std::vector<float> solid_angles = {1.0f, 0.3f, 0.1f, 0.03f, 0.01f, 0.003f};
   std::vector<int> resolutions = {8, 12, 16};
-  // Cut criteria to sweep: "cosine" (Cut::cosine_weighted, the default) and/or "plain".
+  // Cut criteria to sweep: "cosine" (Cut::cosine_weighted, the default), "plain" and/or
+  // "lobe" (--mode glossy: ShadeOptions::lobe_cut, glossy's default).
   std::vector<std::string> cuts = {"cosine"};
   std::vector<std::string> footprints = {"polygons"};  // RasterOptions::footprint
   float curved_scale = 0.3f;                           // Cut::curved_scale
+  float lobe_min_weight = CutLobe{}.min_weight;        // CutLobe::min_weight (--cuts lobe)
   std::string memory = "auto";
   std::string cache = "auto";
   int threads = 0;
@@ -93,7 +95,9 @@ struct Errors {
 };
 
 // The short name of a --cuts value in a row's setting and the chart's series.
-const char* CutTag(const std::string& cut) { return cut == "cosine" ? "cos" : "plain"; }
+const char* CutTag(const std::string& cut) {
+  return cut == "cosine" ? "cos" : cut == "lobe" ? "lobe" : "plain";
+}
 
 // A receiver's value: occlusion in all three channels, or irradiance or glossy radiance per
 // channel. The scalar errors are those of the mean of the channels.
@@ -358,14 +362,17 @@ double TruthNoise(const EvalArgs& a, const std::vector<Row>& reference_rows) {
   return truth_noise;
 }
 
+// `cut`: a --cuts value (cosine, plain, lobe: ShadeOptions::lobe_cut, glossy only).
 ShadeOptions EvalShadeOptions(const EvalArgs& a, const EvalSetup& e, float msa, int res,
-                              bool cosine) {
+                              const std::string& cut) {
   ShadeOptions so;
   so.cut.curved_scale = a.curved_scale;
+  so.cut.lobe.min_weight = a.lobe_min_weight;
   so.raster.footprint = ParseFootprint(a.footprints.front());
   so.threads = e.threads;
   so.cut.max_solid_angle = msa;
-  so.cut.cosine_weighted = cosine;
+  so.cut.cosine_weighted = cut == "cosine";
+  so.lobe_cut = cut == "lobe";
   so.raster.resolution = res;
   so.raster.compute_radiance = !e.occlusion;
   if (e.glossy) {
@@ -413,15 +420,26 @@ absl::StatusOr<size_t> PbgiRows(const EvalArgs& a, const EvalSetup& e, Database&
     std::vector<ShadeResult> results(e.receivers.size());
     const float finest = *std::min_element(a.solid_angles.begin(), a.solid_angles.end());
     PBGI_RETURN_IF_ERROR(ShadeBatch(db, shade_receivers,
-                                    EvalShadeOptions(a, e, finest, a.resolutions.front(), false),
+                                    EvalShadeOptions(a, e, finest, a.resolutions.front(), "plain"),
                                     absl::MakeSpan(results)));
+    // The lobe cut reads deeper than the plain one in the lobe's core.
+    if (std::find(a.cuts.begin(), a.cuts.end(), "lobe") != a.cuts.end()) {
+      PBGI_RETURN_IF_ERROR(ShadeBatch(db, shade_receivers,
+                                      EvalShadeOptions(a, e, finest, a.resolutions.front(), "lobe"),
+                                      absl::MakeSpan(results)));
+    }
   }
   size_t default_row = 0;
   bool found_default = false;
+  // --dump-receivers: the default cut's receivers, or the first cut's when it is not swept.
+  const std::string default_cut = e.glossy ? "lobe" : "cosine";
+  const std::string dump_cut = std::find(a.cuts.begin(), a.cuts.end(), default_cut) != a.cuts.end()
+                                   ? default_cut
+                                   : a.cuts.front();
   for (const std::string& cut : a.cuts) {
     for (int res : a.resolutions) {
       for (float msa : a.solid_angles) {
-        const ShadeOptions so = EvalShadeOptions(a, e, msa, res, cut == "cosine");
+        const ShadeOptions so = EvalShadeOptions(a, e, msa, res, cut);
         std::vector<ShadeResult> results(e.receivers.size());
         ShadeStats st;
         std::vector<double> times, gather, raster;
@@ -449,12 +467,12 @@ absl::StatusOr<size_t> PbgiRows(const EvalArgs& a, const EvalSetup& e, Database&
         r.surfels = double(st.query.surfels) / n;
         rows->push_back(r);
         if (!a.dump_receivers.empty() && res == 12 && std::abs(msa - 0.03f) < 1e-6f &&
-            cut == (e.glossy ? "plain" : "cosine")) {
+            cut == dump_cut) {
           PBGI_RETURN_IF_ERROR(DumpReceivers(a.dump_receivers, e, v));
         }
-        // Glossy's default cut is the plain one (as `pbgi shade`'s: the lobe is not the cosine).
+        // Glossy's default cut is the lobe-aware one (as `pbgi shade`'s: ShadeOptions::lobe_cut).
         const bool is_default =
-            res == 12 && std::abs(msa - 0.03f) < 1e-6f && cut == (e.glossy ? "plain" : "cosine");
+            res == 12 && std::abs(msa - 0.03f) < 1e-6f && cut == (e.glossy ? "lobe" : "cosine");
         if (!found_default && (is_default || (*rows)[default_row].method != Method::kPbgi)) {
           default_row = rows->size() - 1;
           found_default = is_default;
@@ -867,14 +885,20 @@ CommandSetup Setup() {
         ->capture_default_str();
     app->add_option("--cuts", a->cuts,
                     "Cut criteria to sweep: cosine (solid angle weighted by the cosine to the "
-                    "normal, the default) and/or plain")
-        ->check(CLI::IsMember({"cosine", "plain"}))
+                    "normal, the default), plain, and/or lobe (--mode glossy: weighted by the "
+                    "glossy lobe, Cut::lobe; glossy's default)")
+        ->check(CLI::IsMember({"cosine", "plain", "lobe"}))
         ->capture_default_str();
     app->add_option("--footprints", a->footprints,
                     "How elements cover the micro-buffer: splats and/or polygons (tiling "
                     "footprints, see pbgi/raster.h); --view sweeps them, the receiver sweep "
                     "takes the first")
         ->check(CLI::IsMember({"splats", "polygons"}))
+        ->capture_default_str();
+    app->add_option("--lobe-min-weight", a->lobe_min_weight,
+                    "--cuts lobe: CutLobe::min_weight, the smallest lobe weight (1: never coarser "
+                    "than the plain cut)")
+        ->check(CLI::Range(1e-3, 1e3))
         ->capture_default_str();
     app->add_option("--curved-scale", a->curved_scale,
                     "Cut::curved_scale: curved nodes are taken whole only below this times the "
@@ -951,8 +975,13 @@ CommandSetup Setup() {
         ->capture_default_str();
     return [a, app]() -> absl::Status {
       // The cosine-weighted cut suits integrals against the cosine, not a glossy lobe (see
-      // Cut::cosine_weighted): glossy sweeps the plain cut unless --cuts says otherwise.
-      if (a->mode == "glossy" && !app->count("--cuts")) a->cuts = {"plain"};
+      // Cut::cosine_weighted): glossy sweeps the lobe-aware cut (Cut::lobe) unless --cuts says
+      // otherwise (`--cuts plain lobe` compares it with the cut that knows nothing of the lobe).
+      if (a->mode == "glossy" && !app->count("--cuts")) a->cuts = {"lobe"};
+      if (a->mode != "glossy" &&
+          std::find(a->cuts.begin(), a->cuts.end(), "lobe") != a->cuts.end()) {
+        return absl::InvalidArgumentError("--cuts lobe is for --mode glossy (a glossy lobe)");
+      }
       if (!a->view) return RunEval(*a);
       ViewEvalArgs v;
       if (a->mode == "glossy") {
@@ -970,7 +999,7 @@ CommandSetup Setup() {
         ro.ggx_roughness = lobes[0].ggx_roughness;
         PBGI_RETURN_IF_ERROR(ValidateRasterOptions(ro));
         v.lobe = lobes[0];
-        v.cuts = a->cuts;  // the plain cut unless --cuts says otherwise (above)
+        v.cuts = a->cuts;  // the lobe cut unless --cuts says otherwise (above)
       }
       v.scene = app->count("scene") ? a->scene : std::string("city");
       v.out_dir = app->count("--output") ? a->out_dir : std::string("out/eval-view");

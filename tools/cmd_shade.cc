@@ -45,7 +45,8 @@ struct ShadeArgs {
   std::string cache = "auto";
   int threads = 0;
   float max_solid_angle = 0.03f;
-  std::string cut = "cosine";  // or "plain"; glossy always uses the plain cut
+  // or "plain", or "lobe"; glossy uses the lobe-aware cut (ShadeOptions::lobe_cut) unless plain
+  std::string cut = "cosine";
   FootprintFlags footprint;
   float max_distance = std::numeric_limits<float>::infinity();
   int raster_res = 12;
@@ -376,6 +377,12 @@ absl::Status RunShade(const ShadeArgs& a) {
   so.cut.max_distance = a.max_distance;
   // The cosine weight suits integrals against the cosine (occlusion, irradiance), not a lobe.
   so.cut.cosine_weighted = a.cut == "cosine" && mode != Mode::kGlossy;
+  if (a.cut == "lobe" && mode != Mode::kGlossy) {
+    return absl::InvalidArgumentError("--cut lobe is for --mode glossy (a glossy lobe)");
+  }
+  // Glossy refines the cut by its lobe (Cut::lobe) unless --cut plain asks for the cut that
+  // knows nothing of it.
+  so.lobe_cut = mode == Mode::kGlossy && a.cut != "plain";
   so.raster.resolution = a.raster_res;
   ApplyFootprintFlags(a.footprint, &so);
   so.raster.bias = a.bias;
@@ -419,8 +426,9 @@ CommandSetup Setup() {
         ->capture_default_str();
     app->add_option("--cut", a->cut,
                     "cosine: the solid angle weighted by the cosine to the normal (fewer clusters "
-                    "near the horizon; occlusion and irradiance only), or plain")
-        ->check(CLI::IsMember({"cosine", "plain"}))
+                    "near the horizon; occlusion and irradiance only), plain, or lobe: weighted "
+                    "by the glossy lobe (glossy only; glossy's cut unless plain)")
+        ->check(CLI::IsMember({"cosine", "plain", "lobe"}))
         ->capture_default_str();
     AddFootprintFlags(app, &a->footprint);
     app->add_option("--max-solid-angle", a->max_solid_angle,

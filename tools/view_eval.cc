@@ -352,6 +352,7 @@ absl::Status RunViewEval(const ViewEvalArgs& a) {
             so.threads = threads;
             so.cut.max_solid_angle = msa;
             so.cut.cosine_weighted = cut == "cosine";
+            so.lobe_cut = cut == "lobe";
             so.raster.resolution = res;
             so.raster.compute_radiance = !occlusion;
             so.raster.hitsides = sides;
@@ -398,7 +399,7 @@ absl::Status RunViewEval(const ViewEvalArgs& a) {
             }
             const ImageErrors e = CompareImages(a.width, a.height, got, ref, covered);
             std::string tag =
-                absl::StrFormat("msa%g_res%d_%s", msa, res, cut == "cosine" ? "cos" : "plain");
+                absl::StrFormat("msa%g_res%d_%s", msa, res, cut == "cosine" ? "cos" : cut);
             std::string label = absl::StrFormat("msa %g res %d %s", msa, res, cut);
             if (footprint == "splats") {
               // The default footprints' tags are the setting alone.

@@ -84,6 +84,81 @@ inline float NodeCutCosine(const glm::vec3& centre, float radius2, const glm::ve
   return std::clamp(cos_t * cos_a + sin_t * sin_a, kMinCutCosine, 1.0f);
 }
 
+// The lobe-aware cut (Cut::lobe): its per-query constants, made once per gather by
+// MakeLobeCut, and the weight of a node (LobeWeight in pbgi/query.h). LobeCutWeight is
+// non-decreasing in the cosine x and lies in [min_weight, max_weight] (max_weight is its value
+// at x = 1), so that the traversal's shortcuts (ClearlyBelowCut with max_sa / max_weight,
+// solid_angle * max_weight < max_sa, solid_angle * min_weight >= max_sa) decide as the exact
+// test would, rounding included.
+struct LobeCut {
+  bool active = false;
+  bool phong = true;        // else GGX
+  glm::vec3 axis{0, 0, 1};  // unit
+  float exponent = 0.0f;    // Phong
+  float k = 0.0f;           // GGX: alpha^2 - 1
+  float scale = 1.0f;       // pi / integral of D over the hemisphere, D without its constant
+  float min_weight = 1.0f;  // CutLobe::min_weight
+  float max_weight = 1.0f;
+};
+inline float LobeCutRaw(const LobeCut& l, float x) {
+  if (!(x > 0.0f)) return 0.0f;
+  x = std::min(x, 1.0f);
+  if (l.phong) return l.scale * std::pow(x, l.exponent);
+  const float q = 1.0f + l.k * (x * x);
+  return l.scale / (q * q);
+}
+inline float LobeCutWeight(const LobeCut& l, float x) {
+  return std::clamp(LobeCutRaw(l, x), l.min_weight, l.max_weight);
+}
+// REQUIRES: ValidateCutLobe(lobe) is OK.
+inline LobeCut MakeLobeCut(const CutLobe& lobe) {
+  LobeCut l;
+  if (lobe.kind == CutLobeKind::kNone) return l;
+  l.active = true;
+  l.axis = glm::normalize(lobe.direction);
+  l.min_weight = lobe.min_weight;
+  if (lobe.kind == CutLobeKind::kPhong) {
+    l.phong = true;
+    l.exponent = lobe.phong_exponent;
+    // integral of x^e over the hemisphere: 2 pi / (e + 1)
+    l.scale = static_cast<float>(0.5 * (double(lobe.phong_exponent) + 1.0));
+  } else {
+    l.phong = false;
+    const double a2 = double(lobe.ggx_roughness) * double(lobe.ggx_roughness);
+    const double m = std::sqrt(std::max(0.0, 1.0 - a2));
+    // integral over [0, 1] of 1 / (1 + k x^2)^2 (scene/sample_math.h GgxLobeIntegral)
+    const double integral = 0.5 * (1.0 / a2 + (m > 1e-8 ? std::atanh(m) / m : 1.0));
+    l.k = static_cast<float>(a2 - 1.0);
+    l.scale = static_cast<float>(1.0 / (2.0 * integral));
+  }
+  l.max_weight = std::max(l.min_weight, LobeCutRaw(l, 1.0f));
+  return l;
+}
+
+// The largest cosine between the unit `axis` and a direction from p into the sphere (centre,
+// radius^2 radius2): 1 when p lies inside the sphere or the axis points into it, else
+// cos(theta - alpha) (theta the centre's angle to the axis, alpha = asin(radius / distance)
+// the sphere's half angle), which may be negative. NodeCutCosine's geometry, unclamped.
+inline float NodeLobeCosine(const glm::vec3& centre, float radius2, const glm::vec3& p,
+                            const glm::vec3& axis) {
+  const glm::vec3 v = centre - p;
+  const float d2 = glm::dot(v, v);
+  if (!(d2 > radius2)) return 1.0f;
+  const float inv_d = 1.0f / std::sqrt(d2);
+  const float sin_a = std::sqrt(radius2) * inv_d;
+  const float cos_a = std::sqrt(std::max(0.0f, 1.0f - sin_a * sin_a));
+  const float cos_t = glm::dot(v, axis) * inv_d;
+  if (cos_t >= cos_a) return 1.0f;
+  const float sin_t = std::sqrt(std::max(0.0f, 1.0f - cos_t * cos_t));
+  return cos_t * cos_a + sin_t * sin_a;
+}
+// The lobe weight of a node's near sphere (the conservative bound: the lobe's largest value
+// over every direction into the sphere).
+inline float NodeLobeWeight(const LobeCut& l, const glm::vec3& centre, float radius2,
+                            const glm::vec3& p) {
+  return LobeCutWeight(l, NodeLobeCosine(centre, radius2, p, l.axis));
+}
+
 // Whether a node with projected-area SH `sh_area` is flat (see kClusterFlatness): band 0
 // holds pi Y0 A and band 1 holds (2 pi / 3) Y1 N, for A(w) = sum A_i max(0, n_i.w). A
 // two-sided card, whose pairs cancel in N, is not flat by this test, so the cut refines it like
@@ -97,21 +172,32 @@ inline bool NodeIsFlat(const float* sh_area) {
          (kClusterFlatness * m.area) * (kClusterFlatness * m.area);
 }
 
-// The cut for one node: `cut`, with max_solid_angle scaled by curved_scale when the node is not
-// flat.
+// The max_solid_angle of one node: the cut's, scaled by curved_scale when the node is not flat.
+// NodeCut is `cut` with it (the traversal reads the float alone: no copy of the Cut per node).
+inline float NodeMaxSolidAngle(const Cut& cut, const float* sh_area) {
+  if (cut.curved_scale == 1.0f || NodeIsFlat(sh_area)) return cut.max_solid_angle;
+  return cut.max_solid_angle * cut.curved_scale;
+}
 inline Cut NodeCut(const Cut& cut, const float* sh_area) {
-  if (cut.curved_scale == 1.0f || NodeIsFlat(sh_area)) return cut;
   Cut c = cut;
-  c.max_solid_angle *= cut.curved_scale;
+  c.max_solid_angle = NodeMaxSolidAngle(cut, sh_area);
   return c;
 }
 
 // Whether a node whose solid angle from the receiver is `solid_angle` passes the cut's
-// criterion; `cosine` is NodeCutCosine() of its near sphere, read only when cosine_weighted.
+// criterion; `cosine` is NodeCutCosine() of its near sphere, read only when cosine_weighted
+// and there is no lobe; `lobe_weight` NodeLobeWeight() of it, read only with a lobe.
+// BelowPlainCut is the test without a lobe, for a node's max_solid_angle `max_sa`.
 template <typename CosineFn>
-inline bool BelowCut(float solid_angle, const Cut& cut, CosineFn&& cosine) {
-  if (solid_angle < cut.max_solid_angle) return true;
-  return cut.cosine_weighted && solid_angle * cosine() < cut.max_solid_angle;
+inline bool BelowPlainCut(float solid_angle, float max_sa, bool cosine_weighted,
+                          CosineFn&& cosine) {
+  if (solid_angle < max_sa) return true;
+  return cosine_weighted && solid_angle * cosine() < max_sa;
+}
+template <typename CosineFn, typename LobeFn>
+inline bool BelowCut(float solid_angle, const Cut& cut, CosineFn&& cosine, LobeFn&& lobe_weight) {
+  if (cut.lobe.kind != CutLobeKind::kNone) return solid_angle * lobe_weight() < cut.max_solid_angle;
+  return BelowPlainCut(solid_angle, cut.max_solid_angle, cut.cosine_weighted, cosine);
 }
 
 // A conservative bound of how far a disk of a node reaches beyond its bounds: sqrt(area / pi).

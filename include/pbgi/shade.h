@@ -111,6 +111,15 @@ struct ShadeOptions {
   const std::atomic<bool>* cancel = nullptr;
   ShadeMode mode = ShadeMode::kExact;
   SharingOptions sharing;  // kShared only
+  // With a glossy lobe (raster.lobe), gather the lobe-aware cut (Cut::lobe): each receiver's
+  // cut refines by raster's lobe around its reflection direction, finer in the lobe's core and
+  // coarser outside it, instead of `cut`'s plain or cosine-weighted test. false: `cut` as given,
+  // the cut that knows nothing of the lobe (for comparison). Ignored without a lobe, when
+  // cut.lobe is set (the caller's lobe, for every receiver) and for a receiver whose reflection
+  // is zero (its glossy is 0). Occlusion and irradiance come from the same gather, so with it
+  // they are those of a cut made for the lobe, not for the cosine. The lobe's min_weight is
+  // cut.lobe.min_weight.
+  bool lobe_cut = true;
 };
 
 // What a batch cost.

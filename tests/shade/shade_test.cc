@@ -61,30 +61,42 @@ TEST_F(ShadeBatchTest, ThreadsAndOrderDoNotChangeResults) {
   EXPECT_EQ(sb.query.queries, receivers_.size());
 }
 
-// The driver is exactly Gather then Shade per receiver, to the bit (glossy lobe included).
+// The driver is exactly Gather then Shade per receiver, to the bit (glossy lobe included): with
+// the lobe-aware cut (ShadeOptions::lobe_cut, the default), Gather's cut carries the raster's
+// lobe around each receiver's reflection; without it, the cut as given.
 TEST_F(ShadeBatchTest, EqualsSerialGatherAndShade) {
-  ShadeOptions o;
-  o.threads = 2;
-  o.cut.cosine_weighted = true;
-  o.raster.lobe = GlossyLobe::kPhong;
-  for (size_t i = 0; i < receivers_.size(); ++i) {
-    receivers_[i].reflection = glm::vec3(0.3f, float(i % 7) - 3.0f, 1.0f);
-  }
-  std::vector<ShadeResult> got(receivers_.size());
-  ASSERT_TRUE(ShadeBatch(db_->db(), receivers_, o, absl::MakeSpan(got)).ok());
-  auto reader = db_->db().NewReader();
-  ASSERT_TRUE(reader.ok());
-  MicroBuffer buffer;
-  Gathered g;
-  for (size_t i = 0; i < receivers_.size(); ++i) {
-    const ShadeReceiver& r = receivers_[i];
-    ASSERT_TRUE((*reader)->Gather({r.position, r.normal}, o.cut, &g).ok());
-    ShadeResult want;
-    ASSERT_TRUE(Shade(g, r, o.raster, &buffer, &want).ok());
-    ASSERT_EQ(got[i].occlusion, want.occlusion) << i;
-    ASSERT_EQ(got[i].irradiance, want.irradiance) << i;
-    ASSERT_EQ(got[i].glossy, want.glossy) << i;
-    ASSERT_EQ(got[i].clusters_drawn, want.clusters_drawn) << i;
+  for (const bool lobe_cut : {true, false}) {
+    SCOPED_TRACE(lobe_cut ? "lobe cut" : "cut as given");
+    ShadeOptions o;
+    o.threads = 2;
+    o.cut.cosine_weighted = true;
+    o.lobe_cut = lobe_cut;
+    o.raster.lobe = GlossyLobe::kPhong;
+    for (size_t i = 0; i < receivers_.size(); ++i) {
+      receivers_[i].reflection = glm::vec3(0.3f, float(i % 7) - 3.0f, 1.0f);
+    }
+    std::vector<ShadeResult> got(receivers_.size());
+    ASSERT_TRUE(ShadeBatch(db_->db(), receivers_, o, absl::MakeSpan(got)).ok());
+    auto reader = db_->db().NewReader();
+    ASSERT_TRUE(reader.ok());
+    MicroBuffer buffer;
+    Gathered g;
+    for (size_t i = 0; i < receivers_.size(); ++i) {
+      const ShadeReceiver& r = receivers_[i];
+      Cut cut = o.cut;
+      if (lobe_cut) {
+        cut.lobe.kind = CutLobeKind::kPhong;
+        cut.lobe.direction = r.reflection;
+        cut.lobe.phong_exponent = o.raster.phong_exponent;
+      }
+      ASSERT_TRUE((*reader)->Gather({r.position, r.normal}, cut, &g).ok());
+      ShadeResult want;
+      ASSERT_TRUE(Shade(g, r, o.raster, &buffer, &want).ok());
+      ASSERT_EQ(got[i].occlusion, want.occlusion) << i;
+      ASSERT_EQ(got[i].irradiance, want.irradiance) << i;
+      ASSERT_EQ(got[i].glossy, want.glossy) << i;
+      ASSERT_EQ(got[i].clusters_drawn, want.clusters_drawn) << i;
+    }
   }
 }
 

@@ -71,13 +71,13 @@ for f in eval-phong8 eval-phong32 eval-ggx0.3; do
 done
 grep -q '"ggx_roughness"' "$dir/eval_glossy/eval.json" && grep -q '"default_relative_mae"' \
   "$dir/eval_glossy/eval.json" && ok || fail "eval.json lacks the glossy lobes' figures"
-rel=$(awk '$1 == "pbgi" && $6 == "plain" {sub("%", "", $NF); print $NF; exit}' "$dir/eval_glossy.out")
+rel=$(awk '$1 == "pbgi" && $6 == "lobe" {sub("%", "", $NF); print $NF; exit}' "$dir/eval_glossy.out")
 awk -v r="$rel" 'BEGIN {exit !(r > 0 && r < 40)}' && ok ||
   fail "eval --mode glossy: relative MAE '$rel'% not in (0, 40)"
 # eval --view --mode glossy: one lobe per view, each pixel's lobe on its mirrored view direction.
 run eval_view_glossy "$pbgi" eval --view cornell --mode glossy --lobes phong -o "$dir/evg" \
   --points 30000 --width 32 --height 24 --rays 128 --exact
-[ -s "$dir/evg/pbgi_msa0.03_res12_plain.png" ] && [ -s "$dir/evg/view.json" ] && ok ||
+[ -s "$dir/evg/pbgi_msa0.03_res12_lobe.png" ] && [ -s "$dir/evg/view.json" ] && ok ||
   fail "eval --view --mode glossy wrote no image or view.json"
 grep -q '"mode": "glossy"' "$dir/evg/view.json" && ok || fail "view.json is not glossy"
 refuse eval_glossy_view_two "one lobe setting" "$pbgi" eval --view cornell --mode glossy \
