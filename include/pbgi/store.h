@@ -51,10 +51,13 @@
 namespace pbgi {
 
 inline constexpr uint64_t kStoreMagic = 0x3130424447425050ull;  // "PPBGDB01" little-endian
-// Version 2: a point record's radius carries the two-sided flag in its sign bit (tree/format.h),
-// which a version-1 reader would misread as a negative radius, so it refuses version 2; this
-// library reads versions 1 (all surfels one-sided) and 2.
-inline constexpr uint32_t kStoreFormatVersion = 2;
+// Version 3: compact pages (docs/format.md, "Format version 3"): point positions and node bounds
+// are cells of a grid of 2^21 per axis (StoreMeta::grid_origin, grid_step), normals octahedral,
+// radius and radiance small floats, node SH fixed point scaled per node (tree/format.h). The
+// records of versions 1 and 2 (plain floats) are not read: open refuses them, naming both
+// versions, and says to rebuild.
+inline constexpr uint32_t kStoreFormatVersion = 3;
+inline constexpr uint32_t kOldestReadableStoreFormatVersion = 3;
 
 // The efficient page sizes are k*4096 - 16: LMDB stores a large value in a run of 4 KiB overflow
 // pages behind a 16-byte page header.
@@ -96,6 +99,10 @@ struct StoreMeta {
   uint64_t root = 0;  // NodeRef of the root node (see tree/format.h)
   uint32_t max_depth = 0;
   std::string layout = "coherent";
+  // Version 3: the grid that point positions and node bounds are stored in (tree/format.h):
+  // cell q (0 .. 2^21 - 1) of axis a is the float grid_origin[a] + (q + 0.5f) * grid_step.
+  glm::vec3 grid_origin{0.0f};
+  float grid_step = 0.0f;
   // Free-form build statistics (name -> value as text): timings, peak memory, ...
   std::map<std::string, std::string> stats;
 };
