@@ -140,7 +140,7 @@ TEST(BuildDatabaseTest, BuildsAVerifiableStoreEqualToTheInMemoryPipeline) {
 TEST(BuildDatabaseTest, WriteErrorOnTheWriterThreadEndsTheBuild) {
   ScratchDir dir("fsize");
   const std::string db = dir.Sub("db");
-  const auto cloud = testing_build::SurfaceCloud(60000, 8);  // about 5 MiB of pages
+  const auto cloud = testing_build::SurfaceCloud(60000, 8);  // about 0.9 MiB of compact pages
   const testing_common::ChildResult child = testing_common::RunInChild(
       [&] {
         BuildOptions o;
@@ -150,7 +150,7 @@ TEST(BuildDatabaseTest, WriteErrorOnTheWriterThreadEndsTheBuild) {
         auto stats = BuildDatabase(src, db, o);
         return stats.ok() ? std::string("built") : stats.status().ToString();
       },
-      /*file_size_limit=*/2 << 20);
+      /*file_size_limit=*/512 << 10);
   ASSERT_TRUE(child.exited) << "the build crashed or hung (signal " << child.signal << ")";
   const std::string& got = child.report;
   EXPECT_NE(got.find("RESOURCE_EXHAUSTED"), std::string::npos) << got;
@@ -201,8 +201,9 @@ TEST(BuildDatabaseTest, MissingTmpDirAndEmptyInputAreClearErrors) {
 // from the page cache (which a memory cgroup would charge to the build), yet the store verifies.
 TEST(BuildDatabaseTest, PagesAreStreamedOutOfThePageCache) {
   ScratchDir dir("stream");
-  // Enough points for a store of several write batches (compact pages: ~45 bytes per point).
-  const auto cloud = testing_build::SurfaceCloud(120000, 9);
+  // Enough points for a store of several write batches (compressed compact pages: ~15-20
+  // bytes per point).
+  const auto cloud = testing_build::SurfaceCloud(250000, 9);
   BuildOptions o;
   o.memory_bytes = uint64_t{16} << 20;  // 1 MiB write batches
   VectorSurfelSource src(cloud);
