@@ -1,7 +1,8 @@
 // What a page costs to decode when it enters the cache (tree/decoded_page.h): format version 3's
 // compact records (tree/format.h) against the plain float records of version 2, decoded by a
-// copy of version 2's loop, in one run. Full pages of the default size (65520 bytes), records
-// from a random scene. Counters: us_per_page and ns_per_record.
+// copy of version 2's loop, in one run; "v3z" adds zstd's decompression of the payload, as
+// ReadTxn::Get does for a compressed page (store/page_store.cc). Full pages of the default size
+// (65520 bytes), records from a random scene. Counters: us_per_page and ns_per_record.
 //   query_decode_bench [benchmark flags]   e.g. --benchmark_repetitions=5
 //                                              --benchmark_report_aggregates_only=true
 #include <cmath>
@@ -15,6 +16,7 @@
 #include "tree/decoded_page.h"
 #include "tree/format.h"
 #include "tree/morton.h"
+#include "zstd.h"
 
 namespace pbgi::internal {
 namespace {
@@ -158,14 +160,33 @@ Page MakePage(Section section, Channels c, int version) {
   return p;
 }
 
+// version 4 stands for 3 with zstd (level 1, as PageWriter) over the payload.
 void BM_Decode(benchmark::State& state, Section section, Channels c, int version) {
-  const Page p = MakePage(section, c, version);
+  const Page p = MakePage(section, c, version == 4 ? 3 : version);
   PageView view;
   view.header = &p.header;
   view.payload = absl::MakeConstSpan(p.payload);
+  std::vector<uint8_t> frame(ZSTD_compressBound(p.payload.size()));
+  frame.resize(ZSTD_compress(frame.data(), frame.size(), p.payload.data(), p.payload.size(), 1));
+  std::vector<uint8_t> whole(p.payload.size());
+  ZSTD_DCtx* dctx = ZSTD_createDCtx();
   for (auto _ : state) {
     DecodedPage page;
-    if (version == 3) {
+    if (version == 4) {
+      const size_t n =
+          ZSTD_decompressDCtx(dctx, whole.data(), whole.size(), frame.data(), frame.size());
+      if (n != whole.size()) {
+        state.SkipWithError("zstd");
+        break;
+      }
+      PageView v = view;
+      v.payload = absl::MakeConstSpan(whole);
+      absl::Status s = DecodePage(v, section, 0, p.meta, "bench", &page);
+      if (!s.ok()) {
+        state.SkipWithError(std::string(s.message()).c_str());
+        break;
+      }
+    } else if (version == 3) {
       absl::Status s = DecodePage(view, section, 0, p.meta, "bench", &page);
       if (!s.ok()) {
         state.SkipWithError(std::string(s.message()).c_str());
@@ -183,13 +204,16 @@ void BM_Decode(benchmark::State& state, Section section, Channels c, int version
   state.counters["ns_per_record"] = benchmark::Counter(
       pages * p.header.record_count * 1e-9, benchmark::Counter::kIsRate | benchmark::Counter::kInvert);
   state.counters["records"] = p.header.record_count;
+  state.counters["stored_bytes"] = version == 4 ? frame.size() : p.payload.size();
+  ZSTD_freeDCtx(dctx);
 }
 
 void Register() {
-  for (int version : {2, 3}) {
+  for (int version : {2, 3, 4}) {
     for (Channels c : {Channels::kOcclusion, Channels::kRadiance}) {
       for (Section s : {Section::kNodes, Section::kPoints}) {
-        const std::string name = std::string("Decode/v") + std::to_string(version) + "/" +
+        const std::string name = std::string("Decode/") +
+                                 (version == 4 ? "v3z" : "v" + std::to_string(version)) + "/" +
                                  (c == Channels::kRadiance ? "radiance" : "occlusion") + "/" +
                                  SectionName(s);
         benchmark::RegisterBenchmark(name.c_str(), [s, c, version](benchmark::State& st) {
