@@ -1,5 +1,6 @@
-// PageWriter: appends fixed-size pages to a new store with MDB_APPEND | MDB_RESERVE, in batches,
-// growing the map on MDB_MAP_FULL, and commits the meta record last (docs/design.md, "Store").
+// PageWriter: appends fixed-size pages to a new store with MDB_APPEND | MDB_RESERVE (whole, or
+// with compress_pages zstd-compressed and shorter where that pays), in batches, growing the map
+// on MDB_MAP_FULL, and commits the meta record last (docs/design.md, "Store").
 #include <fcntl.h>
 #include <lmdb.h>
 #include <sys/mman.h>

@@ -1,7 +1,8 @@
 // pbgi::PageStore: fixed-size pages in one LMDB environment (docs/design.md, "Store").
 //
 // A store has three named sections: `meta` (one meta record, committed last), `nodes` and
-// `points` (key: page number, value: one fixed-size page). A PageWriter appends pages in
+// `points` (key: page number, value: one fixed-size page, stored whole or, with
+// StoreOptions::compress_pages, compressed and shorter; readers always see it whole). A PageWriter appends pages in
 // page-number order with MDB_APPEND, commits them in bounded batches, and makes the store visible
 // only when Finish() commits the meta record. A PageStore opens a finished store read-only; many
 // threads (MDB_NOTLS, one ReadTxn each) and many processes may read it at once.
