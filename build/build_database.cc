@@ -176,6 +176,9 @@ absl::StatusOr<BuildStats> BuildDatabase(SurfelSource& source, const std::string
                                   : internal::RunDirectory(tmp_dir, db_path);
   StoreOptions so;
   so.page_size = options.page_size;
+  // Compact records compress ~3x more with zstd at a fraction of a page read's cost
+  // (docs/format.md, "Format version 3").
+  so.compress_pages = true;
   const internal::MemoryPlan plan = internal::PlanMemory(options, source.KnownCount());
   so.batch_bytes = plan.batch_bytes;
   PBGI_ASSIGN_OR_RETURN(std::unique_ptr<PageWriter> writer, PageWriter::Create(db_path, so));

@@ -348,11 +348,20 @@ absl::StatusOr<BuildStats> BuildToSink(SurfelSource& source, PageSink& sink,
             : std::string("the input has no surfels"));
   }
 
+  if (sorter.records() > kMaxStoredPointIndex) {
+    return absl::InvalidArgumentError(absl::StrFormat(
+        "the input has %d surfels: a store holds at most 2^40 - 1 (format version 3 stores "
+        "point indices in 40 bits)",
+        sorter.records()));
+  }
+
   // Pass 3: merge, octree, pages.
   t.Restart();
-  NodePacker packer(options.layout, options.channels, &sink, options.shuffle_seed);
+  // Positions and node bounds are stored on the grid of the Morton keys' cube (tree/format.h).
+  const PositionGrid grid = GridOfCube(MortonCube(bounds));
+  NodePacker packer(options.layout, options.channels, &sink, options.shuffle_seed, grid);
   packer.set_upper_limit_bytes(plan.upper_bytes);
-  PointPageWriter points(options.channels, &sink);
+  PointPageWriter points(options.channels, &sink, grid);
   OctreeBuilder octree(options.leaf_size, options.channels, &points, &packer);
   const bool estimate = options.estimate.radius || options.estimate.normals;
   NeighbourEstimator estimator(options.estimate, bounds);
@@ -413,6 +422,8 @@ absl::StatusOr<BuildStats> BuildToSink(SurfelSource& source, PageSink& sink,
   meta->root = root;
   meta->max_depth = stats.max_depth;
   meta->layout = LayoutName(options.layout);
+  for (int a = 0; a < 3; ++a) meta->grid_origin[a] = grid.origin[a];
+  meta->grid_step = grid.step;
   auto& m = meta->stats;
   m["points"] = absl::StrFormat("%d", stats.points);
   m["skipped"] = absl::StrFormat("%d", stats.skipped);

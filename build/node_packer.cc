@@ -10,10 +10,12 @@
 
 namespace pbgi::internal {
 
-NodePacker::NodePacker(Layout layout, Channels channels, PageSink* sink, uint64_t shuffle_seed)
+NodePacker::NodePacker(Layout layout, Channels channels, PageSink* sink, uint64_t shuffle_seed,
+                       const PositionGrid& grid)
     : layout_(layout),
       channels_(channels),
       sink_(sink),
+      grid_(grid),
       seed_(shuffle_seed),
       record_size_(NodeRecordSize(channels)),
       capacity_(NodesPerPage(sink->page_size(), channels)),
@@ -52,8 +54,8 @@ absl::Status NodePacker::WritePage(uint64_t page_no, const std::vector<Group*>& 
         return absl::InternalError(absl::StrFormat(
             "node page %d: a node's child group was not placed before its parent", page_no));
       }
-      const uint8_t* p = reinterpret_cast<const uint8_t*>(&n.rec);
-      page_buf_.insert(page_buf_.end(), p, p + record_size_);
+      page_buf_.resize(page_buf_.size() + record_size_);
+      EncodeNodeRecord(n.rec, channels_, grid_, page_buf_.data() + page_buf_.size() - record_size_);
       ++count;
     }
   }

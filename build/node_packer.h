@@ -79,7 +79,9 @@ struct ClosedNode {
 
 class NodePacker {
  public:
-  NodePacker(Layout layout, Channels channels, PageSink* sink, uint64_t shuffle_seed);
+  // Node records are encoded on `grid` (tree/format.h).
+  NodePacker(Layout layout, Channels channels, PageSink* sink, uint64_t shuffle_seed,
+             const PositionGrid& grid);
   NodePacker(const NodePacker&) = delete;
   NodePacker& operator=(const NodePacker&) = delete;
 
@@ -133,8 +135,9 @@ class NodePacker {
   absl::Status PlaceAndWritePages(const std::vector<std::vector<Group*>>& pages);
 
   Layout layout_;
-  [[maybe_unused]] Channels channels_;
+  Channels channels_;
   PageSink* sink_;
+  PositionGrid grid_;
   uint64_t seed_;
   uint32_t record_size_;
   uint32_t capacity_;

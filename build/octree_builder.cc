@@ -11,20 +11,20 @@
 
 namespace pbgi::internal {
 
-PointPageWriter::PointPageWriter(Channels channels, PageSink* sink)
+PointPageWriter::PointPageWriter(Channels channels, PageSink* sink, const PositionGrid& grid)
     : channels_(channels),
       sink_(sink),
+      grid_(grid),
       record_size_(PointRecordSize(channels)),
       per_page_(PointsPerPage(sink->page_size(), channels)) {
   buf_.resize(size_t{per_page_} * record_size_);
 }
 
-absl::Status PointPageWriter::Add(const SortRecord& r) {
+absl::Status PointPageWriter::Add(const SortRecord& r, SortRecord* stored) {
   uint8_t* dst = buf_.data() + size_t{count_} * record_size_;
-  // SortRecord after its key is laid out exactly like PointRecordRadiance, whose first 28 bytes
-  // are PointRecordOcclusion.
-  static_assert(sizeof(PointRecordRadiance) == sizeof(SortRecord) - sizeof(uint64_t));
-  std::memcpy(dst, &r.position[0], record_size_);
+  EncodePointRecord(r.position, r.normal, r.radius, r.radiance, channels_, grid_, dst);
+  const Surfel s = DecodePointRecord(dst, channels_, grid_);
+  *stored = MakeSortRecord(r.key, s);
   ++points_;
   if (++count_ == per_page_) return Flush();
   return absl::OkStatus();
@@ -171,9 +171,8 @@ absl::Status OctreeBuilder::Process(const SortRecord& r, uint32_t rank, bool hav
   if (leaf_open_) {
     if (PrefixAt(r.key, rank, leaf_.depth) == leaf_.prefix) {
       ++leaf_.count;
-      leaf_.agg.AddPoint(r, HasRadiance(channels_));
       ++next_point_;
-      return points_->Add(r);
+      return AddPoint(r);
     }
     PBGI_RETURN_IF_ERROR(CloseLeaf());
   }
@@ -200,9 +199,15 @@ absl::Status OctreeBuilder::Process(const SortRecord& r, uint32_t rank, bool hav
     stack_.push_back(std::move(n));
   }
   ++leaf_.count;
-  leaf_.agg.AddPoint(r, HasRadiance(channels_));
   ++next_point_;
-  return points_->Add(r);
+  return AddPoint(r);
+}
+
+absl::Status OctreeBuilder::AddPoint(const SortRecord& r) {
+  SortRecord stored;
+  PBGI_RETURN_IF_ERROR(points_->Add(r, &stored));
+  leaf_.agg.AddPoint(stored, HasRadiance(channels_));
+  return absl::OkStatus();
 }
 
 absl::StatusOr<NodeRef> OctreeBuilder::Finish() {

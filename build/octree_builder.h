@@ -28,18 +28,21 @@
 
 namespace pbgi::internal {
 
-// Writes points in order into full point pages.
+// Writes points in order into full point pages, encoded on `grid` (tree/format.h).
 class PointPageWriter {
  public:
-  PointPageWriter(Channels channels, PageSink* sink);
-  absl::Status Add(const SortRecord& r);
+  PointPageWriter(Channels channels, PageSink* sink, const PositionGrid& grid);
+  // Appends r and sets *stored to r as the page holds it (quantized): what every reader of the
+  // store will decode, so the node aggregates are made from it.
+  absl::Status Add(const SortRecord& r, SortRecord* stored);
   absl::Status Flush();
   uint64_t pages() const { return next_page_; }
   uint64_t points() const { return points_; }
 
  private:
-  [[maybe_unused]] Channels channels_;
+  Channels channels_;
   PageSink* sink_;
+  PositionGrid grid_;
   uint32_t record_size_;
   uint32_t per_page_;
   std::vector<uint8_t> buf_;
@@ -90,6 +93,8 @@ class OctreeBuilder {
   // ahead point is the one leaf_size places later.
   absl::Status Process(const SortRecord& r, uint32_t rank, bool have_ahead, uint64_t ahead_key,
                        uint32_t ahead_rank);
+  // Writes r to its point page and adds it, as stored, to the open leaf's aggregate.
+  absl::Status AddPoint(const SortRecord& r);
   PendingNode MakeRecord(const OpenNode& n, bool leaf) const;
   absl::Status CloseLeaf();
   absl::Status CloseTop();

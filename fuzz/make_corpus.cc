@@ -80,8 +80,9 @@ int main(int argc, char** argv) {
   m.layout = "postorder";
   Write(root / "fuzz_meta_codec" / "stats.bin", internal::EncodeMeta(m, true));
 
-  // Stores: tiny databases (inline pages, overflow pages) and a bare page store.
-  for (uint32_t page_size : {1024u, 4080u}) {
+  // Stores: tiny databases (inline pages, overflow pages, compressed pages) and a bare page
+  // store.
+  for (uint32_t page_size : {1024u, 4080u, 16368u}) {
     const std::string db = (scratch / absl::StrCat("db", page_size)).string();
     VectorSurfelSource src(surfels);
     BuildOptions o;

@@ -59,6 +59,7 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   m.max_depth = (flags >> 4) & 7;
   m.bounds.lo = glm::vec3(0.0f);
   m.bounds.hi = glm::vec3(1.0f);
+  m.grid_step = 1.0f / (1 << kGridBits);  // the grid of the unit box (format version 3)
 
   // The decoder alone, on both kinds of pages.
   for (Section s : {Section::kNodes, Section::kPoints}) {

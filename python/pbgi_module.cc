@@ -357,7 +357,7 @@ class ArraySource final : public SurfelSource {
 struct BuildArgs {
   uint64_t memory_bytes = BuildOptions{}.memory_bytes;
   uint32_t leaf_size = BuildOptions{}.leaf_size;
-  uint32_t page_size = kDefaultPageSize;
+  uint32_t page_size = kDefaultBuildPageSize;
   std::string channels;  // "", "radiance", "occlusion"
   std::string layout = "coherent";
   int threads = 0;
@@ -773,7 +773,7 @@ void Init(py::module_& m) {
   });
 
   m.attr("__version__") = PBGI_VERSION_STRING;
-  m.attr("DEFAULT_PAGE_SIZE") = kDefaultPageSize;
+  m.attr("DEFAULT_PAGE_SIZE") = kDefaultBuildPageSize;
   m.def("cluster_dtype", &ClusterDtype, "The numpy dtype of gathered clusters.");
   m.def("surfel_dtype", &SurfelDtype, "The numpy dtype of surfels.");
   m.def("default_threads", &DefaultShadeThreads);

@@ -7,7 +7,7 @@ PACKAGES=(
   # toolchain (clang and its runtime libraries: the clang build and libFuzzer's fuzz targets)
   g++ make cmake ninja-build pkg-config ca-certificates clang libclang-rt-14-dev
   # libraries
-  liblmdb-dev lmdb-utils libabsl-dev libglm-dev
+  liblmdb-dev lmdb-utils libabsl-dev libglm-dev libzstd-dev
   libgtest-dev libgmock-dev libbenchmark-dev
   libembree-dev libassimp-dev libopenexr-dev libstb-dev libcli11-dev libtbb-dev
   nlohmann-json3-dev

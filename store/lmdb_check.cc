@@ -315,7 +315,9 @@ class Walker {
                                                  "8)",
                                                  i, key.size()));
           }
-          if (dsize != value_size) {
+          // A page is stored whole (value_size bytes) or compressed, in one overflow page or
+          // more (store_internal.h, kMinCompressedPage).
+          if (dsize != value_size && (dsize > value_size || dsize < kMinCompressedPage)) {
             return BadPage(pgno, absl::StrFormat("entry %d (%s): %d bytes stored, pages have %d", i,
                                                  ShowKey(key), dsize, value_size));
           }

@@ -77,6 +77,9 @@ std::string EncodeMeta(const StoreMeta& meta, bool complete) {
     w.PutString(k);
     w.PutString(v);
   }
+  // Appended in version 3: the position grid.
+  for (int i = 0; i < 3; ++i) w.Put<float>(meta.grid_origin[i]);
+  w.Put<float>(meta.grid_step);
   std::string& out = w.out();
   const uint32_t length = static_cast<uint32_t>(out.size());
   std::memcpy(&out[16], &length, 4);
@@ -107,6 +110,12 @@ absl::StatusOr<DecodedMeta> DecodeMeta(absl::string_view bytes, absl::string_vie
   if (version == 0) {
     return absl::DataLossError(
         absl::StrFormat("%s: meta record has format version 0, which never existed", where));
+  }
+  if (version < kOldestReadableStoreFormatVersion) {
+    return absl::FailedPreconditionError(absl::StrFormat(
+        "%s: store format version %d is too old: this library reads version %d (compact pages) "
+        "only; rebuild the database from its points with this version of pbgi",
+        where, version, kStoreFormatVersion));
   }
   if (bytes.size() < kMetaHeaderBytes) {
     return absl::DataLossError(
@@ -144,6 +153,8 @@ absl::StatusOr<DecodedMeta> DecodeMeta(absl::string_view bytes, absl::string_vie
     ok = r.GetString(&k) && r.GetString(&v);
     if (ok) m.stats[k] = v;
   }
+  for (int i = 0; ok && i < 3; ++i) ok = r.Get(&m.grid_origin[i]);
+  ok = ok && r.Get(&m.grid_step);
   if (!ok) {
     return absl::DataLossError(
         absl::StrFormat("%s: meta record body is truncated or malformed", where));
@@ -182,12 +193,18 @@ absl::StatusOr<DecodedMeta> DecodeMeta(absl::string_view bytes, absl::string_vie
       }
     }
   }
+  if (!std::isfinite(m.grid_origin.x) || !std::isfinite(m.grid_origin.y) ||
+      !std::isfinite(m.grid_origin.z) || !std::isfinite(m.grid_step) || !(m.grid_step >= 0)) {
+    return absl::DataLossError(absl::StrFormat(
+        "%s: meta record has position grid origin (%g, %g, %g) step %g: not finite or negative",
+        where, m.grid_origin.x, m.grid_origin.y, m.grid_origin.z, m.grid_step));
+  }
   if (m.max_depth >= kMaxStoredDepth) {
     return absl::DataLossError(absl::StrFormat(
         "%s: meta record says the tree is %d levels deep (at most %d)", where, m.max_depth,
         kMaxStoredDepth - 1));
   }
-  // Bytes after the known fields are ignored: a later minor revision of version 1 may append.
+  // Bytes after the known fields are ignored: a later minor revision of version 3 may append.
   return d;
 }
 

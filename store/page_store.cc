@@ -25,6 +25,7 @@
 #include "store/meta_codec.h"
 #include "store/store_internal.h"
 #include "store/write_lock.h"
+#include "zstd.h"
 
 namespace pbgi {
 
@@ -50,17 +51,21 @@ absl::Status CheckPage(const std::string& path, Section section, uint64_t page_n
     return absl::DataLossError(absl::StrFormat("store %s: %s page %d is corrupt: %s", path,
                                                SectionName(section), page_no, what));
   };
-  if (size != page_size) {
-    return loss(
-        absl::StrFormat("stored size %d bytes, the store's page size is %d", size, page_size));
+  if (size < sizeof(PageHeader)) {
+    return loss(absl::StrFormat("stored size %d bytes, shorter than a page header", size));
+  }
+  PageHeader h;
+  std::memcpy(&h, data, sizeof(h));
+  const bool compressed = h.codec == kPageCodecZstd;
+  if (compressed ? (size < kMinCompressedPage || size > page_size) : size != page_size) {
+    return loss(absl::StrFormat("stored size %d bytes, the store's page size is %d%s", size,
+                                page_size, compressed ? " (a compressed page)" : ""));
   }
   if (reinterpret_cast<uintptr_t>(data) % alignof(PageHeader) != 0) {
     return loss("stored at a misaligned address (page size not a multiple of 8?)");
   }
-  PageHeader h;
-  std::memcpy(&h, data, sizeof(h));
   if (verify_checksum) {
-    const uint32_t actual = PageChecksum(data, page_size);
+    const uint32_t actual = PageChecksum(data, static_cast<uint32_t>(size));
     if (actual != h.checksum) {
       return loss(absl::StrFormat("checksum mismatch (stored 0x%08x, computed 0x%08x)", h.checksum,
                                   actual));
@@ -76,8 +81,40 @@ absl::Status CheckPage(const std::string& path, Section section, uint64_t page_n
     return loss(absl::StrFormat("payload of %d bytes does not fit a page of %d bytes",
                                 h.payload_bytes, page_size));
   }
+  if (h.codec != kPageCodecNone && h.codec != kPageCodecZstd) {
+    return loss(absl::StrFormat("unknown codec %d", h.codec));
+  }
+  if (compressed && h.stored_payload_bytes > size - sizeof(PageHeader)) {
+    return loss(absl::StrFormat("compressed payload of %d bytes in a stored page of %d bytes",
+                                h.stored_payload_bytes, size));
+  }
   return absl::OkStatus();
 }
+
+absl::Status DecompressPage(const std::string& path, Section section, uint64_t page_no,
+                            const uint8_t* stored, uint8_t* out, void** dctx) {
+  PageHeader h;
+  std::memcpy(&h, stored, sizeof(h));
+  if (*dctx == nullptr) *dctx = ZSTD_createDCtx();
+  if (*dctx == nullptr) return absl::ResourceExhaustedError("zstd: no memory for a context");
+  const size_t n =
+      ZSTD_decompressDCtx(static_cast<ZSTD_DCtx*>(*dctx), out + sizeof(PageHeader),
+                          h.payload_bytes, stored + sizeof(PageHeader), h.stored_payload_bytes);
+  if (ZSTD_isError(n) || n != h.payload_bytes) {
+    return absl::DataLossError(absl::StrFormat(
+        "store %s: %s page %d is corrupt: its compressed payload (%d bytes) %s", path,
+        SectionName(section), page_no, h.stored_payload_bytes,
+        ZSTD_isError(n) ? absl::StrCat("does not decompress: ", ZSTD_getErrorName(n))
+                        : absl::StrFormat("decompresses to %d bytes, not %d", n,
+                                          h.payload_bytes)));
+  }
+  h.codec = kPageCodecNone;
+  h.stored_payload_bytes = 0;
+  std::memcpy(out, &h, sizeof(h));
+  return absl::OkStatus();
+}
+
+void FreeDecompressContext(void* dctx) { ZSTD_freeDCtx(static_cast<ZSTD_DCtx*>(dctx)); }
 
 absl::Status ReadFully(int fd, void* out, size_t size, uint64_t offset, const std::string& file) {
   auto* p = static_cast<uint8_t*>(out);
@@ -104,8 +141,11 @@ struct ReadTxn::Impl {
   MDB_txn* txn = nullptr;
   bool active = false;
   std::unique_ptr<uint64_t[]> buffer;  // copy_pages: one page, 8-byte aligned
+  std::unique_ptr<uint64_t[]> whole;   // a compressed page, decompressed
+  void* dctx = nullptr;                // zstd's decompression context
   ~Impl() {
     if (txn != nullptr) mdb_txn_abort(txn);
+    internal::FreeDecompressContext(dctx);
   }
 };
 
@@ -145,11 +185,12 @@ absl::StatusOr<PageView> ReadTxn::Get(Section section, uint64_t page_no) {
                           s.path, SectionName(section), page_no, internal::kDataFile, val.mv_size,
                           at - s.map_addr, s.file_bytes));
     }
-    if (val.mv_size != s.meta.page_size) {
-      return internal::CheckPage(s.path, section, page_no, val.mv_data, val.mv_size,
-                                 s.meta.page_size, false);  // names the size mismatch
+    if (val.mv_size > s.meta.page_size || val.mv_size < sizeof(PageHeader)) {
+      return absl::DataLossError(absl::StrFormat(
+          "store %s: %s page %d is corrupt: stored size %d bytes, the store's page size is %d",
+          s.path, SectionName(section), page_no, val.mv_size, s.meta.page_size));
     }
-    if (impl_->buffer == nullptr) impl_->buffer.reset(new uint64_t[(val.mv_size + 7) / 8]);
+    if (impl_->buffer == nullptr) impl_->buffer.reset(new uint64_t[(s.meta.page_size + 7) / 8]);
     PBGI_RETURN_IF_ERROR(internal::ReadFully(s.fd, impl_->buffer.get(), val.mv_size,
                                              static_cast<uint64_t>(at - s.map_addr), s.data_path));
     data = impl_->buffer.get();
@@ -162,6 +203,13 @@ absl::StatusOr<PageView> ReadTxn::Get(Section section, uint64_t page_no) {
   }
   PBGI_RETURN_IF_ERROR(internal::CheckPage(s.path, section, page_no, data, val.mv_size,
                                            s.meta.page_size, s.options.verify_checksums));
+  if (static_cast<const PageHeader*>(data)->codec == kPageCodecZstd) {
+    if (impl_->whole == nullptr) impl_->whole.reset(new uint64_t[(s.meta.page_size + 7) / 8]);
+    uint8_t* out = reinterpret_cast<uint8_t*>(impl_->whole.get());
+    PBGI_RETURN_IF_ERROR(internal::DecompressPage(
+        s.path, section, page_no, static_cast<const uint8_t*>(data), out, &impl_->dctx));
+    data = out;
+  }
   PageView v;
   v.header = static_cast<const PageHeader*>(data);
   v.payload = absl::Span<const uint8_t>(static_cast<const uint8_t*>(data) + sizeof(PageHeader),

@@ -1,5 +1,6 @@
-// PageWriter: appends fixed-size pages to a new store with MDB_APPEND | MDB_RESERVE, in batches,
-// growing the map on MDB_MAP_FULL, and commits the meta record last (docs/design.md, "Store").
+// PageWriter: appends fixed-size pages to a new store with MDB_APPEND | MDB_RESERVE (whole, or
+// with compress_pages zstd-compressed and shorter where that pays), in batches, growing the map
+// on MDB_MAP_FULL, and commits the meta record last (docs/design.md, "Store").
 #include <fcntl.h>
 #include <lmdb.h>
 #include <sys/mman.h>
@@ -25,6 +26,7 @@
 #include "store/page_io.h"
 #include "store/store_internal.h"
 #include "store/write_lock.h"
+#include "zstd.h"
 
 namespace pbgi {
 namespace {
@@ -36,6 +38,9 @@ using internal::LmdbStatus;
 // pages = 512 MiB. The map-growth retry relies on those addresses, so batches stay well below.
 constexpr uint64_t kMaxBatchBytes = uint64_t{256} << 20;
 constexpr uint32_t kMaxPageSize = 64u << 20;
+// zstd's fastest regular level: measured on the city (docs/format.md, "Format version 3"),
+// higher levels gain under 1% on these pages.
+constexpr int kZstdLevel = 1;
 
 void RemoveFile(const std::string& p) { unlink(p.c_str()); }
 
@@ -60,6 +65,7 @@ struct PageWriter::Impl {
     Section section;
     uint64_t page_no;
     uint8_t* page;
+    uint32_t size;  // stored bytes
   };
   std::vector<Pending> pending;
   uint64_t batch_bytes = 0;
@@ -74,12 +80,16 @@ struct PageWriter::Impl {
   // Directories that Create made (deepest first): a writer that does not finish removes them
   // again when they are empty, so a failed build leaves nothing behind.
   std::vector<std::string> created_dirs;
+  // compress_pages: zstd's context and the compressed payload of the page being appended.
+  ZSTD_CCtx* zstd = nullptr;
+  std::vector<uint8_t> compressed;
 
   static int Index(Section s) { return s == Section::kNodes ? 0 : 1; }
   MDB_dbi Dbi(Section s) const { return s == Section::kNodes ? nodes : points; }
   std::string Where() const { return absl::StrCat("store ", path, " (writing ", tmp_path, ")"); }
 
   ~Impl() {
+    ZSTD_freeCCtx(zstd);
     if (txn != nullptr) mdb_txn_abort(txn);
     if (env != nullptr) mdb_env_close(env);
     // Only the lock's holder may touch the files: without it they belong to another writer.
@@ -108,11 +118,11 @@ struct PageWriter::Impl {
 
   int Begin() { return mdb_txn_begin(env, nullptr, 0, &txn); }
 
-  int Reserve(Section section, uint64_t page_no, uint8_t** out) {
+  int Reserve(Section section, uint64_t page_no, uint32_t size, uint8_t** out) {
     uint8_t key_bytes[8];
     internal::EncodeKey(page_no, key_bytes);
     MDB_val key{sizeof(key_bytes), key_bytes};
-    MDB_val val{options.page_size, nullptr};
+    MDB_val val{size, nullptr};
     const int rc = mdb_put(txn, Dbi(section), &key, &val, MDB_APPEND | MDB_RESERVE);
     *out = static_cast<uint8_t*>(val.mv_data);
     return rc;
@@ -123,7 +133,7 @@ struct PageWriter::Impl {
   absl::Status GrowAndReplay() {
     std::vector<uint8_t> saved(pending.size() * size_t{options.page_size});
     for (size_t i = 0; i < pending.size(); ++i) {
-      std::memcpy(saved.data() + i * options.page_size, pending[i].page, options.page_size);
+      std::memcpy(saved.data() + i * options.page_size, pending[i].page, pending[i].size);
     }
     for (;;) {
       if (txn != nullptr) {
@@ -144,9 +154,9 @@ struct PageWriter::Impl {
       PBGI_RETURN_IF_ERROR(LmdbStatus(Begin(), Where()));
       int rc = MDB_SUCCESS;
       for (size_t i = 0; i < pending.size() && rc == MDB_SUCCESS; ++i) {
-        rc = Reserve(pending[i].section, pending[i].page_no, &pending[i].page);
+        rc = Reserve(pending[i].section, pending[i].page_no, pending[i].size, &pending[i].page);
         if (rc == MDB_SUCCESS) {
-          std::memcpy(pending[i].page, saved.data() + i * options.page_size, options.page_size);
+          std::memcpy(pending[i].page, saved.data() + i * options.page_size, pending[i].size);
         }
       }
       if (rc == MDB_MAP_FULL) continue;
@@ -361,12 +371,33 @@ absl::Status PageWriter::Append(Section section, uint64_t page_no, PageKind kind
     const int rc = w.Begin();
     if (rc != MDB_SUCCESS) return w.Fail(LmdbStatus(rc, w.Where()));
   }
+  // Compressed where that saves at least an eighth of the page. A compressed value is at least
+  // one LMDB overflow page long (kMinCompressedPage), so LMDB never stores it inside a leaf
+  // page, where it would be only 2-byte aligned.
+  uint32_t size = w.options.page_size;
+  uint32_t compressed = 0;
+  if (w.options.compress_pages && !payload.empty()) {
+    if (w.zstd == nullptr) {
+      w.zstd = ZSTD_createCCtx();
+      w.compressed.resize(ZSTD_compressBound(payload_capacity()));
+    }
+    const size_t n = w.zstd == nullptr ? 0
+                                       : ZSTD_compressCCtx(w.zstd, w.compressed.data(),
+                                                           w.compressed.size(), payload.data(),
+                                                           payload.size(), kZstdLevel);
+    const uint64_t stored = std::max<uint64_t>(
+        internal::kMinCompressedPage, (sizeof(PageHeader) + uint64_t{n} + 7) / 8 * 8);
+    if (!ZSTD_isError(n) && n > 0 && stored <= w.options.page_size - w.options.page_size / 8) {
+      size = static_cast<uint32_t>(stored);
+      compressed = static_cast<uint32_t>(n);
+    }
+  }
   uint8_t* page = nullptr;
-  int rc = w.Reserve(section, page_no, &page);
+  int rc = w.Reserve(section, page_no, size, &page);
   while (rc == MDB_MAP_FULL) {
     absl::Status grown = w.GrowAndReplay();
     if (!grown.ok()) return w.Fail(grown);
-    rc = w.Reserve(section, page_no, &page);
+    rc = w.Reserve(section, page_no, size, &page);
   }
   if (rc != MDB_SUCCESS) {
     return w.Fail(LmdbStatus(
@@ -374,12 +405,22 @@ absl::Status PageWriter::Append(Section section, uint64_t page_no, PageKind kind
   }
   // Header, payload and zero padding go straight into the map's reserved space; the checksum
   // covers all of it after the checksum field.
-  const uint32_t size = w.options.page_size;
-  internal::FormatPage(page, size, kind, record_count, page_no, payload);
+  if (compressed == 0) {
+    internal::FormatPage(page, size, kind, record_count, page_no, payload);
+  } else {
+    internal::FormatPage(page, size, kind, record_count, page_no,
+                         absl::MakeConstSpan(w.compressed.data(), compressed));
+    PageHeader h;
+    std::memcpy(&h, page, sizeof(h));
+    h.payload_bytes = static_cast<uint32_t>(payload.size());
+    h.stored_payload_bytes = compressed;
+    h.codec = kPageCodecZstd;
+    std::memcpy(page, &h, sizeof(h));
+  }
   const uint32_t crc = internal::PageChecksum(page, size);
   std::memcpy(page, &crc, sizeof(crc));
 
-  w.pending.push_back({section, page_no, page});
+  w.pending.push_back({section, page_no, page, size});
   w.has_last[si] = true;
   w.last[si] = page_no;
   ++w.pages[si];

@@ -48,15 +48,29 @@ inline PageKind KindOf(Section s) {
   return s == Section::kNodes ? PageKind::kNode : PageKind::kPoint;
 }
 
-// Checks one stored page. The structural checks (size, kind, number, payload size) always run;
-// the checksum only when `verify_checksum`. DataLoss names the store, the section and the page.
+// A compressed page (PageHeader::codec kPageCodecZstd) is stored in at least this many bytes,
+// one LMDB overflow page, so that LMDB never keeps it inside a leaf page (2-byte aligned).
+inline constexpr uint32_t kMinCompressedPage = 4096 - 16;
+
+// Checks one stored page. The structural checks (size, kind, number, payload size, codec)
+// always run; the checksum only when `verify_checksum`. DataLoss names the store, the section
+// and the page. A stored page is page_size bytes, or (compressed) from kMinCompressedPage to
+// page_size bytes holding the header and stored_payload_bytes of zstd frame.
 absl::Status CheckPage(const std::string& path, Section section, uint64_t page_no, const void* data,
                        size_t size, uint32_t page_size, bool verify_checksum);
+
+// Decompresses the payload of a checked, compressed page `stored` into `out` (capacity
+// page_size bytes, 8-byte aligned): the header (codec cleared) and payload_bytes of payload.
+// `dctx` is the caller's zstd context (created when null). DataLoss naming the page when the
+// payload does not decompress to exactly payload_bytes.
+absl::Status DecompressPage(const std::string& path, Section section, uint64_t page_no,
+                            const uint8_t* stored, uint8_t* out, void** dctx);
+void FreeDecompressContext(void* dctx);
 
 // pread()s exactly `size` bytes at `offset` (retrying short reads); errors name `file`.
 absl::Status ReadFully(int fd, void* out, size_t size, uint64_t offset, const std::string& file);
 
-// CRC-32C of a page as stored in its header: bytes [4, page_size).
+// CRC-32C of a page as stored in its header: bytes [4, stored size).
 uint32_t PageChecksum(const void* page, uint32_t page_size);
 
 // What identifies the contents of a file cheaply: which file, its size and its last change.

@@ -317,7 +317,7 @@ CommandSetup Setup() {
         ->check(CLI::Range(1, 65535))
         ->capture_default_str();
     app->add_option("--page-size", a->page_size,
-                    "Bytes per page (k*4096-16 is efficient; default 65520)")
+                    "Bytes per page (k*4096-16 is efficient; default 32752)")
         ->check(BytesValidator());
     app->add_option("--channels", a->channels, "occlusion or radiance")
         ->check(CLI::IsMember({"occlusion", "radiance"}))

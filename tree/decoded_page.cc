@@ -57,6 +57,7 @@ absl::Status DecodePage(const PageView& view, Section section, uint64_t page_no,
   page->page_no = page_no;
   page->count = h.record_count;
   const uint8_t* data = view.payload.data();
+  const PositionGrid grid = PositionGrid::Of(meta);
 
   if (section == Section::kNodes) {
     const uint32_t rec = NodeRecordSize(meta.channels);
@@ -68,8 +69,8 @@ absl::Status DecodePage(const PageView& view, Section section, uint64_t page_no,
     page->areas.reset(new float[h.record_count]);
     if (HasRadiance(meta.channels)) page->power.reset(new std::array<Sh9, 3>[h.record_count]);
     for (uint32_t i = 0; i < h.record_count; ++i) {
-      NodeRecordCommon r;
-      std::memcpy(&r, data + size_t{i} * rec, sizeof(r));
+      const NodeRecordRadiance full = DecodeNodeRecord(data + size_t{i} * rec, meta.channels, grid);
+      const NodeRecordCommon& r = full.common;
       if (!Finite3(r.lo) || !Finite3(r.hi) || r.lo[0] > r.hi[0] || r.lo[1] > r.hi[1] ||
           r.lo[2] > r.hi[2] || !std::isfinite(r.area) || r.area < 0) {
         return Corrupt(store, section, page_no, "node %d has bad bounds or area", i);
@@ -108,10 +109,8 @@ absl::Status DecodePage(const PageView& view, Section section, uint64_t page_no,
       n.first_point = r.first_point;
       n.point_count = r.point_count;
       if (page->power) {
-        NodeRecordRadiance rr;
-        std::memcpy(&rr, data + size_t{i} * rec, sizeof(rr));
         for (int c = 0; c < 3; ++c) {
-          std::memcpy(page->power[i][c].data(), rr.sh_power[c], sizeof(rr.sh_power[c]));
+          std::memcpy(page->power[i][c].data(), full.sh_power[c], sizeof(full.sh_power[c]));
         }
       }
     }
@@ -127,7 +126,7 @@ absl::Status DecodePage(const PageView& view, Section section, uint64_t page_no,
     }
     page->points.reset(new Surfel[h.record_count]);
     for (uint32_t i = 0; i < h.record_count; ++i) {
-      page->points[i] = DecodePoint(data, i, meta.channels);
+      page->points[i] = DecodePoint(data, i, meta.channels, grid);
     }
   }
   return absl::OkStatus();

@@ -13,6 +13,7 @@
 #ifndef PBGI_TREE_FORMAT_H_
 #define PBGI_TREE_FORMAT_H_
 
+#include <algorithm>
 #include <cmath>
 #include <cstdint>
 #include <cstring>
@@ -33,7 +34,9 @@ inline constexpr NodeRef kNoNodeRef = ~uint64_t{0};
 
 inline constexpr uint32_t kNodeFlagLeaf = 1u;
 
-// A node record, as stored. The radiance part is present only in radiance databases.
+// A node record as the builder makes it and the query layer decodes it (plain floats). Stored
+// compactly since format version 3 (EncodeNodeRecord below); the radiance part only in radiance
+// databases.
 struct NodeRecordCommon {
   float lo[3];
   float hi[3];
@@ -56,35 +59,331 @@ struct NodeRecordRadiance {
 };
 static_assert(sizeof(NodeRecordRadiance) == 216);
 
-inline uint32_t NodeRecordSize(Channels c) {
-  return HasRadiance(c) ? sizeof(NodeRecordRadiance) : sizeof(NodeRecordCommon);
-}
-
-// Point records. The radius's sign bit says the surfel is two-sided (Surfel::two_sided): a
-// stored radius is always > 0 otherwise (the builder refuses the rest), so the flag costs no
-// byte, and stores of format version 1, which predate it, read as all one-sided.
+// The builder's two-sided flag travels in the radius's sign bit of its sort records
+// (build/sort_record.h): a radius is always > 0 otherwise (the builder refuses the rest).
 inline float EncodeRadius(float radius, bool two_sided) {
   return two_sided ? -std::fabs(radius) : std::fabs(radius);
 }
 inline bool RadiusTwoSided(float stored) { return std::signbit(stored); }
 
-struct PointRecordOcclusion {
-  float position[3];
-  float normal[3];
-  float radius;
-};
-static_assert(sizeof(PointRecordOcclusion) == 28);
+// ---- Format version 3: compact records (docs/format.md, "Format version 3") ----
+//
+// The builder and the query layer call the same decoders, and the builder aggregates what
+// DecodePoint returns, so a node's area and SH are sums over exactly the surfels that a gather
+// emits, and node bounds hold exactly the decoded positions (the grid is shared).
 
-struct PointRecordRadiance {
-  float position[3];
-  float normal[3];
-  float radius;
-  float radiance[3];
+// The position grid of a store: 2^21 cells per axis.
+inline constexpr int kGridBits = 21;
+inline constexpr uint32_t kGridMax = (1u << kGridBits) - 1;
+
+struct PositionGrid {
+  float origin[3] = {0.0f, 0.0f, 0.0f};
+  float step = 0.0f;
+
+  static PositionGrid Of(const StoreMeta& m) {
+    PositionGrid g;
+    for (int a = 0; a < 3; ++a) g.origin[a] = m.grid_origin[a];
+    g.step = m.grid_step;
+    return g;
+  }
+  // The centre of cell q. Monotone in q (float addition and multiplication round monotonically),
+  // which is what makes a node's grid bounds contain its points' decoded positions.
+  float Coord(int axis, uint32_t q) const {
+    return origin[axis] + (static_cast<float>(q) + 0.5f) * step;
+  }
+  // The cell whose centre is nearest to v (clamped to the grid).
+  uint32_t Nearest(int axis, float v) const {
+    if (!(step > 0.0f)) return 0;
+    const double t = (double{v} - double{origin[axis]}) / double{step} - 0.5;
+    if (!(t > 0.0)) return 0;
+    if (t >= double{kGridMax}) return kGridMax;
+    return static_cast<uint32_t>(std::llround(t));
+  }
+  // The largest q with Coord(q) <= v (0 when none is): a lower bound rounded down.
+  uint32_t Floor(int axis, float v) const {
+    uint32_t q = Nearest(axis, v);
+    while (q > 0 && Coord(axis, q) > v) --q;
+    while (q < kGridMax && Coord(axis, q + 1) <= v) ++q;
+    return q;
+  }
+  // The smallest q with Coord(q) >= v (kGridMax when none is): an upper bound rounded up.
+  uint32_t Ceil(int axis, float v) const {
+    uint32_t q = Nearest(axis, v);
+    while (q < kGridMax && Coord(axis, q) < v) ++q;
+    while (q > 0 && Coord(axis, q - 1) >= v) --q;
+    return q;
+  }
 };
-static_assert(sizeof(PointRecordRadiance) == 40);
+
+inline uint64_t PackCell(uint32_t x, uint32_t y, uint32_t z) {
+  return uint64_t{x} | (uint64_t{y} << kGridBits) | (uint64_t{z} << (2 * kGridBits));
+}
+inline uint32_t CellAxis(uint64_t packed, int axis) {
+  return static_cast<uint32_t>(packed >> (axis * kGridBits)) & kGridMax;
+}
+
+// Unsigned small floats: `e` exponent bits (bias 2^(e-1)), `m` mantissa bits, no denormals;
+// rounded to nearest. Encoding 0 is zero; what is too small for the smallest normal becomes
+// zero (flush_to_min: the smallest normal instead); what is too large, the largest.
+template <int E, int M>
+inline uint32_t EncodeSmallFloat(float v, bool flush_to_min) {
+  constexpr int kBias = 1 << (E - 1);
+  constexpr uint32_t kMaxE = (1u << E) - 1;
+  if (!(v > 0.0f)) return flush_to_min ? (1u << M) : 0u;
+  uint32_t bits;
+  std::memcpy(&bits, &v, 4);
+  int exp = static_cast<int>((bits >> 23) & 0xff) - 127;
+  uint32_t mant = bits & 0x7fffff;
+  if (exp == -127) return flush_to_min ? (1u << M) : 0u;  // a float denormal
+  mant += 1u << (23 - M - 1);
+  if (mant >= (1u << 23)) {
+    mant = 0;
+    ++exp;
+  }
+  const int e = exp + kBias;
+  if (e < 1) return flush_to_min ? (1u << M) : 0u;
+  if (e > static_cast<int>(kMaxE) || exp > 127) return (kMaxE << M) | ((1u << M) - 1);
+  return (static_cast<uint32_t>(e) << M) | (mant >> (23 - M));
+}
+template <int E, int M>
+inline float DecodeSmallFloat(uint32_t code) {
+  constexpr int kBias = 1 << (E - 1);
+  const uint32_t e = (code >> M) & ((1u << E) - 1);
+  if (e == 0) return 0.0f;
+  const uint32_t bits = (static_cast<uint32_t>(static_cast<int>(e) - kBias + 127) << 23) |
+                        ((code & ((1u << M) - 1)) << (23 - M));
+  float v;
+  std::memcpy(&v, &bits, 4);
+  return v;
+}
+// Radius: 6 exponent bits, 10 mantissa bits: 2^-31 .. 2^32, relative error <= 2^-11.
+inline uint16_t EncodeRadius16(float r) {
+  return static_cast<uint16_t>(EncodeSmallFloat<6, 10>(std::fabs(r), /*flush_to_min=*/true));
+}
+inline float DecodeRadius16(uint16_t c) { return DecodeSmallFloat<6, 10>(c); }
+// Radiance: a sign bit, 6 exponent bits, 9 mantissa bits: |v| in 2^-31 .. 2^32 (smaller is 0),
+// relative error <= 2^-10.
+inline uint16_t EncodeRadiance16(float v) {
+  const uint32_t mag = EncodeSmallFloat<6, 9>(std::fabs(v), /*flush_to_min=*/false);
+  return static_cast<uint16_t>(mag | (std::signbit(v) && mag != 0 ? 0x8000u : 0u));
+}
+inline float DecodeRadiance16(uint16_t c) {
+  const float mag = DecodeSmallFloat<6, 9>(c & 0x7fffu);
+  return (c & 0x8000u) ? -mag : mag;
+}
+
+// Octahedral unit vectors (Meyer et al. 2010, "On Floating-Point Normal Vectors"), two signed
+// 16-bit coordinates: angular error below 1e-4 rad.
+inline void EncodeOctahedral(const float n[3], int16_t out[2]) {
+  const float l1 = std::fabs(n[0]) + std::fabs(n[1]) + std::fabs(n[2]);
+  float x = l1 > 0.0f ? n[0] / l1 : 0.0f;
+  float y = l1 > 0.0f ? n[1] / l1 : 0.0f;
+  if (n[2] < 0.0f) {
+    const float ox = (1.0f - std::fabs(y)) * (x >= 0.0f ? 1.0f : -1.0f);
+    const float oy = (1.0f - std::fabs(x)) * (y >= 0.0f ? 1.0f : -1.0f);
+    x = ox;
+    y = oy;
+  }
+  out[0] = static_cast<int16_t>(std::lround(std::clamp(x, -1.0f, 1.0f) * 32767.0f));
+  out[1] = static_cast<int16_t>(std::lround(std::clamp(y, -1.0f, 1.0f) * 32767.0f));
+}
+inline glm::vec3 DecodeOctahedral(const int16_t in[2]) {
+  float x = static_cast<float>(in[0]) * (1.0f / 32767.0f);
+  float y = static_cast<float>(in[1]) * (1.0f / 32767.0f);
+  const float z = 1.0f - std::fabs(x) - std::fabs(y);
+  if (z < 0.0f) {
+    const float ox = (1.0f - std::fabs(y)) * (x >= 0.0f ? 1.0f : -1.0f);
+    const float oy = (1.0f - std::fabs(x)) * (y >= 0.0f ? 1.0f : -1.0f);
+    x = ox;
+    y = oy;
+  }
+  const float inv = 1.0f / std::sqrt(x * x + y * y + z * z);
+  return {x * inv, y * inv, z * inv};
+}
+
+// Point records, version 3. Little-endian, packed, no alignment:
+//   0  u64    cell (x | y << 21 | z << 42) of the position; bit 63: two-sided
+//   8  i16[2] octahedral normal
+//   12 u16    radius (EncodeRadius16)
+//   14 u16[3] radiance (EncodeRadiance16), radiance databases only
+inline constexpr uint32_t kPointRecordOcclusionBytes = 14;
+inline constexpr uint32_t kPointRecordRadianceBytes = 20;
 
 inline uint32_t PointRecordSize(Channels c) {
-  return HasRadiance(c) ? sizeof(PointRecordRadiance) : sizeof(PointRecordOcclusion);
+  return HasRadiance(c) ? kPointRecordRadianceBytes : kPointRecordOcclusionBytes;
+}
+
+// Encodes one surfel (radius sign = two-sided, as in the builder's sort records) at `dst`.
+inline void EncodePointRecord(const float position[3], const float normal[3], float radius,
+                              const float radiance[3], Channels c, const PositionGrid& grid,
+                              uint8_t* dst) {
+  uint64_t cell = PackCell(grid.Nearest(0, position[0]), grid.Nearest(1, position[1]),
+                           grid.Nearest(2, position[2]));
+  if (RadiusTwoSided(radius)) cell |= uint64_t{1} << 63;
+  std::memcpy(dst, &cell, 8);
+  int16_t oct[2];
+  EncodeOctahedral(normal, oct);
+  std::memcpy(dst + 8, oct, 4);
+  const uint16_t r = EncodeRadius16(radius);
+  std::memcpy(dst + 12, &r, 2);
+  if (HasRadiance(c)) {
+    const uint16_t l[3] = {EncodeRadiance16(radiance[0]), EncodeRadiance16(radiance[1]),
+                           EncodeRadiance16(radiance[2])};
+    std::memcpy(dst + 14, l, 6);
+  }
+}
+
+inline Surfel DecodePointRecord(const uint8_t* src, Channels c, const PositionGrid& grid) {
+  Surfel s;
+  uint64_t cell;
+  std::memcpy(&cell, src, 8);
+  s.position = {grid.Coord(0, CellAxis(cell, 0)), grid.Coord(1, CellAxis(cell, 1)),
+                grid.Coord(2, CellAxis(cell, 2))};
+  s.two_sided = (cell >> 63) != 0;
+  int16_t oct[2];
+  std::memcpy(oct, src + 8, 4);
+  s.normal = DecodeOctahedral(oct);
+  uint16_t r;
+  std::memcpy(&r, src + 12, 2);
+  s.radius = DecodeRadius16(r);
+  if (HasRadiance(c)) {
+    uint16_t l[3];
+    std::memcpy(l, src + 14, 6);
+    s.radiance = {DecodeRadiance16(l[0]), DecodeRadiance16(l[1]), DecodeRadiance16(l[2])};
+  } else {
+    s.radiance = glm::vec3(0.0f);
+  }
+  return s;
+}
+
+// Decodes point record `slot` of a point page payload.
+inline Surfel DecodePoint(const uint8_t* payload, uint32_t slot, Channels c,
+                          const PositionGrid& grid) {
+  return DecodePointRecord(payload + size_t{slot} * PointRecordSize(c), c, grid);
+}
+
+// Node records, version 3. Little-endian, packed, no alignment:
+//   0  u64    lo: cell of each axis rounded down (PositionGrid::Floor), packed as a point's
+//   8  u64    hi: rounded up (PositionGrid::Ceil); so the decoded box holds every point below
+//   16 u40    first_point
+//   21 u40    point_count
+//   26 u32    children: page (leaf: ~0)
+//   30 u16    children: slot (leaf: ~0)
+//   32 u8     depth
+//   33 u8     bit 0: leaf; bits 4-7: child_count
+//   34 f32    area
+//   38 f32    s: the largest |sh_area[k]|
+//   42 i16[9] sh_area[k] = s * q / 32767
+//   radiance databases, per colour (3x):
+//   60 f32    s_c: the largest |sh_power[c][k]|
+//   64 i8[9]  sh_power[c][k] = s_c * q / 127
+inline constexpr uint32_t kNodeRecordOcclusionBytes = 60;
+inline constexpr uint32_t kNodeRecordRadianceBytes = 60 + 3 * 13;
+inline constexpr uint64_t kMaxStoredPointIndex = (uint64_t{1} << 40) - 1;
+
+inline uint32_t NodeRecordSize(Channels c) {
+  return HasRadiance(c) ? kNodeRecordRadianceBytes : kNodeRecordOcclusionBytes;
+}
+
+// Fixed point, scaled by the largest magnitude: |error| <= scale / (2 * kMax) per coefficient.
+template <typename Int, int kMax>
+inline float EncodeScaled(const float* c, int n, Int* q) {
+  float s = 0.0f;
+  for (int k = 0; k < n; ++k) s = std::max(s, std::fabs(c[k]));
+  if (!(s > 0.0f) || !std::isfinite(s)) {
+    for (int k = 0; k < n; ++k) q[k] = 0;
+    return std::isfinite(s) ? 0.0f : s;
+  }
+  for (int k = 0; k < n; ++k) {
+    // In double: near kMax a float has too few fraction bits to round to the nearest step.
+    q[k] = static_cast<Int>(
+        std::clamp<long>(std::lround(double{c[k]} / double{s} * kMax), -kMax, kMax));
+  }
+  return s;
+}
+template <typename Int, int kMax>
+inline void DecodeScaled(float s, const Int* q, int n, float* c) {
+  const float unit = s * (1.0f / kMax);
+  for (int k = 0; k < n; ++k) c[k] = static_cast<float>(q[k]) * unit;
+}
+
+inline void EncodeNodeRecord(const NodeRecordRadiance& r, Channels ch, const PositionGrid& grid,
+                             uint8_t* dst) {
+  const NodeRecordCommon& c = r.common;
+  const uint64_t lo = PackCell(grid.Floor(0, c.lo[0]), grid.Floor(1, c.lo[1]),
+                               grid.Floor(2, c.lo[2]));
+  const uint64_t hi =
+      PackCell(grid.Ceil(0, c.hi[0]), grid.Ceil(1, c.hi[1]), grid.Ceil(2, c.hi[2]));
+  std::memcpy(dst, &lo, 8);
+  std::memcpy(dst + 8, &hi, 8);
+  const uint64_t first = std::min(c.first_point, kMaxStoredPointIndex);
+  const uint64_t count = std::min(c.point_count, kMaxStoredPointIndex);
+  std::memcpy(dst + 16, &first, 5);
+  std::memcpy(dst + 21, &count, 5);
+  const uint32_t page = c.children == kNoNodeRef ? ~0u : static_cast<uint32_t>(RefPage(c.children));
+  const uint16_t slot =
+      c.children == kNoNodeRef ? uint16_t{0xffff} : static_cast<uint16_t>(RefSlot(c.children));
+  std::memcpy(dst + 26, &page, 4);
+  std::memcpy(dst + 30, &slot, 2);
+  dst[32] = static_cast<uint8_t>(std::min<uint32_t>(c.depth, 255));
+  dst[33] = static_cast<uint8_t>(((c.flags & kNodeFlagLeaf) ? 1u : 0u) |
+                                 (std::min<uint32_t>(c.child_count, 15) << 4));
+  std::memcpy(dst + 34, &c.area, 4);
+  int16_t qa[9];
+  const float sa = EncodeScaled<int16_t, 32767>(c.sh_area, 9, qa);
+  std::memcpy(dst + 38, &sa, 4);
+  std::memcpy(dst + 42, qa, 18);
+  if (HasRadiance(ch)) {
+    for (int k = 0; k < 3; ++k) {
+      int8_t qp[9];
+      const float sp = EncodeScaled<int8_t, 127>(r.sh_power[k], 9, qp);
+      std::memcpy(dst + 60 + 13 * k, &sp, 4);
+      std::memcpy(dst + 64 + 13 * k, qp, 9);
+    }
+  }
+}
+
+// The node as the query layer sees it (sh_power zero in occlusion databases).
+inline NodeRecordRadiance DecodeNodeRecord(const uint8_t* src, Channels ch,
+                                           const PositionGrid& grid) {
+  NodeRecordRadiance r{};
+  NodeRecordCommon& c = r.common;
+  uint64_t lo, hi;
+  std::memcpy(&lo, src, 8);
+  std::memcpy(&hi, src + 8, 8);
+  for (int a = 0; a < 3; ++a) {
+    c.lo[a] = grid.Coord(a, CellAxis(lo, a));
+    c.hi[a] = grid.Coord(a, CellAxis(hi, a));
+  }
+  uint64_t first = 0, count = 0;
+  std::memcpy(&first, src + 16, 5);
+  std::memcpy(&count, src + 21, 5);
+  c.first_point = first;
+  c.point_count = count;
+  uint32_t page;
+  uint16_t slot;
+  std::memcpy(&page, src + 26, 4);
+  std::memcpy(&slot, src + 30, 2);
+  c.children = page == ~0u && slot == 0xffff ? kNoNodeRef : MakeNodeRef(page, slot);
+  c.depth = src[32];
+  c.flags = (src[33] & 1u) ? kNodeFlagLeaf : 0u;
+  c.child_count = src[33] >> 4;
+  std::memcpy(&c.area, src + 34, 4);
+  float sa;
+  int16_t qa[9];
+  std::memcpy(&sa, src + 38, 4);
+  std::memcpy(qa, src + 42, 18);
+  DecodeScaled<int16_t, 32767>(sa, qa, 9, c.sh_area);
+  if (HasRadiance(ch)) {
+    for (int k = 0; k < 3; ++k) {
+      float sp;
+      int8_t qp[9];
+      std::memcpy(&sp, src + 60 + 13 * k, 4);
+      std::memcpy(qp, src + 64 + 13 * k, 9);
+      DecodeScaled<int8_t, 127>(sp, qp, 9, r.sh_power[k]);
+    }
+  }
+  return r;
 }
 
 inline uint32_t NodesPerPage(uint32_t page_size, Channels c) {
@@ -92,29 +391,6 @@ inline uint32_t NodesPerPage(uint32_t page_size, Channels c) {
 }
 inline uint32_t PointsPerPage(uint32_t page_size, Channels c) {
   return (page_size - sizeof(PageHeader)) / PointRecordSize(c);
-}
-
-// Decodes point record `slot` of a point page payload.
-inline Surfel DecodePoint(const uint8_t* payload, uint32_t slot, Channels c) {
-  Surfel s;
-  if (HasRadiance(c)) {
-    PointRecordRadiance r;
-    std::memcpy(&r, payload + size_t{slot} * sizeof(r), sizeof(r));
-    s.position = {r.position[0], r.position[1], r.position[2]};
-    s.normal = {r.normal[0], r.normal[1], r.normal[2]};
-    s.radius = std::fabs(r.radius);
-    s.two_sided = RadiusTwoSided(r.radius);
-    s.radiance = {r.radiance[0], r.radiance[1], r.radiance[2]};
-  } else {
-    PointRecordOcclusion r;
-    std::memcpy(&r, payload + size_t{slot} * sizeof(r), sizeof(r));
-    s.position = {r.position[0], r.position[1], r.position[2]};
-    s.normal = {r.normal[0], r.normal[1], r.normal[2]};
-    s.radius = std::fabs(r.radius);
-    s.two_sided = RadiusTwoSided(r.radius);
-    s.radiance = glm::vec3(0.0f);
-  }
-  return s;
 }
 
 }  // namespace pbgi::internal

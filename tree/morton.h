@@ -14,6 +14,7 @@
 #include "glm/common.hpp"
 #include "glm/vec3.hpp"
 #include "pbgi/surfel.h"
+#include "tree/format.h"
 
 namespace pbgi::internal {
 
@@ -108,6 +109,15 @@ struct MortonCube {
     return cell;
   }
 };
+
+// The position grid of a store (tree/format.h) over the cube: one cell per depth-21 Morton cell,
+// in float.
+inline PositionGrid GridOfCube(const MortonCube& cube) {
+  PositionGrid g;
+  for (int a = 0; a < 3; ++a) g.origin[a] = static_cast<float>(cube.origin[a]);
+  g.step = static_cast<float>(cube.size / double(1u << kMortonBitsPerAxis));
+  return g;
+}
 
 class MortonQuantizer {
  public:

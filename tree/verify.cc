@@ -21,11 +21,25 @@ namespace {
 // Float storage rounds each value once; sums of n floats differ from the float of the double
 // sum by a few ulps of the magnitudes involved.
 constexpr double kRelTol = 2e-5;
+// Format version 3 stores SH in fixed point scaled by the largest coefficient of the node
+// (tree/format.h): each stored coefficient is within scale / (2 * kMax) of its exact sum. The
+// check allows a whole step (scale / kMax) per record involved.
+constexpr double kAreaShStep = 1.0 / 32767;
+constexpr double kPowerShStep = 1.0 / 127;
+
+double MaxAbs(const float* c, int n) {
+  double m = 0;
+  for (int k = 0; k < n; ++k) m = std::max(m, std::abs(double{c[k]}));
+  return m;
+}
 
 struct Sums {
   double area = 0, area_abs = 0;
   std::array<double, 9> sh{}, sh_abs{};
   std::array<std::array<double, 9>, 3> pw{}, pw_abs{};
+  // Quantization allowance of the children's SH (their steps, summed).
+  double sh_q = 0;
+  std::array<double, 3> pw_q{};
 };
 
 class Verifier {
@@ -38,7 +52,8 @@ class Verifier {
         points_reader_(points),
         radiance_(HasRadiance(meta.channels)),
         record_size_(NodeRecordSize(meta.channels)),
-        per_point_page_(PointsPerPage(meta.page_size, meta.channels)) {}
+        per_point_page_(PointsPerPage(meta.page_size, meta.channels)),
+        grid_(PositionGrid::Of(meta)) {}
 
   absl::Status Run() {
     PBGI_RETURN_IF_ERROR(CheckPageCounts());
@@ -111,9 +126,8 @@ class Verifier {
           RefSlot(ref), RefSlot(ref) + count, r.header->record_count));
     }
     for (uint32_t i = 0; i < count; ++i) {
-      out[i] = NodeRecordRadiance{};
-      std::memcpy(&out[i], r.payload.data() + size_t{RefSlot(ref) + i} * record_size_,
-                  record_size_);
+      out[i] = DecodeNodeRecord(r.payload.data() + size_t{RefSlot(ref) + i} * record_size_,
+                                meta_.channels, grid_);
     }
     return absl::OkStatus();
   }
@@ -130,7 +144,7 @@ class Verifier {
       return absl::DataLossError(
           absl::StrFormat("point %d: slot %d missing from point page %d", index, slot, page));
     }
-    return DecodePoint(point_page_.payload.data(), slot, meta_.channels);
+    return DecodePoint(point_page_.payload.data(), slot, meta_.channels, grid_);
   }
 
   static bool Contains(const NodeRecordCommon& n, const float lo[3], const float hi[3]) {
@@ -145,20 +159,25 @@ class Verifier {
       return std::abs(want - got) <= kRelTol * scale + 1e-30;
     };
     const NodeRecordCommon& c = n.common;
+    const double sh_q = s.sh_q + kAreaShStep * MaxAbs(c.sh_area, 9);
+    std::array<double, 3> pw_q;
+    for (int ch = 0; ch < 3; ++ch) pw_q[ch] = s.pw_q[ch] + kPowerShStep * MaxAbs(n.sh_power[ch], 9);
     if (!close(s.area, c.area, s.area_abs + std::abs(double(c.area)))) {
       return absl::DataLossError(absl::StrFormat("node %d/%d: area %g but its %s sum to %g",
                                                  RefPage(ref), RefSlot(ref), c.area, what, s.area));
     }
     for (int k = 0; k < 9; ++k) {
-      if (!close(s.sh[k], c.sh_area[k], s.sh_abs[k] + std::abs(double(c.sh_area[k])))) {
+      if (!(std::abs(s.sh[k] - c.sh_area[k]) <=
+            kRelTol * (s.sh_abs[k] + std::abs(double(c.sh_area[k]))) + sh_q + 1e-30)) {
         return absl::DataLossError(
             absl::StrFormat("node %d/%d: area SH coefficient %d is %g but its %s sum to %g",
                             RefPage(ref), RefSlot(ref), k, c.sh_area[k], what, s.sh[k]));
       }
       if (!radiance_) continue;
       for (int ch = 0; ch < 3; ++ch) {
-        if (!close(s.pw[ch][k], n.sh_power[ch][k],
-                   s.pw_abs[ch][k] + std::abs(double(n.sh_power[ch][k])))) {
+        if (!(std::abs(s.pw[ch][k] - n.sh_power[ch][k]) <=
+              kRelTol * (s.pw_abs[ch][k] + std::abs(double(n.sh_power[ch][k]))) + pw_q[ch] +
+                  1e-30)) {
           return absl::DataLossError(absl::StrFormat(
               "node %d/%d: power SH (colour %d) coefficient %d is %g but its %s sum to %g",
               RefPage(ref), RefSlot(ref), ch, k, n.sh_power[ch][k], what, s.pw[ch][k]));
@@ -248,6 +267,8 @@ class Verifier {
           Visit(MakeNodeRef(RefPage(c.children), RefSlot(c.children) + i), kids[i], depth + 1));
       s.area += k.area;
       s.area_abs += std::abs(double(k.area));
+      s.sh_q += kAreaShStep * MaxAbs(k.sh_area, 9);
+      for (int ch = 0; ch < 3; ++ch) s.pw_q[ch] += kPowerShStep * MaxAbs(kids[i].sh_power[ch], 9);
       for (int j = 0; j < 9; ++j) {
         s.sh[j] += k.sh_area[j];
         s.sh_abs[j] += std::abs(double(k.sh_area[j]));
@@ -271,6 +292,7 @@ class Verifier {
   bool radiance_;
   uint32_t record_size_;
   uint32_t per_point_page_;
+  PositionGrid grid_;
   uint64_t next_point_ = 0;
   uint64_t nodes_ = 0;
   uint32_t max_depth_ = 0;

@@ -228,9 +228,10 @@ void BM_BuildInMemory(benchmark::State& state) {
       break;
     }
     internal::StoreWriterSink sink(w->get());
-    internal::NodePacker packer(Layout::kCoherent, Channels::kRadiance, &sink, 1);
-    internal::PointPageWriter points(Channels::kRadiance, &sink);
-    for (const auto& r : recs) (void)points.Add(r);
+    const internal::PositionGrid grid = internal::GridOfCube(internal::MortonCube(b));
+    internal::NodePacker packer(Layout::kCoherent, Channels::kRadiance, &sink, 1, grid);
+    internal::PointPageWriter points(Channels::kRadiance, &sink, grid);
+    for (auto& r : recs) (void)points.Add(r, &r);
     (void)points.Flush();
     InMemoryBuilder builder{recs, 16, &packer};
     internal::ClosedNode root;

@@ -8,7 +8,7 @@
 //
 //   gather_bench [--db=PATH] [--points=N] [--receivers=N] [--page_size=BYTES]
 //                [--leaf_size=N] [--reader_share=F] [--work_dir=DIR]
-//                [--schedule=ranges|blocks] [--block=N] [benchmark flags]
+//                [--schedule=ranges|blocks] [--block=N] [--cache_base=BYTES] [benchmark flags]
 //   gather_bench [--db=PATH] --profile_gathers=N [--profile_alternate=B]
 //                (under valgrind --tool=callgrind --instr-atstart=no: instructions of N warm
 //                gathers, nothing else; with B, in the order one of two threads taking blocks
@@ -64,6 +64,9 @@ struct Flags {
   uint64_t profile_alternate = 0;
   // > 0: profile one warm pass over all receivers with this many threads (--schedule).
   int profile_threads = 0;
+  // > 0: the cache budgets (1%, 5%, ...) are fractions of this many bytes instead of the
+  // database file's size: compare formats of different file sizes at the same cache bytes.
+  uint64_t cache_base = 0;
 };
 Flags g_flags;
 
@@ -124,8 +127,9 @@ absl::StatusOr<RunResult> ColdPass(const std::string& path, const std::vector<Re
     res.file_bytes = (*probe)->FileBytes();
   }
   DatabaseOptions o;
-  o.cache_bytes = cache_fraction > 0 ? static_cast<uint64_t>(cache_fraction * res.file_bytes)
-                                     : (uint64_t{1} << 40);
+  const uint64_t base = g_flags.cache_base > 0 ? g_flags.cache_base : res.file_bytes;
+  o.cache_bytes =
+      cache_fraction > 0 ? static_cast<uint64_t>(cache_fraction * base) : (uint64_t{1} << 40);
   res.cache_bytes = o.cache_bytes;
   if (g_flags.reader_share > 0) {
     o.reader_cache_bytes = static_cast<uint64_t>(g_flags.reader_share * o.cache_bytes);
@@ -744,6 +748,8 @@ int main(int argc, char** argv) {
       pbgi::g_schedule = v == "ranges" ? pbgi::Schedule::kRanges : pbgi::Schedule::kBlocks;
     } else if (pbgi::ParseFlag(argv[i], "--block", &v)) {
       pbgi::g_block = std::max<size_t>(1, std::strtoull(v.c_str(), nullptr, 10));
+    } else if (pbgi::ParseFlag(argv[i], "--cache_base", &v)) {
+      g_flags.cache_base = std::strtoull(v.c_str(), nullptr, 10);
     } else if (pbgi::ParseFlag(argv[i], "--leaf_size", &v)) {
       g_flags.leaf_size = static_cast<uint32_t>(std::strtoul(v.c_str(), nullptr, 10));
     } else {

@@ -174,7 +174,7 @@ typedef void (*pbgi_build_progress_fn)(void* user, const char* pass, uint64_t do
 typedef struct pbgi_build_options {
   uint64_t memory_bytes;  /* budget of the sort, merge and write batch; default 1 GiB */
   uint32_t leaf_size;     /* maximum points per leaf; default 16 */
-  uint32_t page_size;     /* bytes per page; default 65520 (k * 4096 - 16 is efficient) */
+  uint32_t page_size;     /* bytes per page; default 32752 (k * 4096 - 16 is efficient) */
   pbgi_channels channels; /* default PBGI_CHANNELS_RADIANCE */
   pbgi_layout layout;     /* default PBGI_LAYOUT_COHERENT */
   int threads;            /* 0 or 1: one thread; >= 2: pipelined passes (pbgi/build.h) */

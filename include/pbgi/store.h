@@ -1,7 +1,8 @@
 // pbgi::PageStore: fixed-size pages in one LMDB environment (docs/design.md, "Store").
 //
 // A store has three named sections: `meta` (one meta record, committed last), `nodes` and
-// `points` (key: page number, value: one fixed-size page). A PageWriter appends pages in
+// `points` (key: page number, value: one fixed-size page, stored whole or, with
+// StoreOptions::compress_pages, compressed and shorter; readers always see it whole). A PageWriter appends pages in
 // page-number order with MDB_APPEND, commits them in bounded batches, and makes the store visible
 // only when Finish() commits the meta record. A PageStore opens a finished store read-only; many
 // threads (MDB_NOTLS, one ReadTxn each) and many processes may read it at once.
@@ -11,7 +12,8 @@
 //
 // Caveats (read these, as you would LMDB's):
 // - A PageView points into the memory map and is valid only until its ReadTxn is reset, renewed
-//   or destroyed. Copy what you need to keep.
+//   or destroyed; a compressed page's (and, with copy_pages, every page's) only until the next
+//   Get() on that ReadTxn. Copy what you need to keep.
 // - A long-lived read transaction pins the snapshot; on an immutable store that costs nothing,
 //   but keep one ReadTxn per thread and Reset() it between bursts of work.
 // - The map size grows while writing (the writer doubles it when LMDB reports MDB_MAP_FULL); a
@@ -51,10 +53,13 @@
 namespace pbgi {
 
 inline constexpr uint64_t kStoreMagic = 0x3130424447425050ull;  // "PPBGDB01" little-endian
-// Version 2: a point record's radius carries the two-sided flag in its sign bit (tree/format.h),
-// which a version-1 reader would misread as a negative radius, so it refuses version 2; this
-// library reads versions 1 (all surfels one-sided) and 2.
-inline constexpr uint32_t kStoreFormatVersion = 2;
+// Version 3: compact pages (docs/format.md, "Format version 3"): point positions and node bounds
+// are cells of a grid of 2^21 per axis (StoreMeta::grid_origin, grid_step), normals octahedral,
+// radius and radiance small floats, node SH fixed point scaled per node (tree/format.h). The
+// records of versions 1 and 2 (plain floats) are not read: open refuses them, naming both
+// versions, and says to rebuild.
+inline constexpr uint32_t kStoreFormatVersion = 3;
+inline constexpr uint32_t kOldestReadableStoreFormatVersion = 3;
 
 // The efficient page sizes are k*4096 - 16: LMDB stores a large value in a run of 4 KiB overflow
 // pages behind a 16-byte page header.
@@ -67,16 +72,24 @@ const char* SectionName(Section s);
 // Kind of a page, stored in its header.
 enum class PageKind : uint16_t { kNode = 1, kPoint = 2 };
 
-// Every page starts with this header. The checksum is CRC-32C of the page bytes after the
-// checksum field (bytes [4, page_size)).
+// Every page starts with this header. The checksum is CRC-32C of the stored bytes after the
+// checksum field (bytes [4, stored size)). A page is stored either whole (page_size bytes:
+// header, payload, zero padding) or, with StoreOptions::compress_pages where that pays, as the
+// header and its payload compressed with zstd (docs/format.md, "Format version 3"): then
+// `codec` is kPageCodecZstd and `stored_payload_bytes` the compressed size, and the stored value
+// is shorter than page_size. Readers always see the page whole (ReadTxn::Get decompresses).
+inline constexpr uint16_t kPageCodecNone = 0;
+inline constexpr uint16_t kPageCodecZstd = 1;
 struct PageHeader {
   uint32_t checksum;
   uint16_t kind;           // PageKind
   uint16_t format;         // kStoreFormatVersion
   uint32_t record_count;   // records in this page
-  uint32_t payload_bytes;  // bytes used after the header
+  uint32_t payload_bytes;  // bytes used after the header (uncompressed)
   uint64_t page_no;        // the page's own number (key), to catch misplaced pages
-  uint64_t reserved;
+  uint32_t stored_payload_bytes;  // kPageCodecZstd: bytes of the compressed payload; else 0
+  uint16_t codec;                 // kPageCodecNone or kPageCodecZstd
+  uint16_t pad;
 };
 static_assert(sizeof(PageHeader) == 32);
 
@@ -96,6 +109,10 @@ struct StoreMeta {
   uint64_t root = 0;  // NodeRef of the root node (see tree/format.h)
   uint32_t max_depth = 0;
   std::string layout = "coherent";
+  // Version 3: the grid that point positions and node bounds are stored in (tree/format.h):
+  // cell q (0 .. 2^21 - 1) of axis a is the float grid_origin[a] + (q + 0.5f) * grid_step.
+  glm::vec3 grid_origin{0.0f};
+  float grid_step = 0.0f;
   // Free-form build statistics (name -> value as text): timings, peak memory, ...
   std::map<std::string, std::string> stats;
 };
@@ -106,6 +123,10 @@ struct StoreOptions {
   uint64_t max_map_size = uint64_t{1} << 42;  // the writer grows the map up to this
   uint64_t batch_bytes = uint64_t{64} << 20;  // commit the write transaction every this many bytes
   bool verify_checksums = true;               // readers check every page they return
+  // Writer: compress each page's payload with zstd and store it shorter than page_size where
+  // that saves at least an eighth of the page (docs/format.md, "Format version 3"). Readers
+  // decompress such pages whatever this says. pbgi::BuildDatabase turns it on.
+  bool compress_pages = false;
   // Writer: Finish() flushes the pages to disk before and after the meta record (fsync), so a
   // finished store survives a power cut. Off for scratch stores and benchmarks: the store is
   // still complete-or-refused after a process crash, only not after a system crash.
@@ -192,8 +213,9 @@ class ReadTxn {
   ~ReadTxn();
 
   // Reads one page. NotFound if absent; DataLoss naming the page if its checksum, kind or number
-  // is wrong. With StoreOptions::copy_pages the view points into this ReadTxn's buffer and is
-  // valid only until the next Get() (or Reset()).
+  // is wrong, or its compressed payload does not decompress to its size. With
+  // StoreOptions::copy_pages, and for a compressed page always, the view points into this
+  // ReadTxn's buffer and is valid only until the next Get() (or Reset()).
   absl::StatusOr<PageView> Get(Section section, uint64_t page_no);
   // Releases the snapshot (views become invalid) but keeps the handle for Renew().
   void Reset();

@@ -162,7 +162,7 @@ def build(path, positions, normals, radii, radiance=None, *, memory="1G", leaf_s
     surfels given as arrays: positions (n, 3), normals (n, 3), radii (n,), and optionally the
     baked radiance (n, 3); float32 or float64, any strides. The options are those of
     ``pbgi build``: ``memory`` bounds the build's memory (bytes or '512M'); ``leaf_size``,
-    ``page_size`` (default 65520), ``layout`` ('coherent', 'postorder', 'breadth-first',
+    ``page_size`` (default 32752), ``layout`` ('coherent', 'postorder', 'breadth-first',
     'shuffled'), ``channels`` (None: 'radiance' when radiance is given, else 'occlusion'),
     ``threads`` (0 or 1: one thread; 2+: pipelined passes), ``tmp_dir`` for the sort's runs,
     ``skip_invalid`` (drop invalid surfels instead of refusing them).

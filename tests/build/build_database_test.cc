@@ -49,10 +49,15 @@ TEST(BuildDatabaseTest, TwoSidedSurfelsBuildAVerifiableStore) {
     EXPECT_EQ((*store)->meta().version, kStoreFormatVersion);
     EXPECT_TRUE(VerifyTree(**store).ok()) << VerifyTree(**store);
     // Every point's flag, found by position (the store holds them in Morton order).
+    // Positions are stored on the store's grid (format version 3, tree/format.h).
+    const internal::PositionGrid grid = internal::PositionGrid::Of((*store)->meta());
+    auto on_grid = [&](const glm::vec3& p) {
+      return std::tuple<float, float, float>(grid.Coord(0, grid.Nearest(0, p.x)),
+                                             grid.Coord(1, grid.Nearest(1, p.y)),
+                                             grid.Coord(2, grid.Nearest(2, p.z)));
+    };
     std::map<std::tuple<float, float, float>, int> want;
-    for (const Surfel& s : cloud) {
-      want[{s.position.x, s.position.y, s.position.z}] += s.two_sided ? 1 : 0x100;
-    }
+    for (const Surfel& s : cloud) want[on_grid(s.position)] += s.two_sided ? 1 : 0x100;
     std::map<std::tuple<float, float, float>, int> got;
     auto txn = (*store)->BeginRead();
     ASSERT_TRUE(txn.ok()) << txn.status();
@@ -62,7 +67,7 @@ TEST(BuildDatabaseTest, TwoSidedSurfelsBuildAVerifiableStore) {
       auto view = txn->Get(Section::kPoints, page);
       ASSERT_TRUE(view.ok()) << view.status();
       for (uint32_t i = 0; i < view->header->record_count; ++i, ++seen) {
-        const Surfel s = internal::DecodePoint(view->payload.data(), i, m.channels);
+        const Surfel s = internal::DecodePoint(view->payload.data(), i, m.channels, grid);
         EXPECT_GT(s.radius, 0.0f);
         got[{s.position.x, s.position.y, s.position.z}] += s.two_sided ? 1 : 0x100;
       }
@@ -92,7 +97,7 @@ TEST(BuildDatabaseTest, BuildsAVerifiableStoreEqualToTheInMemoryPipeline) {
         ASSERT_TRUE(stats.ok()) << stats.status();
         EXPECT_EQ(stats->points, cloud.size());
         EXPECT_EQ(stats->runs_spilled > 0, memory == 1);
-        EXPECT_GT(stats->bytes_on_disk, cloud.size() * sizeof(internal::PointRecordRadiance));
+        EXPECT_GT(stats->bytes_on_disk, cloud.size() * internal::kPointRecordRadianceBytes);
         EXPECT_TRUE(std::filesystem::is_empty(o.tmp_dir));
 
         auto store = PageStore::Open(db);
@@ -135,7 +140,7 @@ TEST(BuildDatabaseTest, BuildsAVerifiableStoreEqualToTheInMemoryPipeline) {
 TEST(BuildDatabaseTest, WriteErrorOnTheWriterThreadEndsTheBuild) {
   ScratchDir dir("fsize");
   const std::string db = dir.Sub("db");
-  const auto cloud = testing_build::SurfaceCloud(60000, 8);  // about 5 MiB of pages
+  const auto cloud = testing_build::SurfaceCloud(60000, 8);  // about 0.9 MiB of compact pages
   const testing_common::ChildResult child = testing_common::RunInChild(
       [&] {
         BuildOptions o;
@@ -145,7 +150,7 @@ TEST(BuildDatabaseTest, WriteErrorOnTheWriterThreadEndsTheBuild) {
         auto stats = BuildDatabase(src, db, o);
         return stats.ok() ? std::string("built") : stats.status().ToString();
       },
-      /*file_size_limit=*/2 << 20);
+      /*file_size_limit=*/512 << 10);
   ASSERT_TRUE(child.exited) << "the build crashed or hung (signal " << child.signal << ")";
   const std::string& got = child.report;
   EXPECT_NE(got.find("RESOURCE_EXHAUSTED"), std::string::npos) << got;
@@ -196,7 +201,9 @@ TEST(BuildDatabaseTest, MissingTmpDirAndEmptyInputAreClearErrors) {
 // from the page cache (which a memory cgroup would charge to the build), yet the store verifies.
 TEST(BuildDatabaseTest, PagesAreStreamedOutOfThePageCache) {
   ScratchDir dir("stream");
-  const auto cloud = testing_build::SurfaceCloud(60000, 9);
+  // Enough points for a store of several write batches (compressed compact pages: ~15-20
+  // bytes per point).
+  const auto cloud = testing_build::SurfaceCloud(250000, 9);
   BuildOptions o;
   o.memory_bytes = uint64_t{16} << 20;  // 1 MiB write batches
   VectorSurfelSource src(cloud);

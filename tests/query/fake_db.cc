@@ -8,6 +8,7 @@
 
 #include "pbgi/sh.h"
 #include "tree/format.h"
+#include "tree/morton.h"
 
 namespace pbgi::internal {
 namespace {
@@ -98,17 +99,32 @@ FakeDb BuildFakeDb(const std::vector<Surfel>& input, const FakeDbOptions& option
   FakeDb db;
   Bounds b;
   for (const Surfel& s : input) b.Extend(s.position);
+  // The pages hold the surfels quantized (format version 3, tree/format.h): the fake's surfels
+  // and aggregates are the decoded ones, and each page stores the code it was decoded from.
+  const PositionGrid grid = GridOfCube(MortonCube(b));
+  const uint32_t prec = PointRecordSize(options.channels);
+  std::vector<std::array<uint8_t, kPointRecordRadianceBytes>> codes(input.size());
+  std::vector<Surfel> quantized(input.size());
+  for (size_t i = 0; i < input.size(); ++i) {
+    const Surfel& s = input[i];
+    const float pos[3] = {s.position.x, s.position.y, s.position.z};
+    const float nrm[3] = {s.normal.x, s.normal.y, s.normal.z};
+    const float rad[3] = {s.radiance.x, s.radiance.y, s.radiance.z};
+    EncodePointRecord(pos, nrm, EncodeRadius(s.radius, s.two_sided), rad, options.channels, grid,
+                      codes[i].data());
+    quantized[i] = DecodePointRecord(codes[i].data(), options.channels, grid);
+  }
   const glm::vec3 ext = b.Extent();
   const float size = std::max(1e-6f, std::max(ext.x, std::max(ext.y, ext.z))) * 1.001f;
   std::vector<uint64_t> keys(input.size());
   std::vector<uint32_t> order(input.size());
   std::iota(order.begin(), order.end(), 0);
-  for (size_t i = 0; i < input.size(); ++i) keys[i] = Key(input[i].position, b.lo, size);
+  for (size_t i = 0; i < input.size(); ++i) keys[i] = Key(quantized[i].position, b.lo, size);
   std::stable_sort(order.begin(), order.end(),
                    [&](uint32_t x, uint32_t y) { return keys[x] < keys[y]; });
   std::vector<uint64_t> sorted_keys(input.size());
   for (size_t i = 0; i < input.size(); ++i) {
-    db.surfels.push_back(input[order[i]]);
+    db.surfels.push_back(quantized[order[i]]);
     sorted_keys[i] = keys[order[i]];
   }
 
@@ -143,13 +159,15 @@ FakeDb BuildFakeDb(const std::vector<Surfel>& input, const FakeDbOptions& option
   meta.page_size = options.page_size;
   meta.channels = options.channels;
   meta.leaf_size = options.leaf_size;
-  meta.bounds = b;
+  meta.bounds = bld.nodes[root].bounds;  // of the decoded positions, as the builder records it
   meta.point_count = db.surfels.size();
   meta.node_count = bld.nodes.size();
   meta.node_pages = pages.size();
   meta.root = bld.nodes[root].ref;
   meta.max_depth = max_depth;
   meta.layout = "fake";
+  for (int a = 0; a < 3; ++a) meta.grid_origin[a] = grid.origin[a];
+  meta.grid_step = grid.step;
   const uint32_t ppp = PointsPerPage(options.page_size, options.channels);
   meta.point_pages = (db.surfels.size() + ppp - 1) / ppp;
   db.source = std::make_unique<MemPageStore>(meta, "fake-db");
@@ -174,27 +192,18 @@ FakeDb BuildFakeDb(const std::vector<Surfel>& input, const FakeDbOptions& option
       for (int ch = 0; ch < 3; ++ch) {
         for (int i = 0; i < 9; ++i) r.sh_power[ch][i] = static_cast<float>(n.power[ch][i]);
       }
-      std::memcpy(payload.data() + k * nrec, &r, nrec);
+      EncodeNodeRecord(r, options.channels, grid, payload.data() + k * nrec);
     }
     const absl::Status s = db.source->Append(Section::kNodes, pg, PageKind::kNode,
                                              static_cast<uint32_t>(pages[pg].size()), payload);
     if (!s.ok()) std::abort();  // pages in order, oversize allowed: cannot fail
   }
-  const uint32_t prec = PointRecordSize(options.channels);
   for (uint64_t pg = 0; pg < meta.point_pages; ++pg) {
     const uint64_t first = pg * ppp;
     const uint64_t n = std::min<uint64_t>(ppp, db.surfels.size() - first);
     std::vector<uint8_t> payload(n * prec, 0);
     for (uint64_t k = 0; k < n; ++k) {
-      const Surfel& s = db.surfels[first + k];
-      PointRecordRadiance r{};
-      for (int a = 0; a < 3; ++a) {
-        r.position[a] = s.position[a];
-        r.normal[a] = s.normal[a];
-        r.radiance[a] = s.radiance[a];
-      }
-      r.radius = s.radius;
-      std::memcpy(payload.data() + k * prec, &r, prec);
+      std::memcpy(payload.data() + k * prec, codes[order[first + k]].data(), prec);
     }
     const absl::Status s = db.source->Append(Section::kPoints, pg, PageKind::kPoint,
                                              static_cast<uint32_t>(n), payload);

@@ -281,10 +281,11 @@ TEST(GatherDb, CacheBoundsTheResidentMapOfABiggerDatabase) {
   BuildOptions b;
   b.page_size = EfficientPageSize(4);
   b.memory_bytes = 64 << 20;
-  auto t = TempDatabase::Create(testing::RandomSceneSurfels(60000, 47), b);
+  // More than ten times the cache on disk (compressed compact pages: ~30 bytes per point).
+  auto t = TempDatabase::Create(testing::RandomSceneSurfels(100000, 47), b);
   ASSERT_TRUE(t.ok()) << t.status();
   std::vector<Receiver> receivers;
-  for (size_t i = 0; i < (*t)->surfels().size(); i += 40) {
+  for (size_t i = 0; i < (*t)->surfels().size(); i += 67) {
     const Surfel& s = (*t)->surfels()[i];
     receivers.push_back({s.position + 1e-4f * s.normal, s.normal});
   }

@@ -597,10 +597,17 @@ class CorruptPageTest : public ::testing::Test {
     // max_solid_angle 0 from below the scene, facing it, visits every page.
     return (*reader)->Gather({{0.5f, 0.5f, -10.0f}, {0, 0, 1}}, Cut{0.0f}, &g);
   }
-  internal::NodeRecordRadiance* Node(uint64_t page, uint32_t slot) {
+  // Decodes node record `slot` of `page`, lets `edit` change it and encodes it back in place
+  // (format version 3 records are packed, tree/format.h).
+  template <typename Edit>
+  void EditNode(uint64_t page, uint32_t slot, Edit edit) {
     auto* bytes = src_->MutablePage(Section::kNodes, page);
-    return reinterpret_cast<internal::NodeRecordRadiance*>(
-        bytes->data() + sizeof(PageHeader) + slot * sizeof(internal::NodeRecordRadiance));
+    const Channels ch = src_->meta().channels;
+    const internal::PositionGrid grid = internal::PositionGrid::Of(src_->meta());
+    uint8_t* rec = bytes->data() + sizeof(PageHeader) + slot * internal::NodeRecordSize(ch);
+    internal::NodeRecordRadiance r = internal::DecodeNodeRecord(rec, ch, grid);
+    edit(r);
+    internal::EncodeNodeRecord(r, ch, grid, rec);
   }
   FakeDb fake_;
   MemPageStore* src_ = nullptr;
@@ -615,8 +622,10 @@ TEST_F(CorruptPageTest, StoreErrorIsPassedOnWithThePage) {
 }
 
 TEST_F(CorruptPageTest, BadChildCount) {
-  Node(1, 0)->common.child_count = 100;
-  Node(1, 0)->common.flags = 0;
+  EditNode(1, 0, [](internal::NodeRecordRadiance& n) {
+    n.common.child_count = 100;
+    n.common.flags = 0;
+  });
   absl::Status s = GatherAll();
   EXPECT_EQ(s.code(), absl::StatusCode::kDataLoss);
   EXPECT_THAT(std::string(s.message()), ::testing::HasSubstr("nodes page 1 is corrupt"));
@@ -624,18 +633,20 @@ TEST_F(CorruptPageTest, BadChildCount) {
 
 TEST_F(CorruptPageTest, LinkPastTheRecords) {
   // Make the root's children point past the end of their page.
-  internal::NodeRecordRadiance* root = Node(0, 0);
-  ASSERT_EQ(root->common.flags & internal::kNodeFlagLeaf, 0u);
-  root->common.children = internal::MakeNodeRef(internal::RefPage(root->common.children), 4000);
+  EditNode(0, 0, [](internal::NodeRecordRadiance& root) {
+    ASSERT_EQ(root.common.flags & internal::kNodeFlagLeaf, 0u);
+    root.common.children = internal::MakeNodeRef(internal::RefPage(root.common.children), 4000);
+  });
   absl::Status s = GatherAll();
   EXPECT_EQ(s.code(), absl::StatusCode::kDataLoss);
   EXPECT_THAT(std::string(s.message()), ::testing::HasSubstr("is corrupt"));
 }
 
 TEST_F(CorruptPageTest, CycleIsCaughtByDepth) {
-  internal::NodeRecordRadiance* root = Node(0, 0);
-  root->common.children = internal::MakeNodeRef(0, 0);  // the root is its own child
-  root->common.child_count = 1;
+  EditNode(0, 0, [](internal::NodeRecordRadiance& root) {
+    root.common.children = internal::MakeNodeRef(0, 0);  // the root is its own child
+    root.common.child_count = 1;
+  });
   absl::Status s = GatherAll();
   EXPECT_EQ(s.code(), absl::StatusCode::kDataLoss);
   EXPECT_THAT(std::string(s.message()), ::testing::HasSubstr("nodes page 0"));
@@ -666,7 +677,9 @@ TEST_F(CorruptPageTest, WrongPointCount) {
 }
 
 TEST_F(CorruptPageTest, PointRangeOutsideTheDatabase) {
-  Node(1, 1)->common.first_point = uint64_t{1} << 40;
+  EditNode(1, 1, [](internal::NodeRecordRadiance& n) {
+    n.common.first_point = internal::kMaxStoredPointIndex;  // far past the 2000 points
+  });
   absl::Status s = GatherAll();
   EXPECT_EQ(s.code(), absl::StatusCode::kDataLoss);
   EXPECT_THAT(std::string(s.message()), ::testing::HasSubstr("nodes page 1"));

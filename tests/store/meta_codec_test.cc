@@ -73,15 +73,30 @@ TEST(MetaCodecTest, FutureVersionIsRefusedWithBothNumbers) {
   EXPECT_THAT(d.status().message(), HasSubstr("store X"));
 }
 
-// Version 1 predates the two-sided flag in the point records' radius sign bit (tree/format.h):
-// its records read unchanged, so this library still opens it.
-TEST(MetaCodecTest, VersionOneIsStillRead) {
-  std::string bytes = EncodeMeta(SampleMeta(), true);
-  const uint32_t one = 1;
-  std::memcpy(&bytes[8], &one, 4);
-  absl::StatusOr<DecodedMeta> d = DecodeMeta(bytes, "store Y");
+// Versions 1 and 2 stored plain float records; version 3 stores compact ones (tree/format.h)
+// and does not read the old: the message names both versions and says to rebuild.
+TEST(MetaCodecTest, OldVersionsAreRefusedWithBothNumbersAndRebuild) {
+  for (uint32_t old : {1u, 2u}) {
+    std::string bytes = EncodeMeta(SampleMeta(), true);
+    std::memcpy(&bytes[8], &old, 4);
+    absl::StatusOr<DecodedMeta> d = DecodeMeta(bytes, "store Y");
+    ASSERT_FALSE(d.ok()) << old;
+    EXPECT_EQ(d.status().code(), absl::StatusCode::kFailedPrecondition);
+    EXPECT_THAT(d.status().message(), HasSubstr("version " + std::to_string(old)));
+    EXPECT_THAT(d.status().message(), HasSubstr("version " + std::to_string(kStoreFormatVersion)));
+    EXPECT_THAT(d.status().message(), HasSubstr("rebuild"));
+    EXPECT_THAT(d.status().message(), HasSubstr("store Y"));
+  }
+}
+
+TEST(MetaCodecTest, GridRoundTrips) {
+  StoreMeta m = SampleMeta();
+  m.grid_origin = glm::vec3(-1.5f, 2.25f, 1e6f);
+  m.grid_step = 3.0e-4f;
+  absl::StatusOr<DecodedMeta> d = DecodeMeta(EncodeMeta(m, true), "s");
   ASSERT_TRUE(d.ok()) << d.status();
-  EXPECT_EQ(d->meta.version, 1u);
+  EXPECT_EQ(d->meta.grid_origin, m.grid_origin);
+  EXPECT_EQ(d->meta.grid_step, m.grid_step);
 }
 
 TEST(MetaCodecTest, WrongMagicIsRefused) {

@@ -92,11 +92,30 @@ def main(argv):
         return column(names, values, argv[3]) != column(names, values, argv[4])
     if what == "normals":
         rnames, rvalues = read(argv[3])
-        key = lambda v, n: tuple(round(v[n.index(c)], 4) for c in ("x", "y", "z"))
-        ref = {key(v, rnames): [v[rnames.index(c)] for c in ("nx", "ny", "nz")] for v in rvalues}
+        # A store keeps positions on a grid of 2^21 cells per axis (docs/format.md, format
+        # version 3): match each point with the nearest reference point within 1e-4.
+        pos = lambda v, n: [v[n.index(c)] for c in ("x", "y", "z")]
+        key = lambda p: tuple(round(a * 1e4) for a in p)
+        ref = {}
+        for v in rvalues:
+            p = pos(v, rnames)
+            ref.setdefault(key(p), []).append((p, [v[rnames.index(c)] for c in ("nx", "ny", "nz")]))
+
+        def nearest(p):
+            kx, ky, kz = key(p)
+            best, best_d = None, 1e-8
+            for dx in (-1, 0, 1):
+                for dy in (-1, 0, 1):
+                    for dz in (-1, 0, 1):
+                        for q, nrm in ref.get((kx + dx, ky + dy, kz + dz), ()):
+                            d = sum((a - b) ** 2 for a, b in zip(p, q))
+                            if d <= best_d:
+                                best, best_d = nrm, d
+            return best
+
         good = matched = 0
         for v in values:
-            m = ref.get(key(v, names))
+            m = nearest(pos(v, names))
             if m is None:
                 continue
             matched += 1

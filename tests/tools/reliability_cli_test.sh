@@ -123,7 +123,7 @@ refuse size_overflow "too large a size" "$pbgi" build "$dir/c.ply" -o "$dir/db4"
 refuse shade_tiny "below the .* this job needs" \
   "$pbgi" shade "$dir/db" --receivers "$dir/r.ply" -o "$dir/o3.ply" --mode occlusion --cache 100K
 refuse shade_few_pages "less than the .* threads need" \
-  "$pbgi" shade "$dir/db" --receivers "$dir/r.ply" -o "$dir/o3.ply" --mode occlusion --cache 1500K --threads 8
+  "$pbgi" shade "$dir/db" --receivers "$dir/r.ply" -o "$dir/o3.ply" --mode occlusion --cache 1500K --threads 16
 # The receivers in flight come out of the budget: 2 MiB shades 20,000 receivers in chunks.
 run many "$pbgi" generate cornell -n 20000 -o "$dir/r20k.ply" --seed 6
 run shade_chunks "$pbgi" shade "$dir/db" --receivers "$dir/r20k.ply" -o "$dir/o4.ply" \

@@ -1,0 +1,371 @@
+// Format version 3's compact records (tree/format.h): every field within its stated bound, node
+// bounds that hold their points after quantization, the two-sided flag, and damaged pages as
+// DataLoss naming the page (tree/decoded_page.h).
+#include <cmath>
+#include <cstring>
+#include <limits>
+#include <random>
+#include <string>
+#include <vector>
+
+#include "gmock/gmock.h"
+#include "gtest/gtest.h"
+#include "tree/decoded_page.h"
+#include "tree/format.h"
+#include "tree/morton.h"
+
+namespace pbgi::internal {
+namespace {
+
+using ::testing::HasSubstr;
+
+PositionGrid TestGrid() {
+  Bounds b;
+  b.Extend(glm::vec3(-3.0f, -2.0f, -1.0f));
+  b.Extend(glm::vec3(7.0f, 5.0f, 2.0f));
+  return GridOfCube(MortonCube(b));
+}
+
+float LogUniform(std::mt19937& rng, float lo_exp, float hi_exp) {
+  return std::exp2(std::uniform_real_distribution<float>(lo_exp, hi_exp)(rng));
+}
+
+glm::vec3 RandomUnit(std::mt19937& rng) {
+  std::normal_distribution<float> g;
+  for (;;) {
+    glm::vec3 v(g(rng), g(rng), g(rng));
+    if (glm::length(v) > 1e-3f) return glm::normalize(v);
+  }
+}
+
+struct Encoded {
+  uint8_t bytes[kPointRecordRadianceBytes];
+};
+
+Encoded EncodeSurfel(const Surfel& s, Channels c, const PositionGrid& g) {
+  Encoded e{};
+  const float pos[3] = {s.position.x, s.position.y, s.position.z};
+  const float nrm[3] = {s.normal.x, s.normal.y, s.normal.z};
+  const float rad[3] = {s.radiance.x, s.radiance.y, s.radiance.z};
+  EncodePointRecord(pos, nrm, EncodeRadius(s.radius, s.two_sided), rad, c, g, e.bytes);
+  return e;
+}
+
+TEST(CompactFormatTest, RecordSizes) {
+  EXPECT_EQ(PointRecordSize(Channels::kOcclusion), 14u);
+  EXPECT_EQ(PointRecordSize(Channels::kRadiance), 20u);
+  EXPECT_EQ(NodeRecordSize(Channels::kOcclusion), 60u);
+  EXPECT_EQ(NodeRecordSize(Channels::kRadiance), 99u);
+}
+
+// Position: within half a cell (plus float rounding of the cell centre); normal: within 1e-4 rad
+// and unit; radius: relative 2^-11; radiance: relative 2^-10 with its sign; the flag exact.
+TEST(CompactFormatTest, PointFieldsRoundTripWithinTheirBounds) {
+  const PositionGrid g = TestGrid();
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<float> u(0.0f, 1.0f);
+  for (int i = 0; i < 20000; ++i) {
+    Surfel s;
+    s.position = glm::vec3(-3.0f + 10 * u(rng), -2.0f + 7 * u(rng), -1.0f + 3 * u(rng));
+    s.normal = RandomUnit(rng);
+    s.radius = LogUniform(rng, -30.0f, 30.0f);
+    for (int k = 0; k < 3; ++k) {
+      s.radiance[k] = (u(rng) < 0.1f ? -1.0f : 1.0f) * LogUniform(rng, -30.0f, 30.0f);
+    }
+    s.two_sided = u(rng) < 0.5f;
+    for (Channels c : {Channels::kOcclusion, Channels::kRadiance}) {
+      const Encoded e = EncodeSurfel(s, c, g);
+      const Surfel d = DecodePointRecord(e.bytes, c, g);
+      for (int k = 0; k < 3; ++k) {
+        const float tol = 0.5f * g.step + 4 * std::numeric_limits<float>::epsilon() * 16.0f;
+        ASSERT_LE(std::fabs(d.position[k] - s.position[k]), tol) << i << " axis " << k;
+      }
+      ASSERT_NEAR(glm::length(d.normal), 1.0f, 1e-6f);
+      ASSERT_LE(glm::length(d.normal - s.normal), 1e-4f) << i;  // the chord: the angle, nearly
+      ASSERT_LE(std::fabs(d.radius - s.radius), s.radius * 0x1p-11f * 1.0001f) << s.radius;
+      ASSERT_EQ(d.two_sided, s.two_sided);
+      for (int k = 0; k < 3; ++k) {
+        if (c == Channels::kOcclusion) {
+          ASSERT_EQ(d.radiance[k], 0.0f);
+        } else {
+          ASSERT_LE(std::fabs(d.radiance[k] - s.radiance[k]),
+                    std::fabs(s.radiance[k]) * 0x1p-10f * 1.0001f)
+              << s.radiance[k];
+        }
+      }
+      // Decoding what was decoded and encoded again changes nothing.
+      const Encoded again = EncodeSurfel(d, c, g);
+      const Surfel d2 = DecodePointRecord(again.bytes, c, g);
+      ASSERT_EQ(d2.position, d.position);
+      ASSERT_EQ(d2.radius, d.radius);
+      ASSERT_EQ(d2.radiance, d.radiance);
+    }
+  }
+}
+
+TEST(CompactFormatTest, RadiusAtAndBeyondTheRangeStaysPositiveAndFinite) {
+  for (float r : {0x1p-30f, 0x1p-31f, 1e-12f, 1e-30f, 0x1p31f, 1e12f, 3e38f}) {
+    const float d = DecodeRadius16(EncodeRadius16(r));
+    EXPECT_GT(d, 0.0f) << r;
+    EXPECT_TRUE(std::isfinite(d)) << r;
+  }
+  EXPECT_EQ(DecodeRadius16(EncodeRadius16(0x1p-30f)), 0x1p-30f);
+  EXPECT_EQ(DecodeRadius16(EncodeRadius16(1.0f)), 1.0f);
+  // Radiance: zero and tiny values are zero, large ones clamp to the largest code.
+  EXPECT_EQ(DecodeRadiance16(EncodeRadiance16(0.0f)), 0.0f);
+  EXPECT_EQ(DecodeRadiance16(EncodeRadiance16(1e-20f)), 0.0f);
+  EXPECT_EQ(DecodeRadiance16(EncodeRadiance16(-2.5f)), -2.5f);
+  EXPECT_GT(DecodeRadiance16(EncodeRadiance16(1e30f)), 1e9f);
+}
+
+TEST(CompactFormatTest, TwoSidedFlagRoundTripsAtEveryCorner) {
+  const PositionGrid g = TestGrid();
+  for (bool two : {false, true}) {
+    for (float x : {-1e9f, -3.0f, 0.0f, 7.0f, 1e9f}) {  // clamped to the grid beyond it
+      Surfel s;
+      s.position = glm::vec3(x, x, x);
+      s.radius = 0.25f;
+      s.two_sided = two;
+      for (Channels c : {Channels::kOcclusion, Channels::kRadiance}) {
+        const Encoded e = EncodeSurfel(s, c, g);
+        const Surfel d = DecodePointRecord(e.bytes, c, g);
+        EXPECT_EQ(d.two_sided, two) << x;
+        EXPECT_EQ(d.radius, 0.25f);
+      }
+    }
+  }
+}
+
+NodeRecordRadiance RandomNode(std::mt19937& rng) {
+  std::uniform_real_distribution<float> u(-1.0f, 1.0f);
+  NodeRecordRadiance r{};
+  NodeRecordCommon& c = r.common;
+  for (int k = 0; k < 3; ++k) {
+    const float a = u(rng) * 2.0f, b = u(rng) * 2.0f;
+    c.lo[k] = std::min(a, b);
+    c.hi[k] = std::max(a, b);
+  }
+  const bool leaf = u(rng) < 0;
+  c.flags = leaf ? kNodeFlagLeaf : 0;
+  c.child_count = leaf ? 0 : 1 + static_cast<uint32_t>(rng() % 8);
+  c.children = leaf ? kNoNodeRef : MakeNodeRef(rng() % 100000, rng() % 600);
+  c.first_point = (uint64_t{rng()} << 8) % kMaxStoredPointIndex;
+  c.point_count = rng() % 1000000;
+  c.depth = rng() % 32;
+  c.area = LogUniform(rng, -20, 20);
+  const float scale = LogUniform(rng, -20, 20);
+  for (int k = 0; k < 9; ++k) c.sh_area[k] = u(rng) * scale;
+  for (int ch = 0; ch < 3; ++ch) {
+    const float ps = LogUniform(rng, -20, 20);
+    for (int k = 0; k < 9; ++k) r.sh_power[ch][k] = u(rng) * ps;
+  }
+  return r;
+}
+
+float MaxAbs9(const float* c) {
+  float m = 0;
+  for (int k = 0; k < 9; ++k) m = std::max(m, std::fabs(c[k]));
+  return m;
+}
+
+// Links, counts, depth, flags and area exact; area SH within half a step of 1/32767 of the
+// node's largest coefficient, power SH within half a step of 1/127 of the colour's largest.
+TEST(CompactFormatTest, NodeFieldsRoundTripWithinTheirBounds) {
+  const PositionGrid g = TestGrid();
+  std::mt19937 rng(11);
+  for (int i = 0; i < 5000; ++i) {
+    const NodeRecordRadiance r = RandomNode(rng);
+    for (Channels ch : {Channels::kOcclusion, Channels::kRadiance}) {
+      uint8_t bytes[kNodeRecordRadianceBytes];
+      EncodeNodeRecord(r, ch, g, bytes);
+      const NodeRecordRadiance d = DecodeNodeRecord(bytes, ch, g);
+      const NodeRecordCommon &a = r.common, &b = d.common;
+      ASSERT_EQ(b.flags, a.flags);
+      ASSERT_EQ(b.child_count, a.child_count);
+      ASSERT_EQ(b.children, a.children);
+      ASSERT_EQ(b.first_point, a.first_point);
+      ASSERT_EQ(b.point_count, a.point_count);
+      ASSERT_EQ(b.depth, a.depth);
+      ASSERT_EQ(b.area, a.area);
+      for (int k = 0; k < 3; ++k) {
+        ASSERT_LE(b.lo[k], a.lo[k]);
+        ASSERT_GE(b.hi[k], a.hi[k]);
+        ASSERT_LE(a.lo[k] - b.lo[k], g.step * 1.001f);
+        ASSERT_LE(b.hi[k] - a.hi[k], g.step * 1.001f);
+      }
+      const float sa = MaxAbs9(a.sh_area);
+      for (int k = 0; k < 9; ++k) {
+        ASSERT_LE(std::fabs(b.sh_area[k] - a.sh_area[k]), sa / (2 * 32767.0f) * 1.01f) << k;
+      }
+      for (int c = 0; c < 3; ++c) {
+        const float sp = MaxAbs9(r.sh_power[c]);
+        for (int k = 0; k < 9; ++k) {
+          if (ch == Channels::kOcclusion) {
+            ASSERT_EQ(d.sh_power[c][k], 0.0f);
+          } else {
+            ASSERT_LE(std::fabs(d.sh_power[c][k] - r.sh_power[c][k]), sp / (2 * 127.0f) * 1.01f);
+          }
+        }
+      }
+    }
+  }
+}
+
+// The builder's case: bounds of decoded positions are stored exactly; and bounds of any points
+// (a hand-made record) are rounded outward, so the decoded box still holds every point.
+TEST(CompactFormatTest, NodeBoundsContainTheirPointsAfterQuantization) {
+  const PositionGrid g = TestGrid();
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<float> u(0.0f, 1.0f);
+  for (int n = 0; n < 2000; ++n) {
+    // A small cluster somewhere in the box, down to a few cells wide.
+    // (The grid's cube is -3 .. 7 on x; a cluster stays inside it, as the builder's do.)
+    const glm::vec3 centre(-3.0f + 9 * u(rng), -2.0f + 6 * u(rng), -1.0f + 2 * u(rng));
+    const float spread = LogUniform(rng, -22, 0);
+    std::vector<Surfel> raw, decoded;
+    for (int i = 0; i < 16; ++i) {
+      Surfel s;
+      s.position = centre + spread * glm::vec3(u(rng), u(rng), u(rng));
+      s.radius = 0.01f;
+      raw.push_back(s);
+      decoded.push_back(DecodePointRecord(EncodeSurfel(s, Channels::kOcclusion, g).bytes,
+                                          Channels::kOcclusion, g));
+    }
+    for (const std::vector<Surfel>* pts : {&decoded, &raw}) {
+      Bounds b;
+      for (const Surfel& s : *pts) b.Extend(s.position);
+      NodeRecordRadiance r{};
+      for (int k = 0; k < 3; ++k) r.common.lo[k] = b.lo[k], r.common.hi[k] = b.hi[k];
+      r.common.flags = kNodeFlagLeaf;
+      r.common.children = kNoNodeRef;
+      uint8_t bytes[kNodeRecordOcclusionBytes];
+      EncodeNodeRecord(r, Channels::kOcclusion, g, bytes);
+      const NodeRecordRadiance d = DecodeNodeRecord(bytes, Channels::kOcclusion, g);
+      for (int k = 0; k < 3; ++k) {
+        if (pts == &decoded) {
+          ASSERT_EQ(d.common.lo[k], b.lo[k]);
+          ASSERT_EQ(d.common.hi[k], b.hi[k]);
+        }
+        for (const std::vector<Surfel>* all : {&decoded, &raw}) {
+          if (pts == &decoded && all == &raw) continue;  // raw points may lie half a cell out
+          for (const Surfel& s : *all) {
+            ASSERT_LE(d.common.lo[k], s.position[k]);
+            ASSERT_GE(d.common.hi[k], s.position[k]);
+          }
+        }
+      }
+    }
+  }
+}
+
+StoreMeta PageMeta(Channels c) {
+  StoreMeta m;
+  m.channels = c;
+  m.page_size = 4096 - 16;
+  m.point_count = 1000000;
+  const PositionGrid g = TestGrid();
+  for (int a = 0; a < 3; ++a) m.grid_origin[a] = g.origin[a];
+  m.grid_step = g.step;
+  return m;
+}
+
+std::vector<uint8_t> NodePayload(const StoreMeta& m, int records) {
+  std::mt19937 rng(5);
+  std::vector<uint8_t> payload(size_t(records) * NodeRecordSize(m.channels));
+  for (int i = 0; i < records; ++i) {
+    NodeRecordRadiance r{};
+    NodeRecordCommon& c = r.common;
+    for (int k = 0; k < 3; ++k) c.lo[k] = -1.0f, c.hi[k] = 1.0f;
+    c.flags = kNodeFlagLeaf;
+    c.children = kNoNodeRef;
+    c.first_point = rng() % 1000;
+    c.point_count = 16;
+    c.area = 1.0f;
+    c.depth = 3;
+    c.sh_area[0] = 0.886f;
+    EncodeNodeRecord(r, m.channels, PositionGrid::Of(m), payload.data() + i * NodeRecordSize(m.channels));
+  }
+  return payload;
+}
+
+absl::Status Decode(const StoreMeta& m, Section s, uint64_t page_no, uint32_t records,
+                    const std::vector<uint8_t>& payload, DecodedPage* out) {
+  PageHeader h{};
+  h.kind = static_cast<uint16_t>(s == Section::kNodes ? PageKind::kNode : PageKind::kPoint);
+  h.format = kStoreFormatVersion;
+  h.record_count = records;
+  h.payload_bytes = static_cast<uint32_t>(payload.size());
+  h.page_no = page_no;
+  PageView v;
+  v.header = &h;
+  v.payload = absl::MakeConstSpan(payload);
+  return DecodePage(v, s, page_no, m, "store Z", out);
+}
+
+TEST(CompactFormatTest, DamagedOrTruncatedPagesAreDataLossNamingThePage) {
+  for (Channels c : {Channels::kOcclusion, Channels::kRadiance}) {
+    const StoreMeta m = PageMeta(c);
+    std::vector<uint8_t> good = NodePayload(m, 10);
+    DecodedPage page;
+    ASSERT_TRUE(Decode(m, Section::kNodes, 7, 10, good, &page).ok());
+    EXPECT_EQ(page.count, 10u);
+
+    // Truncated: the records do not fit the payload.
+    std::vector<uint8_t> cut(good.begin(), good.end() - 1);
+    absl::Status s = Decode(m, Section::kNodes, 7, 10, cut, &page);
+    EXPECT_EQ(s.code(), absl::StatusCode::kDataLoss);
+    EXPECT_THAT(std::string(s.message()), HasSubstr("nodes page 7"));
+    EXPECT_THAT(std::string(s.message()), HasSubstr("store Z"));
+
+    // A leaf with children, and an interior node with 15 (the field holds up to 15).
+    std::vector<uint8_t> bad = good;
+    bad[NodeRecordSize(c) * 4 + 33] = 0x31;
+    s = Decode(m, Section::kNodes, 7, 10, bad, &page);
+    EXPECT_EQ(s.code(), absl::StatusCode::kDataLoss);
+    EXPECT_THAT(std::string(s.message()), HasSubstr("nodes page 7 is corrupt: node 4"));
+    bad[NodeRecordSize(c) * 4 + 33] = 0xf0;
+    s = Decode(m, Section::kNodes, 7, 10, bad, &page);
+    EXPECT_EQ(s.code(), absl::StatusCode::kDataLoss);
+
+    // Inverted bounds: lo's x cell above hi's.
+    bad = good;
+    const uint64_t cell = kGridMax;
+    std::memcpy(bad.data() + NodeRecordSize(c) * 2, &cell, 3);
+    s = Decode(m, Section::kNodes, 7, 10, bad, &page);
+    EXPECT_EQ(s.code(), absl::StatusCode::kDataLoss);
+    EXPECT_THAT(std::string(s.message()), HasSubstr("node 2 has bad bounds"));
+
+    // A point page one record short.
+    const uint32_t per = PointsPerPage(m.page_size, c);
+    std::vector<uint8_t> points(size_t(per) * PointRecordSize(c));
+    ASSERT_TRUE(Decode(m, Section::kPoints, 3, per, points, &page).ok());
+    points.resize(points.size() - 1);
+    s = Decode(m, Section::kPoints, 3, per, points, &page);
+    EXPECT_EQ(s.code(), absl::StatusCode::kDataLoss);
+    EXPECT_THAT(std::string(s.message()), HasSubstr("points page 3"));
+  }
+}
+
+// Any bytes decode to an error or to records the traversal may trust, never a crash.
+TEST(CompactFormatTest, RandomNodeBytesNeverCrash) {
+  const StoreMeta m = PageMeta(Channels::kRadiance);
+  std::mt19937 rng(9);
+  for (int t = 0; t < 2000; ++t) {
+    std::vector<uint8_t> payload(size_t(NodeRecordSize(m.channels)) * 4);
+    for (uint8_t& b : payload) b = static_cast<uint8_t>(rng());
+    DecodedPage page;
+    const absl::Status s = Decode(m, Section::kNodes, 1, 4, payload, &page);
+    if (s.ok()) {
+      for (uint32_t i = 0; i < page.count; ++i) {
+        ASSERT_LE(page.nodes[i].child_count, 8);
+        ASSERT_LE(page.nodes[i].first_point + page.nodes[i].point_count, m.point_count);
+      }
+    } else {
+      ASSERT_EQ(s.code(), absl::StatusCode::kDataLoss);
+      ASSERT_THAT(std::string(s.message()), HasSubstr("nodes page 1"));
+    }
+  }
+}
+
+}  // namespace
+}  // namespace pbgi::internal
