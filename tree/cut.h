@@ -64,26 +64,6 @@ inline float NodeSolidAngle(const glm::vec3& lo, const glm::vec3& hi, const floa
   return NodeSolidAngleFrom(0.5f * (lo + hi), sh_area, p);
 }
 
-// The cosine-weighted cut's weight (Cut::cosine_weighted): the largest cosine between the
-// receiver's unit normal and a direction from p into the sphere (centre, radius^2 radius2) that
-// does not contain p, clamped to [kMinCutCosine, 1]. With theta the angle of the centre's
-// direction and alpha = asin(radius / distance) the sphere's half angle, it is 1 when
-// theta <= alpha, else cos(theta - alpha). The traversal passes the node's near sphere
-// (NodeNearSphere), the test harness the same sphere, so both get the same bits.
-inline float NodeCutCosine(const glm::vec3& centre, float radius2, const glm::vec3& p,
-                           const glm::vec3& unit_n) {
-  const glm::vec3 v = centre - p;
-  const float d2 = glm::dot(v, v);
-  if (!(d2 > radius2)) return 1.0f;
-  const float inv_d = 1.0f / std::sqrt(d2);
-  const float sin_a = std::sqrt(radius2) * inv_d;
-  const float cos_a = std::sqrt(std::max(0.0f, 1.0f - sin_a * sin_a));
-  const float cos_t = glm::dot(v, unit_n) * inv_d;
-  if (cos_t >= cos_a) return 1.0f;
-  const float sin_t = std::sqrt(std::max(0.0f, 1.0f - cos_t * cos_t));
-  return std::clamp(cos_t * cos_a + sin_t * sin_a, kMinCutCosine, 1.0f);
-}
-
 // The lobe-aware cut (Cut::lobe): its per-query constants, made once per gather by
 // MakeLobeCut, and the weight of a node (LobeWeight in pbgi/query.h). LobeCutWeight is
 // non-decreasing in the cosine x and lies in [min_weight, max_weight] (max_weight is its value
@@ -151,6 +131,17 @@ inline float NodeLobeCosine(const glm::vec3& centre, float radius2, const glm::v
   if (cos_t >= cos_a) return 1.0f;
   const float sin_t = std::sqrt(std::max(0.0f, 1.0f - cos_t * cos_t));
   return cos_t * cos_a + sin_t * sin_a;
+}
+// The cosine-weighted cut's weight (Cut::cosine_weighted): the largest cosine between the
+// receiver's unit normal and a direction from p into the sphere (centre, radius^2 radius2) that
+// does not contain p, clamped to [kMinCutCosine, 1]. With theta the angle of the centre's
+// direction and alpha = asin(radius / distance) the sphere's half angle, it is 1 when
+// theta <= alpha, else cos(theta - alpha). The traversal passes the node's near sphere
+// (NodeNearSphere), the test harness the same sphere, so both get the same bits.
+// It is NodeLobeCosine about the normal, clamped.
+inline float NodeCutCosine(const glm::vec3& centre, float radius2, const glm::vec3& p,
+                           const glm::vec3& unit_n) {
+  return std::clamp(NodeLobeCosine(centre, radius2, p, unit_n), kMinCutCosine, 1.0f);
 }
 // The lobe weight of a node's near sphere (the conservative bound: the lobe's largest value
 // over every direction into the sphere).
