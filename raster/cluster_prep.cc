@@ -34,6 +34,13 @@ glm::vec3 ToFrame(const ClusterFrame& f, const glm::vec3& v) {
 constexpr float kAxisFlatness = kFlatness * kFlatness;
 // (3 k - 1)^2 / 4 for k = kAxisFlatness, the least anisotropy of a dominant axis, less a margin.
 constexpr float kAxisAnisotropy = 0.2f;
+// A one-sided cluster whose surfels all face one way (|sum A_i n_i| >= kSheetFlatness * A) and
+// whose plane the receiver lies behind, beyond the box's thickness, shows the receiver only
+// backs: with hitsides front it is culled. Its moments' projected area there is a rounding
+// residual, not 0, and drawn as a flat polygon with the normal turned towards the receiver it
+// showed up to its whole area (bug: sheet_seen_from_behind_drawn: a receiver on cornell's
+// ceiling 0.002 above the lamp's quad got the lamp's light in its glossy lobe).
+constexpr float kSheetFlatness = 0.999f;
 [[gnu::noinline]] void AxisPlane(const Cluster& c, const ClusterFrame& f, PreparedSplat* s) {
   if (!sh::AxisDominates(c.sh_area.data(), kAxisFlatness)) return;
   const glm::vec3 e = sh::PrincipalAxis(c.sh_area.data());
@@ -125,6 +132,10 @@ bool PrepareClusterOne(const Cluster& c, const ClusterFrame& f, PreparedSplat* o
       s.plane = towards * scale;
       s.thick =
           0.5f * (std::fabs(mw.x) * ext.x + std::fabs(mw.y) * ext.y + std::fabs(mw.z) * ext.z);
+      if (f.sides == HitSides::kFront && towards > 0.0f && nl >= kSheetFlatness * view.total &&
+          -s.plane > s.thick) {
+        return false;
+      }
       s.flat = s.plane < 0.0f ? 1 : 0;
     }
   }

@@ -470,5 +470,47 @@ TEST(FootprintTest, OverlappingSurfacesCountTheirUnion) {
   EXPECT_NEAR(got, want, 0.02);
 }
 
+// Regression (sheet_seen_from_behind_drawn): a one-sided emitting sheet facing down (cornell's
+// lamp, 0.002 below the ceiling) showed up in the glossy lobe and the irradiance of a receiver
+// on the ceiling beside it, which sees only the sheet's back. Its small clusters' projected area
+// towards the receiver was a rounding residual instead of 0, and drawn as a flat polygon with
+// the normal turned towards the receiver it covered their whole area seen edge on (glossy 0.57
+// of the lamp's 10 here, cornell's receivers by the lamp +0.006 to +0.018 each). A receiver
+// below the sheet still sees its form factor.
+TEST(FootprintTest, SheetSeenFromBehindShowsNothing) {
+  std::vector<Surfel> lamp;
+  const float pitch = 0.01f;
+  for (int j = 0; j < 20; ++j) {
+    for (int i = 0; i < 20; ++i) {
+      Surfel s;
+      s.position = glm::vec3(-0.1f + (i + 0.5f) * pitch, 0.03f + (j + 0.5f) * pitch, 0.998f);
+      s.normal = glm::vec3(0, 0, -1);
+      s.radius = pitch / std::sqrt(static_cast<float>(kPi));
+      s.radiance = glm::vec3(10.0f);
+      lamp.push_back(s);
+    }
+  }
+  MicroBuffer mb;
+  for (float cell : {0.03f, 0.05f, 0.1f}) {
+    Gathered g;
+    g.clusters = ClustersInCells(lamp, cell);
+    ShadeReceiver ceiling;
+    ceiling.position = glm::vec3(0.0f, 0.0f, 1.0f);
+    ceiling.normal = glm::vec3(0, 0, -1);
+    const float a = 16.0f * static_cast<float>(kPi) / 180.0f;
+    ceiling.reflection = glm::vec3(0.0f, std::cos(a), -std::sin(a));
+    for (GlossyLobe lobe : {GlossyLobe::kNone, GlossyLobe::kPhong, GlossyLobe::kGgx}) {
+      RasterOptions o = Polygons(/*radiance=*/true);
+      o.lobe = lobe;
+      const ShadeResult out = MustShade(g, ceiling, o, &mb);
+      EXPECT_LT(out.occlusion, 1e-6f) << cell;
+      EXPECT_LT(out.irradiance.x, 1e-5f) << cell;
+      EXPECT_LT(out.glossy.x, 1e-5f) << cell << " lobe " << static_cast<int>(lobe);
+    }
+    const ShadeResult below = MustShade(g, At(glm::vec3(0.0f, 0.13f, 0.9f)), Polygons(), &mb);
+    EXPECT_NEAR(below.occlusion, RectangleFormFactor(-0.1, 0.1, -0.1, 0.1, 0.098), 0.02) << cell;
+  }
+}
+
 }  // namespace
 }  // namespace pbgi
