@@ -243,8 +243,8 @@ inline void RasterizePolygonTo(const Polygon& p, int res, std::vector<float>* ac
   using namespace polygon_coverage;  // NOLINT(build/namespaces): this file's own helpers
 
   if (p.n < 3) return;
-  // Whether the sink takes a pixel's coverage mask (a callable returning it) as a third argument.
-  constexpr bool kMasks = std::is_invocable_v<Sink, uint32_t, float, uint64_t (*)()>;
+  // Whether the sink takes a pixel's coverage mask as a third argument.
+  constexpr bool kMasks = std::is_invocable_v<Sink, uint32_t, float, uint64_t>;
   // The face of each vertex; a polygon whose vertices all lie in one face's pyramid lies in it
   // (the pyramid is convex) and needs no clipping.
   int home = -1;
@@ -319,9 +319,9 @@ inline void RasterizePolygonTo(const Polygon& p, int res, std::vector<float>* ac
     const int y1 = std::min(res - 1, std::max(y0, CeilPos(maxy) - 1));
     const uint32_t base = static_cast<uint32_t>(f * res * res);
     if (skip(base, x0, x1, y0, y1)) continue;
-    // A sink that takes a third argument can ask for each pixel's coverage mask, as a call
-    // (the face's sample spans are found on the first call; a pixel that the polygon covers
-    // whole holds every sample, most of a large polygon's pixels).
+    // A sink that takes a third argument gets each pixel's coverage mask (the face's sample
+    // spans are found for its first partly covered pixel; a pixel that the polygon covers whole
+    // holds every sample, most of a large polygon's pixels).
     MaskSpans spans;
     bool have_spans = false;
     auto emit = [&](int col, int row, float area2) {
@@ -329,14 +329,15 @@ inline void RasterizePolygonTo(const Polygon& p, int res, std::vector<float>* ac
       if (!(cov > 1e-6f)) return;
       const uint32_t pixel = base + static_cast<uint32_t>(row * res + col);
       if constexpr (kMasks) {
-        sink(pixel, cov, [&]() -> uint64_t {
-          if (cov >= 1.0f) return ~uint64_t{0};
+        uint64_t mask = ~uint64_t{0};
+        if (cov < 1.0f) {
           if (!have_spans) {
             Spans(whole, y0, y1, &spans);
             have_spans = true;
           }
-          return Mask(spans, col, row);
-        });
+          mask = Mask(spans, col, row);
+        }
+        sink(pixel, cov, mask);
       } else {
         sink(pixel, cov);
       }

@@ -169,13 +169,8 @@ void Rasterizer::SplatPolygons(const PreparedSplat& s) {
     // An opaque polygon's fragments carry their coverage masks (see Layer()). One of lower
     // opacity covers an unknown part of its pixels' samples: its fragments stay scalar.
     if (alpha >= kMaskOpacity) {
-      auto masked = [&](uint32_t pixel, float cov, auto&& mask_of) {
-        PixelState& px = px_[pixel];
-        if (px.closed >= 1.0f) {  // what Emit() would do there, without the mask
-          px.depth = std::min(px.depth, fr.depth);
-          return;
-        }
-        Emit<kClamp, kRad>(pixel, alpha * cov, fr, mask_of());
+      auto masked = [&](uint32_t pixel, float cov, uint64_t mask) {
+        Emit<kClamp, kRad>(pixel, alpha * cov, fr, mask);
       };
       for (uint32_t k = 0; k < s.poly_count; ++k) {
         RasterizePolygonTo(polys[k], res_, &mb_.accumulation_, masked, skip);

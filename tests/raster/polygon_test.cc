@@ -155,8 +155,7 @@ TEST(PolygonTest, PolygonsSharingAnEdgeTileTheirUnion) {
 std::map<uint32_t, uint64_t> Masks(const Polygon& p, int res) {
   std::vector<float> acc;
   std::map<uint32_t, uint64_t> m;
-  RasterizePolygonTo(p, res, &acc,
-                     [&](uint32_t pixel, float, auto&& mask_of) { m[pixel] |= mask_of(); });
+  RasterizePolygonTo(p, res, &acc, [&](uint32_t pixel, float, uint64_t mask) { m[pixel] |= mask; });
   return m;
 }
 
@@ -194,8 +193,8 @@ TEST(PolygonTest, CoverageMasksSampleThePolygon) {
     p.n = 3;
     for (int i = 0; i < 3; ++i) p.v[i] = glm::vec3(u(rng), u(rng), 1.0f);
     std::vector<float> acc;
-    RasterizePolygonTo(p, 12, &acc, [&](uint32_t, float cov, auto&& mask_of) {
-      const double share = std::popcount(mask_of()) / 64.0;
+    RasterizePolygonTo(p, 12, &acc, [&](uint32_t, float cov, uint64_t mask) {
+      const double share = std::popcount(mask) / 64.0;
       EXPECT_NEAR(share, cov, 0.2);
       err += std::fabs(share - cov);
       ++pixels;
