@@ -206,8 +206,10 @@ namespace {
 // hexadecimal floats). A database built from a source that declared bounds larger than its
 // points has it; the points' box stood for it before, and then every cluster's and leaf's cell
 // was off the octree's grid, so footprints did not snap to the cells' sides (bug:
-// cells_off_the_key_cube). Missing or unusable (older databases): the points' box, which is
-// the key box of every build that measured its bounds.
+// cells_off_the_key_cube). Every build writes it; missing or unusable (a store written
+// without it): the points' box, which is the key box of every build that measured its bounds.
+// Format 3's position grid (StoreMeta::grid_origin, grid_step) holds the same cube in float,
+// while the builder's cells (MortonCube) are in double.
 Bounds KeyBounds(const StoreMeta& meta) {
   const auto it = meta.stats.find("key_bounds");
   if (it == meta.stats.end()) return meta.bounds;

@@ -93,18 +93,8 @@ inline double PhongLobeCosine(double u, double exponent) {
   return std::pow(std::clamp(u, 0.0, 1.0), 1.0 / (exponent + 1.0));
 }
 
-// GGX as pbgi/raster.h defines it, D(x) = alpha^2 / (pi (1 + k x^2)^2), k = alpha^2 - 1 in
-// (-1, 0]: the integral of 1 / (1 + k t^2)^2 over [0, x] is
-//   x / (2 (1 + k x^2)) + atanh(m x) / (2 m),  m = sqrt(-k) = sqrt(1 - alpha^2)
-// (the second term tends to x / 2 as m -> 0, the uniform lobe of alpha = 1).
-inline double GgxLobeIntegral(double x, double alpha) {
-  const double k = alpha * alpha - 1.0;
-  const double m = std::sqrt(std::max(0.0, -k));
-  const double at = m > 1e-8 ? std::atanh(m * x) / m : x;
-  return 0.5 * (x / (1.0 + k * x * x) + at);
-}
 
-// The inverse of GgxLobeIntegral(x) / GgxLobeIntegral(1): Newton's method on the monotone CDF,
+// The inverse of GgxLobeIntegral(x) / GgxLobeIntegral(1) (base/math.h): Newton's method on the monotone CDF,
 // kept inside a shrinking bracket (a bisection step whenever Newton would leave it).
 inline double GgxLobeCosine(double u, double alpha) {
   const double k = alpha * alpha - 1.0;

@@ -11,6 +11,7 @@
 #include <cmath>
 #include <limits>
 
+#include "base/math.h"
 #include "glm/geometric.hpp"
 #include "glm/vec3.hpp"
 #include "pbgi/query.h"
@@ -105,11 +106,8 @@ inline LobeCut MakeLobeCut(const CutLobe& lobe) {
   } else {
     l.phong = false;
     const double a2 = double(lobe.ggx_roughness) * double(lobe.ggx_roughness);
-    const double m = std::sqrt(std::max(0.0, 1.0 - a2));
-    // integral over [0, 1] of 1 / (1 + k x^2)^2 (scene/sample_math.h GgxLobeIntegral)
-    const double integral = 0.5 * (1.0 / a2 + (m > 1e-8 ? std::atanh(m) / m : 1.0));
     l.k = static_cast<float>(a2 - 1.0);
-    l.scale = static_cast<float>(1.0 / (2.0 * integral));
+    l.scale = static_cast<float>(1.0 / (2.0 * GgxLobeIntegral(1.0, double(lobe.ggx_roughness))));
   }
   l.max_weight = std::max(l.min_weight, LobeCutRaw(l, 1.0f));
   return l;
