@@ -272,7 +272,7 @@ struct Reader::Impl {
   // Gather's traversal from the root, with (kLobe) or without a lobe.
   template <bool kLobe>
   [[gnu::noinline]] absl::Status Traverse(const glm::vec3& p, const glm::vec3& n, const Cut& cut,
-                        const internal::LobeCut& lobe, Gathered* out);
+                                          const internal::LobeCut& lobe, Gathered* out);
   absl::Status EmitLeafPoints(uint64_t first, uint64_t count, const Bounds& cell,
                               const glm::vec3& p, const glm::vec3& n, float max_distance,
                               bool check_distance, Gathered* out);

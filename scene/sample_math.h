@@ -93,9 +93,8 @@ inline double PhongLobeCosine(double u, double exponent) {
   return std::pow(std::clamp(u, 0.0, 1.0), 1.0 / (exponent + 1.0));
 }
 
-
-// The inverse of GgxLobeIntegral(x) / GgxLobeIntegral(1) (base/math.h): Newton's method on the monotone CDF,
-// kept inside a shrinking bracket (a bisection step whenever Newton would leave it).
+// The inverse of GgxLobeIntegral(x) / GgxLobeIntegral(1) (base/math.h): Newton's method on the
+// monotone CDF, kept inside a shrinking bracket (a bisection step whenever Newton would leave it).
 inline double GgxLobeCosine(double u, double alpha) {
   const double k = alpha * alpha - 1.0;
   const double target = std::clamp(u, 0.0, 1.0) * GgxLobeIntegral(1.0, alpha);

@@ -98,15 +98,14 @@ absl::Status DecompressPage(const std::string& path, Section section, uint64_t p
   if (*dctx == nullptr) *dctx = ZSTD_createDCtx();
   if (*dctx == nullptr) return absl::ResourceExhaustedError("zstd: no memory for a context");
   const size_t n =
-      ZSTD_decompressDCtx(static_cast<ZSTD_DCtx*>(*dctx), out + sizeof(PageHeader),
-                          h.payload_bytes, stored + sizeof(PageHeader), h.stored_payload_bytes);
+      ZSTD_decompressDCtx(static_cast<ZSTD_DCtx*>(*dctx), out + sizeof(PageHeader), h.payload_bytes,
+                          stored + sizeof(PageHeader), h.stored_payload_bytes);
   if (ZSTD_isError(n) || n != h.payload_bytes) {
     return absl::DataLossError(absl::StrFormat(
         "store %s: %s page %d is corrupt: its compressed payload (%d bytes) %s", path,
         SectionName(section), page_no, h.stored_payload_bytes,
         ZSTD_isError(n) ? absl::StrCat("does not decompress: ", ZSTD_getErrorName(n))
-                        : absl::StrFormat("decompresses to %d bytes, not %d", n,
-                                          h.payload_bytes)));
+                        : absl::StrFormat("decompresses to %d bytes, not %d", n, h.payload_bytes)));
   }
   h.codec = kPageCodecNone;
   h.stored_payload_bytes = 0;

@@ -381,12 +381,12 @@ absl::Status PageWriter::Append(Section section, uint64_t page_no, PageKind kind
       w.zstd = ZSTD_createCCtx();
       w.compressed.resize(ZSTD_compressBound(payload_capacity()));
     }
-    const size_t n = w.zstd == nullptr ? 0
-                                       : ZSTD_compressCCtx(w.zstd, w.compressed.data(),
-                                                           w.compressed.size(), payload.data(),
-                                                           payload.size(), kZstdLevel);
-    const uint64_t stored = std::max<uint64_t>(
-        internal::kMinCompressedPage, (sizeof(PageHeader) + uint64_t{n} + 7) / 8 * 8);
+    const size_t n = w.zstd == nullptr
+                         ? 0
+                         : ZSTD_compressCCtx(w.zstd, w.compressed.data(), w.compressed.size(),
+                                             payload.data(), payload.size(), kZstdLevel);
+    const uint64_t stored = std::max<uint64_t>(internal::kMinCompressedPage,
+                                               (sizeof(PageHeader) + uint64_t{n} + 7) / 8 * 8);
     if (!ZSTD_isError(n) && n > 0 && stored <= w.options.page_size - w.options.page_size / 8) {
       size = static_cast<uint32_t>(stored);
       compressed = static_cast<uint32_t>(n);

@@ -310,10 +310,9 @@ inline void DecodeScaled(float s, const Int* q, int n, float* c) {
 inline void EncodeNodeRecord(const NodeRecordRadiance& r, Channels ch, const PositionGrid& grid,
                              uint8_t* dst) {
   const NodeRecordCommon& c = r.common;
-  const uint64_t lo = PackCell(grid.Floor(0, c.lo[0]), grid.Floor(1, c.lo[1]),
-                               grid.Floor(2, c.lo[2]));
-  const uint64_t hi =
-      PackCell(grid.Ceil(0, c.hi[0]), grid.Ceil(1, c.hi[1]), grid.Ceil(2, c.hi[2]));
+  const uint64_t lo =
+      PackCell(grid.Floor(0, c.lo[0]), grid.Floor(1, c.lo[1]), grid.Floor(2, c.lo[2]));
+  const uint64_t hi = PackCell(grid.Ceil(0, c.hi[0]), grid.Ceil(1, c.hi[1]), grid.Ceil(2, c.hi[2]));
   std::memcpy(dst, &lo, 8);
   std::memcpy(dst + 8, &hi, 8);
   const uint64_t first = std::min(c.first_point, kMaxStoredPointIndex);

@@ -78,8 +78,8 @@ void DecodeV2(const uint8_t* data, Section section, uint32_t count, Channels c, 
       s.normal = {r.normal[0], r.normal[1], r.normal[2]};
       s.radius = std::fabs(r.radius);
       s.two_sided = std::signbit(r.radius);
-      s.radiance = HasRadiance(c) ? glm::vec3(r.radiance[0], r.radiance[1], r.radiance[2])
-                                  : glm::vec3(0.0f);
+      s.radiance =
+          HasRadiance(c) ? glm::vec3(r.radiance[0], r.radiance[1], r.radiance[2]) : glm::vec3(0.0f);
     }
   }
 }
@@ -144,14 +144,16 @@ Page MakePage(Section section, Channels c, int version) {
       const float radius = 0.01f + 0.1f * u(rng);
       const float rad[3] = {u(rng), u(rng), u(rng)};
       if (version == 2) {
-        V2Point r{{pos[0], pos[1], pos[2]}, {nrm[0], nrm[1], nrm[2]}, radius, {rad[0], rad[1], rad[2]}};
+        V2Point r{
+            {pos[0], pos[1], pos[2]}, {nrm[0], nrm[1], nrm[2]}, radius, {rad[0], rad[1], rad[2]}};
         std::memcpy(dst, &r, rec);
       } else {
         EncodePointRecord(pos, nrm, radius, rad, c, grid, dst);
       }
     }
   }
-  p.header.kind = static_cast<uint16_t>(section == Section::kNodes ? PageKind::kNode : PageKind::kPoint);
+  p.header.kind =
+      static_cast<uint16_t>(section == Section::kNodes ? PageKind::kNode : PageKind::kPoint);
   p.header.format = static_cast<uint16_t>(version);
   p.header.record_count = count;
   p.header.payload_bytes = static_cast<uint32_t>(p.payload.size());
@@ -201,8 +203,9 @@ void BM_Decode(benchmark::State& state, Section section, Channels c, int version
   const double pages = static_cast<double>(state.iterations());
   state.counters["us_per_page"] =
       benchmark::Counter(pages * 1e-6, benchmark::Counter::kIsRate | benchmark::Counter::kInvert);
-  state.counters["ns_per_record"] = benchmark::Counter(
-      pages * p.header.record_count * 1e-9, benchmark::Counter::kIsRate | benchmark::Counter::kInvert);
+  state.counters["ns_per_record"] =
+      benchmark::Counter(pages * p.header.record_count * 1e-9,
+                         benchmark::Counter::kIsRate | benchmark::Counter::kInvert);
   state.counters["records"] = p.header.record_count;
   state.counters["stored_bytes"] = version == 4 ? frame.size() : p.payload.size();
   ZSTD_freeDCtx(dctx);
@@ -212,10 +215,9 @@ void Register() {
   for (int version : {2, 3, 4}) {
     for (Channels c : {Channels::kOcclusion, Channels::kRadiance}) {
       for (Section s : {Section::kNodes, Section::kPoints}) {
-        const std::string name = std::string("Decode/") +
-                                 (version == 4 ? "v3z" : "v" + std::to_string(version)) + "/" +
-                                 (c == Channels::kRadiance ? "radiance" : "occlusion") + "/" +
-                                 SectionName(s);
+        const std::string name =
+            std::string("Decode/") + (version == 4 ? "v3z" : "v" + std::to_string(version)) + "/" +
+            (c == Channels::kRadiance ? "radiance" : "occlusion") + "/" + SectionName(s);
         benchmark::RegisterBenchmark(name.c_str(), [s, c, version](benchmark::State& st) {
           BM_Decode(st, s, c, version);
         })->Unit(benchmark::kMicrosecond);

@@ -2,10 +2,10 @@
 //
 // A store has three named sections: `meta` (one meta record, committed last), `nodes` and
 // `points` (key: page number, value: one fixed-size page, stored whole or, with
-// StoreOptions::compress_pages, compressed and shorter; readers always see it whole). A PageWriter appends pages in
-// page-number order with MDB_APPEND, commits them in bounded batches, and makes the store visible
-// only when Finish() commits the meta record. A PageStore opens a finished store read-only; many
-// threads (MDB_NOTLS, one ReadTxn each) and many processes may read it at once.
+// StoreOptions::compress_pages, compressed and shorter; readers always see it whole). A PageWriter
+// appends pages in page-number order with MDB_APPEND, commits them in bounded batches, and makes
+// the store visible only when Finish() commits the meta record. A PageStore opens a finished store
+// read-only; many threads (MDB_NOTLS, one ReadTxn each) and many processes may read it at once.
 //
 // Thread safety: a PageStore is safe to share between threads. A ReadTxn and a PageWriter belong
 // to one thread at a time.
@@ -82,11 +82,11 @@ inline constexpr uint16_t kPageCodecNone = 0;
 inline constexpr uint16_t kPageCodecZstd = 1;
 struct PageHeader {
   uint32_t checksum;
-  uint16_t kind;           // PageKind
-  uint16_t format;         // kStoreFormatVersion
-  uint32_t record_count;   // records in this page
-  uint32_t payload_bytes;  // bytes used after the header (uncompressed)
-  uint64_t page_no;        // the page's own number (key), to catch misplaced pages
+  uint16_t kind;                  // PageKind
+  uint16_t format;                // kStoreFormatVersion
+  uint32_t record_count;          // records in this page
+  uint32_t payload_bytes;         // bytes used after the header (uncompressed)
+  uint64_t page_no;               // the page's own number (key), to catch misplaced pages
   uint32_t stored_payload_bytes;  // kPageCodecZstd: bytes of the compressed payload; else 0
   uint16_t codec;                 // kPageCodecNone or kPageCodecZstd
   uint16_t pad;

@@ -138,8 +138,8 @@ Reference MakeReference(const std::vector<Surfel>& cloud, uint32_t leaf_size) {
     const float nrm[3] = {n.x, n.y, n.z};
     const float rad[3] = {s.radiance.x, s.radiance.y, s.radiance.z};
     uint8_t code[kPointRecordRadianceBytes];
-    EncodePointRecord(pos, nrm, EncodeRadius(s.radius, s.two_sided), rad, Channels::kRadiance,
-                      grid, code);
+    EncodePointRecord(pos, nrm, EncodeRadius(s.radius, s.two_sided), rad, Channels::kRadiance, grid,
+                      code);
     r.sorted.push_back(DecodePointRecord(code, Channels::kRadiance, grid));
     r.keys.push_back(keys[i]);
   }

@@ -148,8 +148,8 @@ TEST(CompressedPageTest, DamagedOrTruncatedCompressedPageIsDataLossNamingThePage
     return txn->Get(Section::kPoints, 3).status();
   };
   auto rechecksum = [&](std::string* bytes) {
-    const uint32_t crc = internal::Crc32c(0, reinterpret_cast<const uint8_t*>(bytes->data()) + at + 4,
-                                stored - 4);
+    const uint32_t crc =
+        internal::Crc32c(0, reinterpret_cast<const uint8_t*>(bytes->data()) + at + 4, stored - 4);
     std::memcpy(&(*bytes)[at], &crc, 4);
   };
   ASSERT_TRUE(get3(true).ok());

@@ -283,7 +283,8 @@ std::vector<uint8_t> NodePayload(const StoreMeta& m, int records) {
     c.area = 1.0f;
     c.depth = 3;
     c.sh_area[0] = 0.886f;
-    EncodeNodeRecord(r, m.channels, PositionGrid::Of(m), payload.data() + i * NodeRecordSize(m.channels));
+    EncodeNodeRecord(r, m.channels, PositionGrid::Of(m),
+                     payload.data() + i * NodeRecordSize(m.channels));
   }
   return payload;
 }
