@@ -273,6 +273,9 @@ absl::StatusOr<BuildStats> BuildToSink(SurfelSource& source, PageSink& sink,
   sort_options.run_capacity = plan.run_capacity;
   sort_options.merge_bytes = plan.merge_bytes;
   sort_options.threads = plan.threads;
+  if (CompactSpill(options)) {
+    sort_options.compact = SpillCodec{options.channels, GridOfCube(MortonCube(bounds))};
+  }
   ExternalSorter::RunsWritten runs_written;
   if (!run_dir.empty() && !resume) {
     runs_written = [&](const std::vector<KeptRun>& runs) -> absl::Status {

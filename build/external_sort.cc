@@ -10,6 +10,7 @@
 #include <utility>
 
 #include "absl/strings/str_format.h"
+#include "build/spill_codec.h"
 #include "store/crc32c.h"
 
 namespace pbgi::internal {
@@ -95,36 +96,28 @@ KeyIndex* RadixSortKeyIndex(absl::Span<KeyIndex> pairs, absl::Span<KeyIndex> scr
   return src;
 }
 
-// Streams one spilled run through a buffer.
+// Streams one spilled run through a buffer: raw runs straight into SortRecords; compact runs
+// (`dec`) through a byte buffer, one block decoded at a time.
 class ExternalSorter::RunReader {
  public:
-  RunReader(Run run, size_t buffer_records, const std::string* dir)
-      : run_(run),
-        buf_(new SortRecord[std::max<size_t>(buffer_records, 1)]),
-        cap_(std::max<size_t>(buffer_records, 1)),
-        dir_(dir) {}
-  absl::Status Refill() {
-    pos_ = 0;
-    len_ = static_cast<size_t>(std::min<uint64_t>(cap_, run_.count - next_));
-    if (len_ == 0) return absl::OkStatus();
-    const uint64_t offset = next_ * sizeof(SortRecord), bytes = len_ * sizeof(SortRecord);
-    PBGI_RETURN_IF_ERROR(ReadAll(run_.fd, buf_.get(), bytes, offset, *dir_));
-    if (run_.checked) {
-      crc_ = Crc32c(crc_, buf_.get(), bytes);
-      if (next_ + len_ == run_.count && crc_ != run_.crc) {
-        return absl::DataLossError(absl::StrFormat(
-            "kept sort run %s does not match its checksum in the manifest (CRC-32C %08x, the "
-            "manifest says %08x): it was changed or damaged; remove its directory and build "
-            "again without --resume",
-            run_.path, crc_, run_.crc));
-      }
+  RunReader(Run run, size_t buffer_records, const std::string* dir, SpillBlockReader* dec,
+            const SpillCodec* codec)
+      : run_(run), dir_(dir), dec_(dec), codec_(codec) {
+    if (dec_ == nullptr) {
+      cap_ = std::max<size_t>(buffer_records, 1);
+    } else {
+      cap_ = kSpillBlockRecords;
+      const uint64_t budget = uint64_t{std::max<size_t>(buffer_records, 1)} * sizeof(SortRecord);
+      io_cap_ = static_cast<size_t>(std::max<uint64_t>(
+          codec_->max_block_bytes(),
+          budget > cap_ * sizeof(SortRecord) ? budget - cap_ * sizeof(SortRecord) : 0));
+      io_.reset(new uint8_t[io_cap_]);
+      what_ = run_.path.empty() ? absl::StrFormat("a compact sort run in '%s'", *dir_)
+                                : absl::StrFormat("compact sort run %s", run_.path);
     }
-    // Read once: drop the pages from the page cache (a memory cgroup counts them).
-    (void)posix_fadvise(run_.fd, static_cast<off_t>(offset), static_cast<off_t>(bytes),
-                        POSIX_FADV_DONTNEED);
-    next_ += len_;
-    return absl::OkStatus();
+    buf_.reset(new SortRecord[cap_]);
   }
+  absl::Status Refill() { return dec_ == nullptr ? RefillRaw() : RefillCompact(); }
   bool Valid() const { return pos_ < len_; }
   const SortRecord& Current() const { return buf_[pos_]; }
   absl::Status Advance() {
@@ -133,13 +126,150 @@ class ExternalSorter::RunReader {
   }
 
  private:
+  // Reads [offset, offset + bytes) of the file into `to`, checks the CRC at the run's end and
+  // drops the pages from the page cache (read once; a memory cgroup counts them).
+  absl::Status ReadFile(void* to, uint64_t offset, uint64_t bytes) {
+    PBGI_RETURN_IF_ERROR(ReadAll(run_.fd, to, bytes, offset, *dir_));
+    if (run_.checked) {
+      crc_ = Crc32c(crc_, to, bytes);
+      if (offset + bytes == run_.bytes && crc_ != run_.crc) {
+        return absl::DataLossError(absl::StrFormat(
+            "kept sort run %s does not match its checksum in the manifest (CRC-32C %08x, the "
+            "manifest says %08x): it was changed or damaged; remove its directory and build "
+            "again without --resume",
+            run_.path, crc_, run_.crc));
+      }
+    }
+    (void)posix_fadvise(run_.fd, static_cast<off_t>(offset), static_cast<off_t>(bytes),
+                        POSIX_FADV_DONTNEED);
+    return absl::OkStatus();
+  }
+  absl::Status RefillRaw() {
+    pos_ = 0;
+    len_ = static_cast<size_t>(std::min<uint64_t>(cap_, run_.count - next_));
+    if (len_ == 0) return absl::OkStatus();
+    PBGI_RETURN_IF_ERROR(
+        ReadFile(buf_.get(), next_ * sizeof(SortRecord), len_ * sizeof(SortRecord)));
+    next_ += len_;
+    return absl::OkStatus();
+  }
+  // Makes `want` bytes available at io_[io_pos_].
+  absl::Status Want(size_t want) {
+    if (io_len_ - io_pos_ >= want) return absl::OkStatus();
+    const size_t avail = io_len_ - io_pos_;
+    std::memmove(io_.get(), io_.get() + io_pos_, avail);
+    io_pos_ = 0;
+    io_len_ = avail;
+    const uint64_t room = std::min<uint64_t>(io_cap_ - io_len_, run_.bytes - file_next_);
+    if (io_len_ + room < want) {
+      return absl::DataLossError(
+          absl::StrFormat("%s is truncated: %d records of %d decoded, at byte offset %d of %d",
+                          what_, decoded_, run_.count, file_next_, run_.bytes));
+    }
+    PBGI_RETURN_IF_ERROR(ReadFile(io_.get() + io_len_, file_next_, room));
+    file_next_ += room;
+    io_len_ += static_cast<size_t>(room);
+    return absl::OkStatus();
+  }
+  absl::Status RefillCompact() {
+    pos_ = 0;
+    len_ = 0;
+    if (decoded_ == run_.count) {
+      if (io_pos_ != io_len_ || file_next_ != run_.bytes) {
+        return absl::DataLossError(absl::StrFormat("%s has bytes after its %d records (%d bytes)",
+                                                   what_, run_.count, run_.bytes));
+      }
+      return absl::OkStatus();
+    }
+    PBGI_RETURN_IF_ERROR(Want(kSpillBlockHeaderBytes));
+    uint32_t frame = 0, n = 0;
+    PBGI_RETURN_IF_ERROR(
+        SpillBlockReader::ParseHeader(io_.get() + io_pos_, *codec_, what_.c_str(), &frame, &n));
+    if (decoded_ + n > run_.count) {
+      return absl::DataLossError(
+          absl::StrFormat("%s: a block of %d records after %d goes past its %d records", what_, n,
+                          decoded_, run_.count));
+    }
+    PBGI_RETURN_IF_ERROR(Want(kSpillBlockHeaderBytes + frame));
+    PBGI_RETURN_IF_ERROR(
+        dec_->Decode(absl::Span<const uint8_t>(io_.get() + io_pos_ + kSpillBlockHeaderBytes, frame),
+                     n, buf_.get(), what_.c_str()));
+    io_pos_ += kSpillBlockHeaderBytes + frame;
+    decoded_ += n;
+    len_ = n;
+    return absl::OkStatus();
+  }
+
   Run run_;
   std::unique_ptr<SortRecord[]> buf_;
-  size_t cap_;
+  size_t cap_ = 0;
   size_t pos_ = 0, len_ = 0;
-  uint64_t next_ = 0;  // records read from the file so far
+  uint64_t next_ = 0;  // raw: records read from the file so far
   uint32_t crc_ = 0;   // of the bytes read so far (checked runs)
   const std::string* dir_;
+  // Compact runs.
+  SpillBlockReader* dec_;
+  const SpillCodec* codec_;
+  std::unique_ptr<uint8_t[]> io_;
+  size_t io_cap_ = 0, io_pos_ = 0, io_len_ = 0;
+  uint64_t file_next_ = 0;  // bytes read from the file so far
+  uint64_t decoded_ = 0;    // records decoded so far
+  std::string what_;
+};
+
+// Writes a run file, raw or compact (blocks of kSpillBlockRecords), with its CRC-32C.
+class ExternalSorter::RunWriter {
+ public:
+  RunWriter(int fd, const std::optional<SpillCodec>& codec, const std::string& dir)
+      : fd_(fd), dir_(dir) {
+    if (codec) enc_ = std::make_unique<SpillBlockWriter>(*codec);
+  }
+  absl::Status Append(const SortRecord* recs, size_t n) {
+    if (enc_ == nullptr) return Write(recs, n * sizeof(SortRecord));
+    while (n > 0) {
+      const size_t k = std::min<size_t>(n, kSpillBlockRecords - pending_.size());
+      pending_.insert(pending_.end(), recs, recs + k);
+      recs += k;
+      n -= k;
+      if (pending_.size() == kSpillBlockRecords) PBGI_RETURN_IF_ERROR(EncodePending());
+      if (out_.size() >= kFlushBytes) PBGI_RETURN_IF_ERROR(FlushOut());
+    }
+    return absl::OkStatus();
+  }
+  absl::Status Finish() {
+    if (enc_ == nullptr) return absl::OkStatus();
+    if (!pending_.empty()) PBGI_RETURN_IF_ERROR(EncodePending());
+    return FlushOut();
+  }
+  uint64_t bytes() const { return offset_; }
+  uint32_t crc() const { return crc_; }
+
+ private:
+  static constexpr size_t kFlushBytes = 1 << 20;
+  absl::Status Write(const void* p, size_t bytes) {
+    crc_ = Crc32c(crc_, p, bytes);
+    PBGI_RETURN_IF_ERROR(WriteAll(fd_, p, bytes, offset_, dir_));
+    offset_ += bytes;
+    return absl::OkStatus();
+  }
+  absl::Status EncodePending() {
+    PBGI_RETURN_IF_ERROR(enc_->Append(absl::MakeConstSpan(pending_), &out_));
+    pending_.clear();
+    return absl::OkStatus();
+  }
+  absl::Status FlushOut() {
+    if (out_.empty()) return absl::OkStatus();
+    PBGI_RETURN_IF_ERROR(Write(out_.data(), out_.size()));
+    out_.clear();
+    return absl::OkStatus();
+  }
+  int fd_;
+  const std::string& dir_;
+  std::unique_ptr<SpillBlockWriter> enc_;
+  std::vector<SortRecord> pending_;
+  std::vector<uint8_t> out_;
+  uint64_t offset_ = 0;
+  uint32_t crc_ = 0;
 };
 
 // k-way merge with a binary min-heap ordered by (key, run index): ties go to the earlier run,
@@ -148,11 +278,16 @@ class ExternalSorter::Merger {
  public:
   static absl::StatusOr<std::unique_ptr<Merger>> Create(const std::vector<Run>& runs,
                                                         size_t buffer_records,
-                                                        const std::string* dir) {
+                                                        const std::string* dir,
+                                                        const std::optional<SpillCodec>& codec) {
     auto m = std::unique_ptr<Merger>(new Merger());
+    if (codec) {
+      m->codec_ = *codec;
+      m->dec_ = std::make_unique<SpillBlockReader>(*codec);  // one zstd context for all runs
+    }
     m->readers_.reserve(runs.size());
     for (const Run& r : runs) {
-      m->readers_.emplace_back(r, buffer_records, dir);
+      m->readers_.emplace_back(r, buffer_records, dir, m->dec_.get(), &m->codec_);
       RunReader& rr = m->readers_.back();
       PBGI_RETURN_IF_ERROR(rr.Refill());
       if (rr.Valid()) m->heap_.push_back({rr.Current().key, m->readers_.size() - 1});
@@ -200,6 +335,8 @@ class ExternalSorter::Merger {
     }
     heap_[i] = e;
   }
+  SpillCodec codec_;
+  std::unique_ptr<SpillBlockReader> dec_;
   std::vector<RunReader> readers_;
   std::vector<Entry> heap_;
 };
@@ -390,9 +527,8 @@ absl::Status ExternalSorter::SpillBuffer(const SortRecord* recs, uint64_t n) {
   SortBuffer(recs, n);
   PBGI_ASSIGN_OR_RETURN(Run run, NewRunFile(!run_dir_.empty()));
   runs_.push_back(run);
-  uint32_t crc = 0;
+  RunWriter writer(run.fd, options_.compact, options_.tmp_dir);
   std::vector<SortRecord> chunk(std::min<uint64_t>(kWriteChunkRecords, n));
-  uint64_t offset = 0;
   for (uint64_t i = 0; i < n;) {
     size_t k = static_cast<size_t>(std::min<uint64_t>(chunk.size(), n - i));
     for (size_t j = 0; j < k; ++j) {
@@ -400,21 +536,20 @@ absl::Status ExternalSorter::SpillBuffer(const SortRecord* recs, uint64_t n) {
       if (i + j + 16 < n) __builtin_prefetch(&recs[sorted_[i + j + 16].index]);
       chunk[j] = recs[sorted_[i + j].index];
     }
-    if (!run.path.empty()) crc = Crc32c(crc, chunk.data(), k * sizeof(SortRecord));
-    absl::Status s =
-        WriteAll(run.fd, chunk.data(), k * sizeof(SortRecord), offset, options_.tmp_dir);
+    absl::Status s = writer.Append(chunk.data(), k);
+    if (s.ok() && i + k == n) s = writer.Finish();
     if (!s.ok()) {
-      return absl::Status(
-          s.code(), absl::StrFormat("sort run %d (input records %d..%d), byte "
-                                    "offset %d: %s",
-                                    runs_.size() - 1, total_, total_ + n - 1, offset, s.message()));
+      return absl::Status(s.code(), absl::StrFormat("sort run %d (input records %d..%d), byte "
+                                                    "offset %d: %s",
+                                                    runs_.size() - 1, total_, total_ + n - 1,
+                                                    writer.bytes(), s.message()));
     }
-    offset += k * sizeof(SortRecord);
     i += k;
   }
   runs_.back().count = n;
-  runs_.back().crc = crc;
-  spill_bytes_ += offset;
+  runs_.back().bytes = writer.bytes();
+  runs_.back().crc = writer.crc();
+  spill_bytes_ += writer.bytes();
   ++runs_spilled_;
   total_ += n;
   return absl::OkStatus();
@@ -429,19 +564,22 @@ void ExternalSorter::FreeBuffers() {
 }
 
 absl::Status ExternalSorter::MergeRuns(std::vector<Run> in, size_t buffer_records, Run* out) {
-  PBGI_ASSIGN_OR_RETURN(auto merger, Merger::Create(in, buffer_records, &options_.tmp_dir));
+  PBGI_ASSIGN_OR_RETURN(auto merger,
+                        Merger::Create(in, buffer_records, &options_.tmp_dir, options_.compact));
   PBGI_ASSIGN_OR_RETURN(*out, NewRunFile(/*named=*/false));
+  RunWriter writer(out->fd, options_.compact, options_.tmp_dir);
   std::vector<SortRecord> chunk(std::max<size_t>(buffer_records, 1));
-  uint64_t offset = 0;
+  uint64_t count = 0;
   for (;;) {
     PBGI_ASSIGN_OR_RETURN(size_t n, merger->Next(absl::MakeSpan(chunk)));
     if (n == 0) break;
-    PBGI_RETURN_IF_ERROR(
-        WriteAll(out->fd, chunk.data(), n * sizeof(SortRecord), offset, options_.tmp_dir));
-    offset += n * sizeof(SortRecord);
+    PBGI_RETURN_IF_ERROR(writer.Append(chunk.data(), n));
+    count += n;
   }
-  out->count = offset / sizeof(SortRecord);
-  spill_bytes_ += offset;
+  PBGI_RETURN_IF_ERROR(writer.Finish());
+  out->count = count;
+  out->bytes = writer.bytes();
+  spill_bytes_ += writer.bytes();
   return absl::OkStatus();
 }
 
@@ -466,7 +604,7 @@ absl::Status ExternalSorter::FinishInput() {
   if (!run_dir_.empty() && runs_written_) {
     std::vector<KeptRun> kept;
     for (const Run& r : runs_) {
-      kept.push_back({r.path.substr(r.path.rfind('/') + 1), r.count, r.crc});
+      kept.push_back({r.path.substr(r.path.rfind('/') + 1), r.count, r.crc, r.bytes});
     }
     PBGI_RETURN_IF_ERROR(runs_written_(kept));
     keep_runs_ = true;
@@ -494,12 +632,14 @@ absl::Status ExternalSorter::ResumeFrom(const std::vector<KeptRun>& runs) {
     named_.push_back(r.path);
     struct stat st;
     if (fstat(r.fd, &st) != 0) return ErrnoError("fstat of " + r.path, errno);
-    if (uint64_t(st.st_size) != k.records * sizeof(SortRecord)) {
+    const uint64_t want = options_.compact ? k.bytes : k.records * sizeof(SortRecord);
+    if (uint64_t(st.st_size) != want) {
       return absl::DataLossError(absl::StrFormat(
-          "kept sort run %s holds %d bytes, the manifest says %d records (%d bytes): remove its "
+          "kept sort run %s holds %d bytes, the manifest says %d records in %d bytes: remove its "
           "directory and build again without --resume",
-          r.path, st.st_size, k.records, k.records * sizeof(SortRecord)));
+          r.path, st.st_size, k.records, want));
     }
+    runs_.back().bytes = want;
     total_ += k.records;
   }
   runs_spilled_ = runs.size();
@@ -507,7 +647,11 @@ absl::Status ExternalSorter::ResumeFrom(const std::vector<KeptRun>& runs) {
 }
 
 absl::Status ExternalSorter::MergeSpilled() {
-  const uint64_t fan_in = std::max<uint64_t>(2, options_.merge_bytes / kMinMergeBufferBytes);
+  // A compact run's reader holds a decoded block and at least one stored block.
+  const uint64_t min_reader_bytes = options_.compact ? kSpillBlockRecords * sizeof(SortRecord) +
+                                                           options_.compact->max_block_bytes()
+                                                     : kMinMergeBufferBytes;
+  const uint64_t fan_in = std::max<uint64_t>(2, options_.merge_bytes / min_reader_bytes);
   while (runs_.size() > fan_in) {
     // Merge consecutive groups, in order, so that ties still resolve to the earlier input.
     const size_t buffer_records =
@@ -534,7 +678,8 @@ absl::Status ExternalSorter::MergeSpilled() {
   }
   const size_t buffer_records =
       std::max<size_t>(64, options_.merge_bytes / runs_.size() / sizeof(SortRecord));
-  PBGI_ASSIGN_OR_RETURN(merger_, Merger::Create(runs_, buffer_records, &options_.tmp_dir));
+  PBGI_ASSIGN_OR_RETURN(merger_,
+                        Merger::Create(runs_, buffer_records, &options_.tmp_dir, options_.compact));
   if (options_.threads > 1) {
     pipe_ = std::make_unique<BlockPipe>(
         kPipeBlocks, kBlockRecords, [this](absl::Span<SortRecord> out) { return Produce(out); });

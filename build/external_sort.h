@@ -30,6 +30,7 @@
 #include <functional>
 #include <memory>
 #include <mutex>
+#include <optional>
 #include <string>
 #include <thread>
 #include <vector>
@@ -38,6 +39,7 @@
 #include "absl/status/statusor.h"
 #include "absl/types/span.h"
 #include "build/sort_record.h"
+#include "build/spill_codec.h"
 #include "pbgi/status.h"
 
 namespace pbgi::internal {
@@ -95,7 +97,8 @@ class BlockPipe {
 struct KeptRun {
   std::string name;  // file name inside run_dir
   uint64_t records = 0;
-  uint32_t crc = 0;  // CRC-32C of its bytes
+  uint32_t crc = 0;    // CRC-32C of its bytes
+  uint64_t bytes = 0;  // its size on disk (raw runs: records x 48)
 };
 
 class ExternalSorter {
@@ -105,6 +108,9 @@ class ExternalSorter {
     uint64_t run_capacity = 0;  // records per in-memory run (> 0)
     uint64_t merge_bytes = 0;   // read buffers of the merge, all runs together
     int threads = 1;            // > 1: background sort/spill and merge threads (see above)
+    // Set: every spilled run, the input's and the merge passes', is written compact
+    // (build/spill_codec.h: point records + key, zstd blocks) instead of as raw 48-byte records.
+    std::optional<SpillCodec> compact = std::nullopt;
   };
   explicit ExternalSorter(const Options& options);
   ~ExternalSorter();
@@ -141,7 +147,8 @@ class ExternalSorter {
   // merge buffers can serve at once.
   absl::Status FinishInput();
   // Instead of any Add and FinishInput: merges the runs a previous sorter kept in
-  // Options::run_dir (opened read-only; a size that is not records x 48 bytes is refused at once,
+  // Options::run_dir (opened read-only; a size that is not the manifest's (raw runs: records x
+  // 48 bytes) is refused at once,
   // a checksum mismatch when the merge reaches the run's end). REQUIRES: SetRunDirectory.
   absl::Status ResumeFrom(const std::vector<KeptRun>& runs);
   // The named runs survive the sorter (the caller removes run_dir when it no longer needs them).
@@ -163,11 +170,13 @@ class ExternalSorter {
   struct Run {
     int fd = -1;
     uint64_t count = 0;
+    uint64_t bytes = 0;   // its size on disk
     std::string path;     // a named run (run_dir), else empty
     uint32_t crc = 0;     // of its bytes, when `checked`
     bool checked = false;  // compare the CRC as the run is read back
   };
   class RunReader;
+  class RunWriter;
   class Merger;
 
   // Sorts recs[0, n) into sorted_ (pairs_ / scratch_).

@@ -42,7 +42,7 @@ absl::Status SyncPath(const std::string& path, int flags) {
 RunManifest ManifestFor(const BuildOptions& o, const Bounds& key_bounds, bool declared_bounds) {
   RunManifest m;
   m.input = o.resumable.input_identity;
-  m.record_bytes = sizeof(SortRecord);
+  m.record_bytes = CompactSpill(o) ? 8 + PointRecordSize(o.channels) : sizeof(SortRecord);
   m.key_bounds = key_bounds;
   m.declared_bounds = declared_bounds;
   m.radiance = HasRadiance(o.channels);
@@ -73,7 +73,7 @@ absl::Status WriteManifest(const std::string& dir, const RunManifest& m) {
   absl::StrAppendFormat(&t, "seconds_bounds %.6f\nseconds_sort %.6f\n", m.seconds_bounds,
                         m.seconds_sort);
   for (const KeptRun& r : m.runs) {
-    absl::StrAppendFormat(&t, "run %s %d %08x\n", r.name, r.records, r.crc);
+    absl::StrAppendFormat(&t, "run %s %d %08x %d\n", r.name, r.records, r.crc, r.bytes);
   }
   t += "end\n";
   const std::string tmp = dir + "/" + kManifestName + ".tmp";
@@ -165,8 +165,11 @@ absl::StatusOr<RunManifest> ReadManifest(const std::string& dir) {
     } else if (key == "run") {
       std::vector<std::string> f = absl::StrSplit(v, ' ');
       KeptRun r;
-      ok = f.size() == 3 && f[0].find('/') == std::string::npos &&
-           absl::SimpleAtoi(f[1], &r.records) && absl::SimpleHexAtoi(f[2], &r.crc);
+      // Manifests before compact runs have no size: raw runs, records x 48 bytes.
+      ok = (f.size() == 3 || f.size() == 4) && f[0].find('/') == std::string::npos &&
+           absl::SimpleAtoi(f[1], &r.records) && absl::SimpleHexAtoi(f[2], &r.crc) &&
+           (f.size() == 3 || absl::SimpleAtoi(f[3], &r.bytes));
+      if (ok && f.size() == 3) r.bytes = r.records * sizeof(SortRecord);
       if (ok) {
         r.name = f[0];
         m.runs.push_back(r);
@@ -193,10 +196,6 @@ absl::Status CheckResumable(const RunManifest& kept, const RunManifest& want,
   };
   auto yn = [](bool b) { return std::string(b ? "yes" : "no"); };
   if (kept.input != want.input) return refuse("the input", kept.input, want.input);
-  if (kept.record_bytes != want.record_bytes) {
-    return refuse("the record size", absl::StrCat(kept.record_bytes),
-                  absl::StrCat(want.record_bytes));
-  }
   if (kept.radiance != want.radiance) {
     return refuse("radiance (--channels)", yn(kept.radiance), yn(want.radiance));
   }
@@ -208,6 +207,11 @@ absl::Status CheckResumable(const RunManifest& kept, const RunManifest& want,
   }
   if (kept.skip_invalid != want.skip_invalid) {
     return refuse("--skip-invalid", yn(kept.skip_invalid), yn(want.skip_invalid));
+  }
+  // After the options that decide it (channels, estimates), whose names say more.
+  if (kept.record_bytes != want.record_bytes) {
+    return refuse("the record size", absl::StrCat(kept.record_bytes),
+                  absl::StrCat(want.record_bytes));
   }
   if (kept.declared_bounds != want.declared_bounds ||
       (want.declared_bounds && BoundsText(kept.key_bounds) != BoundsText(want.key_bounds))) {

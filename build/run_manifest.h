@@ -21,7 +21,7 @@ namespace pbgi::internal {
 struct RunManifest {
   // What decides the records: compared field by field on resume.
   std::string input;  // BuildOptions::Resumable::input_identity
-  uint32_t record_bytes = 0;
+  uint32_t record_bytes = 0;  // 48: raw runs; 22 or 28: compact runs (key + point record)
   Bounds key_bounds;
   bool declared_bounds = false;  // the source's KnownBounds (else a bounds pass)
   bool radiance = false;
@@ -37,6 +37,12 @@ struct RunManifest {
   double seconds_sort = 0;
   std::vector<KeptRun> runs;
 };
+
+// Whether a build spills compact runs (build/spill_codec.h): all but those that estimate radii
+// or normals, which read the unquantized positions after the sort.
+inline bool CompactSpill(const BuildOptions& o) {
+  return !o.estimate.radius && !o.estimate.normals;
+}
 
 // The manifest of the records `options` would make from an input with these bounds.
 RunManifest ManifestFor(const BuildOptions& options, const Bounds& key_bounds,

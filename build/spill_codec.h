@@ -1,0 +1,88 @@
+// Compact sort runs (docs/format.md, "Session 10"): the records of a spilled run stored as the
+// point records they will become (tree/format.h, format version 3) plus their Morton key, in
+// blocks compressed with zstd. A 48-byte SortRecord takes 8 + 14 (occlusion) or 8 + 20
+// (radiance) bytes before zstd, so a billion-surfel build's runs fit next to its database.
+//
+// Why the output does not change: the builder stores each point as DecodePointRecord(Encode…)
+// and aggregates exactly that (PointPageWriter::Add), and encoding a decoded record gives the
+// same bytes again (tests/tree/compact_format_test: re-encoding is idempotent). So a record that
+// went through a compact run yields the same page bytes and node aggregates as one that did not;
+// tests/build/sort_test checks the pages of compact-spilled, raw-spilled and unspilled builds.
+// Builds that estimate radii or normals keep raw runs: the estimate reads unquantized positions.
+//
+// A run is a sequence of blocks, each:
+//   u32 frame_bytes, u32 records (1..kSpillBlockRecords), then a zstd frame of
+//   records x u64 key deltas (key - previous key of the block, mod 2^64; the first from 0),
+//   then the point records split by field (cells, normals, radii, radiance), records each; the
+//   cell word XORed with the key's own depth-21 cell (they differ only by rounding).
+//
+// A SpillCodec is immutable and may be shared; a SpillBlockWriter or SpillBlockReader belongs
+// to one thread.
+#ifndef PBGI_BUILD_SPILL_CODEC_H_
+#define PBGI_BUILD_SPILL_CODEC_H_
+
+#include <cstddef>
+#include <cstdint>
+#include <vector>
+
+#include "absl/status/status.h"
+#include "absl/status/statusor.h"
+#include "absl/types/span.h"
+#include "build/sort_record.h"
+#include "tree/format.h"
+
+namespace pbgi::internal {
+
+inline constexpr uint32_t kSpillBlockRecords = 1024;
+inline constexpr size_t kSpillBlockHeaderBytes = 8;
+
+struct SpillCodec {
+  Channels channels = Channels::kOcclusion;
+  PositionGrid grid;
+
+  // Bytes of one record before zstd.
+  uint32_t raw_record_bytes() const { return 8 + PointRecordSize(channels); }
+  // The largest stored block (header and frame) of kSpillBlockRecords records.
+  size_t max_block_bytes() const;
+};
+
+class SpillBlockWriter {
+ public:
+  explicit SpillBlockWriter(const SpillCodec& codec);
+  ~SpillBlockWriter();
+  SpillBlockWriter(const SpillBlockWriter&) = delete;
+  SpillBlockWriter& operator=(const SpillBlockWriter&) = delete;
+
+  // Appends recs (1..kSpillBlockRecords records) as one block to `out`.
+  absl::Status Append(absl::Span<const SortRecord> recs, std::vector<uint8_t>* out);
+
+ private:
+  SpillCodec codec_;
+  void* cctx_ = nullptr;  // ZSTD_CCtx
+  std::vector<uint8_t> raw_;
+};
+
+class SpillBlockReader {
+ public:
+  explicit SpillBlockReader(const SpillCodec& codec);
+  ~SpillBlockReader();
+  SpillBlockReader(const SpillBlockReader&) = delete;
+  SpillBlockReader& operator=(const SpillBlockReader&) = delete;
+
+  // Reads a block header: the frame's size and the record count (DataLoss when out of range;
+  // `what` names the run for the message).
+  static absl::Status ParseHeader(const uint8_t* p, const SpillCodec& codec, const char* what,
+                                  uint32_t* frame_bytes, uint32_t* records);
+  // Decodes a frame of `records` records into out[0, records).
+  absl::Status Decode(absl::Span<const uint8_t> frame, uint32_t records, SortRecord* out,
+                      const char* what);
+
+ private:
+  SpillCodec codec_;
+  void* dctx_ = nullptr;  // ZSTD_DCtx
+  std::vector<uint8_t> raw_;
+};
+
+}  // namespace pbgi::internal
+
+#endif  // PBGI_BUILD_SPILL_CODEC_H_
