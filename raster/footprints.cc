@@ -15,7 +15,9 @@
 // and exactly 1 when the surface fills its cell.
 #include <algorithm>
 #include <cmath>
+#include <limits>
 
+#include "absl/container/inlined_vector.h"
 #include "glm/geometric.hpp"
 #include "pbgi/sh.h"
 #include "raster/polygon.h"
@@ -35,6 +37,9 @@ constexpr double kSmallCell = 9.0;
 // crease lies 0.17 spacings off). A smooth surface's sag within a group stays below it
 // (FootprintTest.ClosedSphereOfSurfelsOccludesNearlyFully leaks at 0.1).
 constexpr float kGroupThickness = 0.15f;
+// A surface whose last row of centres comes within this many spacings of the receiver's
+// tangent plane stands on the receiver's surface (ContactCell).
+constexpr float kContactReach = 1.0f;
 
 // A cluster is porous (foliage, grass: pieces facing every way with gaps between them) when
 // |sum A_i n_i| < kPorousCoherence * sum A_i; two-sided content always is, its sides cancelling
@@ -67,6 +72,129 @@ bool CellHolds(const Bounds& cell, const Bounds& b) {
 float ClusterSpacing(const Cluster& c) {
   return std::sqrt(std::max(0.0f, c.area) /
                    static_cast<float>(std::max<uint64_t>(1, c.point_count)));
+}
+
+// A co-planar group of one cell's surfels (Rasterizer::PrepareSurfelGroups): its surfels are
+// order[end - count, end).
+struct SurfelGroup {
+  size_t end = 0;
+  int count = 0;
+  bool two_sided = false;
+  glm::vec3 n0{0.0f};  // the first surfel's unit normal
+  double area = 0.0;
+  glm::dvec3 nsum{0.0}, csum{0.0}, lsum{0.0};
+  Bounds centres;
+};
+
+// Where a group's surface meets another's in the same cell (a wall standing on a roof or the
+// street, the two faces of a box's edge), the first ends at the second's plane, not half a
+// spacing past its last row of centres: the cell that a's footprint box snaps to (FootprintBox)
+// is ended there. Without it the footprint stopped up to half a spacing short of the contact,
+// where a receiver beside the contact looked through the gap to the sky (the thin lines of
+// too little occlusion along the city's contacts: docs/eval.md, "Session 10"). b's plane must
+// cross one of a's in-plane axes squarely (|n| > 0.99 along it), b's centres must come within
+// 1.5 of its spacings of a's plane and a's within 1.5 of a's spacings of b's, on one side of
+// it, and their boxes so grown must overlap.
+Bounds ContactCell(const Bounds& cell, const SurfelGroup& a, absl::Span<const SurfelGroup> groups,
+                   const glm::vec3& origin, const glm::vec3& nr, bool* contact) {
+  Bounds out = cell;
+  *contact = false;
+  if (a.two_sided) return out;
+  const double la = glm::length(a.nsum);
+  if (!(la > 0.0) || !(a.area > 0.0)) return out;
+  const glm::vec3 na = glm::vec3(a.nsum / la), ca = glm::vec3(a.csum / a.area);
+  const float sa = static_cast<float>(std::sqrt(a.area / a.count));
+  const bool has_cell = CellHolds(cell, a.centres);
+  if (!has_cell) {
+    // No cell (a caller-built set, a lone surfel's): the box's own, unbounded.
+    const float inf = std::numeric_limits<float>::infinity();
+    out.lo = glm::vec3(-inf);
+    out.hi = glm::vec3(inf);
+  }
+  // The receiver's own surface: a surface standing on it (a wall on the roof or the street
+  // that the receiver lies on) whose last row of centres is within a spacing of its tangent
+  // plane reaches that plane; the hemisphere's clip (AddPolygon) then ends it there exactly.
+  // Its lowest centre above the plane along each in-plane axis that rises with the plane's
+  // normal decides how far.
+  if (std::fabs(glm::dot(na, nr)) < 0.9f) {
+    float h = std::numeric_limits<float>::infinity();
+    for (int i = 0; i < 8; ++i) {
+      const glm::vec3 corner((i & 1) ? a.centres.hi.x : a.centres.lo.x,
+                             (i & 2) ? a.centres.hi.y : a.centres.lo.y,
+                             (i & 4) ? a.centres.hi.z : a.centres.lo.z);
+      h = std::min(h, glm::dot(nr, corner - origin));
+    }
+    if (h > -0.25f * sa && h < kContactReach * sa) {
+      for (int k = 0; k < 3; ++k) {
+        if (std::fabs(na[k]) > 0.9f || std::fabs(nr[k]) < 0.5f) continue;
+        const float ext = std::max(0.0f, h) / std::fabs(nr[k]) + 0.25f * sa;
+        if (!(ext < 1.5f * sa)) continue;
+        // Past the cell's side too, when the plane lies beyond it (a sliver of the surface
+        // in the next cell, maybe without a surfel of its own).
+        if (nr[k] > 0.0f) {
+          out.lo[k] = a.centres.lo[k] - ext;
+        } else {
+          out.hi[k] = a.centres.hi[k] + ext;
+        }
+        *contact = true;
+      }
+    }
+  }
+  if (!has_cell) return *contact ? out : cell;
+  for (const SurfelGroup& b : groups) {
+    if (&b == &a || b.two_sided) continue;
+    const double lb = glm::length(b.nsum);
+    if (!(lb > 0.0) || !(b.area > 0.0)) continue;
+    const glm::vec3 nb = glm::vec3(b.nsum / lb), cb = glm::vec3(b.csum / b.area);
+    const float sb = static_cast<float>(std::sqrt(b.area / b.count));
+    int k = 0;
+    for (int j = 1; j < 3; ++j) {
+      if (std::fabs(nb[j]) > std::fabs(nb[k])) k = j;
+    }
+    if (std::fabs(nb[k]) < 0.99f || std::fabs(na[k]) > 0.9f) continue;
+    bool overlap = true;
+    for (int j = 0; j < 3; ++j) {
+      overlap = overlap && a.centres.lo[j] - 1.5f * sa <= b.centres.hi[j] + 1.5f * sb &&
+                b.centres.lo[j] - 1.5f * sb <= a.centres.hi[j] + 1.5f * sa;
+    }
+    if (!overlap) continue;
+    // Along the edge where they meet, b spans a (within a spacing): a wall beside the street
+    // around a building's corner does not end the street in front of the building.
+    int m = 0;
+    for (int j = 1; j < 3; ++j) {
+      if (std::fabs(na[j]) > std::fabs(na[m])) m = j;
+    }
+    if (m == k) continue;
+    const int e = 3 - m - k;
+    if (b.centres.lo[e] > a.centres.lo[e] + 0.5f * sa || b.centres.hi[e] < a.centres.hi[e] - 0.5f * sa) {
+      continue;
+    }
+    // b's centres against a's plane.
+    float lo = std::numeric_limits<float>::infinity(), hi = -lo;
+    for (int i = 0; i < 8; ++i) {
+      const glm::vec3 corner((i & 1) ? b.centres.hi.x : b.centres.lo.x,
+                             (i & 2) ? b.centres.hi.y : b.centres.lo.y,
+                             (i & 4) ? b.centres.hi.z : b.centres.lo.z);
+      const float t = glm::dot(na, corner - ca);
+      lo = std::min(lo, t);
+      hi = std::max(hi, t);
+    }
+    if (lo > 1.5f * sb || hi < -1.5f * sb) continue;
+    // b's plane along axis k, at a's centroid.
+    float c = cb[k];
+    for (int j = 0; j < 3; ++j) {
+      if (j != k) c -= nb[j] * (ca[j] - cb[j]) / nb[k];
+    }
+    if (a.centres.lo[k] >= c - 0.05f * sa && a.centres.lo[k] - c < 1.5f * sa && c > out.lo[k]) {
+      out.lo[k] = std::min(c, a.centres.lo[k]);
+      *contact = true;
+    } else if (a.centres.hi[k] <= c + 0.05f * sa && c - a.centres.hi[k] < 1.5f * sa &&
+               c < out.hi[k]) {
+      out.hi[k] = std::max(c, a.centres.hi[k]);
+      *contact = true;
+    }
+  }
+  return out;
 }
 
 }  // namespace
@@ -365,7 +493,9 @@ void Rasterizer::PrepareSurfelGroups(const Gathered& g, ShadeResult* out) {
     while (run1 < n && same_cell(order[run0], order[run1])) ++run1;
     const Bounds cell = cell_of(order[run0]);
     // Greedy groups of surfels within ~25 degrees of the group's first normal; a used surfel
-    // is marked by moving it to the front of the run's unused part.
+    // is marked by moving it to the front of the run's unused part. The cell's groups are found
+    // first, then drawn: a group's footprint stops at the plane of another that it meets.
+    absl::InlinedVector<SurfelGroup, 8> groups;
     size_t next = run0;
     while (next < run1) {
       const Surfel& first = g.surfels[order[next]];
@@ -399,6 +529,26 @@ void Rasterizer::PrepareSurfelGroups(const Gathered& g, ShadeResult* out) {
         ++count;
       }
       next = end;
+      SurfelGroup gr;
+      gr.n0 = n0;
+      gr.end = end;
+      gr.count = count;
+      gr.two_sided = first.two_sided;
+      gr.area = area;
+      gr.nsum = nsum;
+      gr.csum = csum;
+      gr.lsum = lsum;
+      gr.centres = centres;
+      groups.push_back(gr);
+    }
+    for (const SurfelGroup& gr : groups) {
+      const size_t end = gr.end;
+      const int count = gr.count;
+      const double area = gr.area;
+      const glm::dvec3 nsum = gr.nsum, csum = gr.csum, lsum = gr.lsum;
+      const Bounds& centres = gr.centres;
+      const Surfel& first = g.surfels[order[end - count]];
+      const glm::vec3 n0 = gr.n0;
       if (count == 1) {
         // A lone surfel is its own disk (exact near the receiver), unless it fills a leaf cell
         // a few spacings wide: then it is the cell's piece of its surface like a group, or the
@@ -415,8 +565,12 @@ void Rasterizer::PrepareSurfelGroups(const Gathered& g, ShadeResult* out) {
           fills = fills && face <= kSmallCell * sp * sp;
         }
         if (!fills) {
-          PrepareSurfel(lone, out);
-          continue;
+          bool contact = false;
+          ContactCell(cell, gr, groups, origin_, n_, &contact);
+          if (!contact) {
+            PrepareSurfel(lone, out);
+            continue;
+          }
         }
       }
       const double nl = glm::length(nsum);
@@ -453,7 +607,9 @@ void Rasterizer::PrepareSurfelGroups(const Gathered& g, ShadeResult* out) {
       // A piece of a leaf ends where its surfels end, not at its cell's sides: snapped to them,
       // the leaves' groups tiled their cells and over-occluded the forest (+23%, seen once the
       // cells were the octree's, bug: cells_off_the_key_cube).
-      const Bounds snap_to = first.two_sided ? Bounds{} : cell;
+      bool contact = false;
+      const Bounds snap_to =
+          first.two_sided ? Bounds{} : ContactCell(cell, gr, groups, origin_, n_, &contact);
       Polygon p;
       const float alpha =
           FlatFootprint(centres, snap_to, spacing, facing, -std::fabs(side), origin_, area, &p);

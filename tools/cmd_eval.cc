@@ -73,6 +73,7 @@ struct EvalArgs {
   // --view: compare a camera view pixel by pixel instead (tools/view_eval.h).
   bool view = false;
   int width = 960, height = 540;
+  std::string window;
   std::string hitsides = "front";
   double error_scale = 0.1;
   // --view: shared rows besides the exact ones (tools/view_eval.h).
@@ -436,6 +437,12 @@ absl::StatusOr<size_t> PbgiRows(const EvalArgs& a, const EvalSetup& e, Database&
   const std::string dump_cut = std::find(a.cuts.begin(), a.cuts.end(), default_cut) != a.cuts.end()
                                    ? default_cut
                                    : a.cuts.front();
+  // ... at the default msa and resolution, or the first ones swept when the default is not.
+  const auto has = [](const auto& v, auto x) {
+    return std::any_of(v.begin(), v.end(), [x](auto y) { return std::abs(y - x) < 1e-6f; });
+  };
+  const float dump_msa = has(a.solid_angles, 0.03f) ? 0.03f : a.solid_angles.front();
+  const int dump_res = has(a.resolutions, 12) ? 12 : a.resolutions.front();
   for (const std::string& cut : a.cuts) {
     for (int res : a.resolutions) {
       for (float msa : a.solid_angles) {
@@ -466,7 +473,7 @@ absl::StatusOr<size_t> PbgiRows(const EvalArgs& a, const EvalSetup& e, Database&
         r.clusters = double(st.query.clusters) / n;
         r.surfels = double(st.query.surfels) / n;
         rows->push_back(r);
-        if (!a.dump_receivers.empty() && res == 12 && std::abs(msa - 0.03f) < 1e-6f &&
+        if (!a.dump_receivers.empty() && res == dump_res && std::abs(msa - dump_msa) < 1e-6f &&
             cut == dump_cut) {
           PBGI_RETURN_IF_ERROR(DumpReceivers(a.dump_receivers, e, v));
         }
@@ -933,8 +940,9 @@ CommandSetup Setup() {
         ->check(CLI::Range(1, 100))
         ->capture_default_str();
     app->add_option("--dump-receivers", a->dump_receivers,
-                    "A CSV of every receiver at the default setting (msa 0.03, res 12): "
-                    "position, normal, reference, PBGI, error");
+                    "A CSV of every receiver at the default setting (msa 0.03, res 12), or at the "
+                    "first msa and resolution swept when those are not: position, normal, "
+                    "reference, PBGI, error");
     app->add_flag("--keep-hidden", a->keep_hidden,
                   "Keep database surfels inside solid geometry (receivers never are)");
     app->add_flag("--view", a->view,
@@ -944,6 +952,9 @@ CommandSetup Setup() {
     app->add_option("--width", a->width, "--view: image width")
         ->check(CLI::Range(16, 8192))
         ->capture_default_str();
+    app->add_option("--window", a->window,
+                    "--view: shade and compare only the pixels of this window, X,Y,WIDTH,HEIGHT "
+                    "(to look at one artifact closely; the images keep the view's size)");
     app->add_option("--height", a->height, "--view: image height")
         ->check(CLI::Range(16, 8192))
         ->capture_default_str();
@@ -1013,6 +1024,8 @@ CommandSetup Setup() {
       v.curved_scale = a->curved_scale;
       v.width = a->width;
       v.height = a->height;
+      v.window = a->window;
+      v.dump_receivers = a->dump_receivers;
       v.hitsides = a->hitsides;
       PBGI_ASSIGN_OR_RETURN(const auto budgets, EvalBudgets(*a));
       std::tie(v.memory_bytes, v.cache_bytes) = budgets;

@@ -11,6 +11,8 @@
 #include <memory>
 
 #include "absl/strings/str_format.h"
+#include "absl/strings/numbers.h"
+#include "absl/strings/str_split.h"
 #include "oneapi/tbb/global_control.h"
 #include "pbgi/build.h"
 #include "pbgi/query.h"
@@ -188,8 +190,36 @@ absl::Status RunViewEval(const ViewEvalArgs& a) {
 
   PBGI_ASSIGN_OR_RETURN(std::unique_ptr<Tracer> tracer, Tracer::Create(*scene));
   const Camera camera = DefaultCamera(*scene, a.width, a.height);
-  const CameraReceivers cr = MakeCameraReceivers(*tracer, camera);
+  CameraReceivers cr = MakeCameraReceivers(*tracer, camera);
   const size_t pixels = size_t(a.width) * size_t(a.height);
+  std::string window_tag;
+  if (!a.window.empty()) {
+    const std::vector<std::string> f = absl::StrSplit(a.window, ',');
+    int w[4] = {0, 0, 0, 0};
+    bool ok = f.size() == 4;
+    for (size_t i = 0; ok && i < 4; ++i) ok = absl::SimpleAtoi(f[i], &w[i]) && w[i] >= 0;
+    if (!ok || w[2] == 0 || w[3] == 0 || w[0] + w[2] > a.width || w[1] + w[3] > a.height) {
+      return absl::InvalidArgumentError(absl::StrFormat(
+          "--window '%s': expected X,Y,WIDTH,HEIGHT of a non-empty window inside the %dx%d "
+          "image",
+          a.window, a.width, a.height));
+    }
+    size_t kept = 0;
+    for (size_t i = 0; i < cr.pixel_of.size(); ++i) {
+      const int x = int(cr.pixel_of[i] % uint32_t(a.width)), y = int(cr.pixel_of[i] / uint32_t(a.width));
+      if (x < w[0] || x >= w[0] + w[2] || y < w[1] || y >= w[1] + w[3]) continue;
+      cr.receivers[kept] = cr.receivers[i];
+      cr.shade[kept] = cr.shade[i];
+      cr.pixel_of[kept] = cr.pixel_of[i];
+      if (i < cr.surface.size()) cr.surface[kept] = cr.surface[i];
+      ++kept;
+    }
+    cr.receivers.resize(kept);
+    cr.shade.resize(kept);
+    cr.pixel_of.resize(kept);
+    if (cr.surface.size() > kept) cr.surface.resize(kept);
+    window_tag = absl::StrFormat("_win%d-%d-%d-%d", w[0], w[1], w[2], w[3]);
+  }
   std::vector<uint8_t> covered(pixels, 0);
   for (uint32_t p : cr.pixel_of) covered[p] = 1;
   std::fprintf(stderr, "eval --view: %dx%d view, %zu receivers\n", a.width, a.height,
@@ -210,8 +240,8 @@ absl::Status RunViewEval(const ViewEvalArgs& a) {
                                    ? absl::StrFormat("glossy-phong%g", a.lobe.phong_exponent)
                                    : absl::StrFormat("glossy-ggx%g", a.lobe.ggx_roughness);
   const std::string ref_cache =
-      absl::StrFormat("%s/reference_%s_%s_s%d_size%d_%dx%d_%d.bin", a.out_dir, scene->name,
-                      mode_tag, a.seed, a.size, a.width, a.height, 2 * half_rays);
+      absl::StrFormat("%s/reference_%s_%s_s%d_size%d_%dx%d%s_%d.bin", a.out_dir, scene->name,
+                      mode_tag, a.seed, a.size, a.width, a.height, window_tag, 2 * half_rays);
   // Every pixel's reference value (see Scalar) with `rays` rays from `seed`.
   auto reference = [&](int rays, uint64_t seed, std::vector<double>* dst) {
     if (occlusion) {
@@ -285,6 +315,7 @@ absl::Status RunViewEval(const ViewEvalArgs& a) {
       scene->name.c_str(), mode_tag.c_str(), static_cast<unsigned long long>(bs.points), a.width,
       a.height, cr.receivers.size(), 2 * half_rays, ref_noise, a.hitsides.c_str());
   std::string rows_json;
+  bool dumped = false;  // --dump-receivers: the first PBGI row
   auto add_json = [&](const std::string& row) {
     rows_json += (rows_json.empty() ? "    " : ",\n    ") + row;
   };
@@ -396,6 +427,19 @@ absl::Status RunViewEval(const ViewEvalArgs& a) {
               got[cr.pixel_of[i]] =
                   occlusion ? results[i].occlusion
                             : Scalar(glossy ? results[i].glossy : results[i].irradiance);
+            }
+            if (!a.dump_receivers.empty() && !dumped) {
+              dumped = true;
+              std::string csv = "px,py,x,y,z,nx,ny,nz,reference,pbgi,error\n";
+              for (size_t i = 0; i < results.size(); ++i) {
+                const uint32_t p = cr.pixel_of[i];
+                const Receiver& r = cr.receivers[i];
+                absl::StrAppendFormat(&csv, "%u,%u,%.9g,%.9g,%.9g,%.6g,%.6g,%.6g,%.6f,%.6f,%+.6f\n",
+                                      p % uint32_t(a.width), p / uint32_t(a.width), r.position.x,
+                                      r.position.y, r.position.z, r.normal.x, r.normal.y,
+                                      r.normal.z, ref[p], got[p], got[p] - ref[p]);
+              }
+              PBGI_RETURN_IF_ERROR(WriteFileAtomically(a.dump_receivers, csv));
             }
             const ImageErrors e = CompareImages(a.width, a.height, got, ref, covered);
             std::string tag =

@@ -80,6 +80,11 @@ struct ViewEvalArgs {
   // equal image MAE (none: no ratio).
   std::vector<int> ray_sweep;
   int repeat = 1;  // time every row this many times, keep the median (the results repeat)
+  // Only the pixels of this window (x, y, width, height; empty: the whole image) are shaded and
+  // compared, to look at one artifact closely; the images keep the view's size.
+  std::string window;
+  // A CSV of the first PBGI row's receivers (pixel, position, normal, reference, PBGI, error).
+  std::string dump_receivers;
 };
 
 absl::Status RunViewEval(const ViewEvalArgs& args);
