@@ -86,6 +86,19 @@ struct SurfelGroup {
   Bounds centres;
 };
 
+// The least and greatest dot(n, x - o) over the corners x of the box b.
+void DotRange(const Bounds& b, const glm::vec3& n, const glm::vec3& o, float* lo, float* hi) {
+  *lo = std::numeric_limits<float>::infinity();
+  *hi = -*lo;
+  for (int i = 0; i < 8; ++i) {
+    const glm::vec3 corner((i & 1) ? b.hi.x : b.lo.x, (i & 2) ? b.hi.y : b.lo.y,
+                           (i & 4) ? b.hi.z : b.lo.z);
+    const float t = glm::dot(n, corner - o);
+    *lo = std::min(*lo, t);
+    *hi = std::max(*hi, t);
+  }
+}
+
 // Where a group's surface meets another's in the same cell (a wall standing on a roof or the
 // street, the two faces of a box's edge), the first ends at the second's plane, not half a
 // spacing past its last row of centres: the cell that a's footprint box snaps to (FootprintBox)
@@ -117,13 +130,8 @@ Bounds ContactCell(const Bounds& cell, const SurfelGroup& a, absl::Span<const Su
   // Its lowest centre above the plane along each in-plane axis that rises with the plane's
   // normal decides how far.
   if (std::fabs(glm::dot(na, nr)) < 0.9f) {
-    float h = std::numeric_limits<float>::infinity();
-    for (int i = 0; i < 8; ++i) {
-      const glm::vec3 corner((i & 1) ? a.centres.hi.x : a.centres.lo.x,
-                             (i & 2) ? a.centres.hi.y : a.centres.lo.y,
-                             (i & 4) ? a.centres.hi.z : a.centres.lo.z);
-      h = std::min(h, glm::dot(nr, corner - origin));
-    }
+    float h, top;
+    DotRange(a.centres, nr, origin, &h, &top);
     if (h > -0.25f * sa && h < kContactReach * sa) {
       for (int k = 0; k < 3; ++k) {
         if (std::fabs(na[k]) > 0.9f || std::fabs(nr[k]) < 0.5f) continue;
@@ -166,19 +174,13 @@ Bounds ContactCell(const Bounds& cell, const SurfelGroup& a, absl::Span<const Su
     }
     if (m == k) continue;
     const int e = 3 - m - k;
-    if (b.centres.lo[e] > a.centres.lo[e] + 0.5f * sa || b.centres.hi[e] < a.centres.hi[e] - 0.5f * sa) {
+    if (b.centres.lo[e] > a.centres.lo[e] + 0.5f * sa ||
+        b.centres.hi[e] < a.centres.hi[e] - 0.5f * sa) {
       continue;
     }
     // b's centres against a's plane.
-    float lo = std::numeric_limits<float>::infinity(), hi = -lo;
-    for (int i = 0; i < 8; ++i) {
-      const glm::vec3 corner((i & 1) ? b.centres.hi.x : b.centres.lo.x,
-                             (i & 2) ? b.centres.hi.y : b.centres.lo.y,
-                             (i & 4) ? b.centres.hi.z : b.centres.lo.z);
-      const float t = glm::dot(na, corner - ca);
-      lo = std::min(lo, t);
-      hi = std::max(hi, t);
-    }
+    float lo, hi;
+    DotRange(b.centres, na, ca, &lo, &hi);
     if (lo > 1.5f * sb || hi < -1.5f * sb) continue;
     // b's plane along axis k, at a's centroid.
     float c = cb[k];
@@ -549,6 +551,9 @@ void Rasterizer::PrepareSurfelGroups(const Gathered& g, ShadeResult* out) {
       const Bounds& centres = gr.centres;
       const Surfel& first = g.surfels[order[end - count]];
       const glm::vec3 n0 = gr.n0;
+      // ContactCell's answer, when the lone surfel's test below already asked it.
+      bool contact = false, have_contact_cell = false;
+      Bounds contact_cell;
       if (count == 1) {
         // A lone surfel is its own disk (exact near the receiver), unless it fills a leaf cell
         // a few spacings wide: then it is the cell's piece of its surface like a group, or the
@@ -565,8 +570,8 @@ void Rasterizer::PrepareSurfelGroups(const Gathered& g, ShadeResult* out) {
           fills = fills && face <= kSmallCell * sp * sp;
         }
         if (!fills) {
-          bool contact = false;
-          ContactCell(cell, gr, groups, origin_, n_, &contact);
+          contact_cell = ContactCell(cell, gr, groups, origin_, n_, &contact);
+          have_contact_cell = true;
           if (!contact) {
             PrepareSurfel(lone, out);
             continue;
@@ -607,9 +612,10 @@ void Rasterizer::PrepareSurfelGroups(const Gathered& g, ShadeResult* out) {
       // A piece of a leaf ends where its surfels end, not at its cell's sides: snapped to them,
       // the leaves' groups tiled their cells and over-occluded the forest (+23%, seen once the
       // cells were the octree's, bug: cells_off_the_key_cube).
-      bool contact = false;
-      const Bounds snap_to =
-          first.two_sided ? Bounds{} : ContactCell(cell, gr, groups, origin_, n_, &contact);
+      const Bounds snap_to = first.two_sided ? Bounds{}
+                             : have_contact_cell
+                                 ? contact_cell
+                                 : ContactCell(cell, gr, groups, origin_, n_, &contact);
       Polygon p;
       const float alpha =
           FlatFootprint(centres, snap_to, spacing, facing, -std::fabs(side), origin_, area, &p);

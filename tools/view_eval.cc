@@ -10,8 +10,8 @@
 #include <limits>
 #include <memory>
 
-#include "absl/strings/str_format.h"
 #include "absl/strings/numbers.h"
+#include "absl/strings/str_format.h"
 #include "absl/strings/str_split.h"
 #include "oneapi/tbb/global_control.h"
 #include "pbgi/build.h"
@@ -206,7 +206,8 @@ absl::Status RunViewEval(const ViewEvalArgs& a) {
     }
     size_t kept = 0;
     for (size_t i = 0; i < cr.pixel_of.size(); ++i) {
-      const int x = int(cr.pixel_of[i] % uint32_t(a.width)), y = int(cr.pixel_of[i] / uint32_t(a.width));
+      const int x = int(cr.pixel_of[i] % uint32_t(a.width)),
+                y = int(cr.pixel_of[i] / uint32_t(a.width));
       if (x < w[0] || x >= w[0] + w[2] || y < w[1] || y >= w[1] + w[3]) continue;
       cr.receivers[kept] = cr.receivers[i];
       cr.shade[kept] = cr.shade[i];

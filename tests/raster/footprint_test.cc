@@ -513,7 +513,6 @@ TEST(FootprintTest, SheetSeenFromBehindShowsNothing) {
   }
 }
 
-
 // Surfels of a jittered grid, `pitch` apart, on the rectangle o + u a + v b (u in [0, ua],
 // v in [0, vb]), facing `normal`, each the leaf surfel of a cube cell of side `cell`, the
 // cells' grid shifted by -offset.
@@ -522,7 +521,8 @@ void AddJitteredRectangle(const glm::vec3& o, const glm::vec3& a, float ua, cons
                           const glm::vec3& offset, uint32_t seed, Gathered* g,
                           std::vector<std::tuple<int, int, int>>* keys) {
   uint32_t k = seed;
-  const int nu = static_cast<int>(std::lround(ua / pitch)), nv = static_cast<int>(std::lround(vb / pitch));
+  const int nu = static_cast<int>(std::lround(ua / pitch)),
+            nv = static_cast<int>(std::lround(vb / pitch));
   for (int j = 0; j < nv; ++j) {
     for (int i0 = 0; i0 < nu; ++i0) {
       const float u = static_cast<float>(i0) * pitch, v = static_cast<float>(j) * pitch;
@@ -561,33 +561,40 @@ void AddJitteredRectangle(const glm::vec3& o, const glm::vec3& a, float ua, cons
   *g = std::move(sorted);
 }
 
-// Cosine-weighted rays from `p` (normal +z) that hit the rectangle x in [x0, x1], z in [0, h]
-// of the plane y = d (a wall standing on the receiver's floor).
-double WallByRays(const glm::vec3& p, float x0, float x1, float h, float d) {
+// The share of 400 x 400 stratified cosine-weighted directions about +z for which hit(d) holds.
+template <typename Hit>
+double CosineShare(const Hit& hit) {
   int hits = 0;
   const int n = 400;
   for (int j = 0; j < n; ++j) {
     for (int i = 0; i < n; ++i) {
       const double u = (i + 0.5) / n, v = (j + 0.5) / n, r = std::sqrt(u);
-      const glm::dvec3 dir(r * std::cos(2.0 * kPi * v), r * std::sin(2.0 * kPi * v),
-                           std::sqrt(1.0 - u));
-      if (!(dir.y > 0.0)) continue;
-      const double t = (d - p.y) / dir.y;
-      const glm::dvec3 q = glm::dvec3(p) + t * dir;
-      hits += q.x >= x0 && q.x <= x1 && q.z >= 0.0 && q.z <= h;
+      hits += hit(
+          glm::dvec3(r * std::cos(2.0 * kPi * v), r * std::sin(2.0 * kPi * v), std::sqrt(1.0 - u)));
     }
   }
   return static_cast<double>(hits) / (n * n);
 }
 
+// Cosine-weighted rays from `p` (normal +z) that hit the rectangle x in [x0, x1], z in [0, h]
+// of the plane y = d (a wall standing on the receiver's floor).
+double WallByRays(const glm::vec3& p, float x0, float x1, float h, float d) {
+  return CosineShare([&](const glm::dvec3& dir) {
+    if (!(dir.y > 0.0)) return false;
+    const double t = (d - p.y) / dir.y;
+    const glm::dvec3 q = glm::dvec3(p) + t * dir;
+    return q.x >= x0 && q.x <= x1 && q.z >= 0.0 && q.z <= h;
+  });
+}
+
 // A wall standing on the floor, sampled sparsely (cells of 3 pitches, the contact two pitches
-// into them, the last row of centres anywhere within a pitch of it), seen by receivers on the floor beside it and on the
-// wall above the floor, against rays cast at the exact wall and floor. The wall's footprints
-// stopped half a pitch past their last row of centres, and a receiver a few hundredths of a
-// pitch from the wall looked through that gap under the whole wall (the city's blue lines along
-// its contacts: a roof receiver beside a tower got 0.10 where rays give 0.49). A surface whose
-// last row of centres lies within a pitch of the receiver's tangent plane now reaches it
-// (ContactCell in raster/footprints.cc).
+// into them, the last row of centres anywhere within a pitch of it), seen by receivers on the floor
+// beside it and on the wall above the floor, against rays cast at the exact wall and floor. The
+// wall's footprints stopped half a pitch past their last row of centres, and a receiver a few
+// hundredths of a pitch from the wall looked through that gap under the whole wall (the city's blue
+// lines along its contacts: a roof receiver beside a tower got 0.10 where rays give 0.49). A
+// surface whose last row of centres lies within a pitch of the receiver's tangent plane now reaches
+// it (ContactCell in raster/footprints.cc).
 TEST(FootprintTest, AWallStandingOnTheFloorReachesIt) {
   MicroBuffer mb;
   const float pitch = 0.1f, cell = 3.0f * pitch, d = 0.5f, h = 1.0f, half = 1.5f;
@@ -599,11 +606,11 @@ TEST(FootprintTest, AWallStandingOnTheFloorReachesIt) {
   Gathered wall, floor;
   std::vector<std::tuple<int, int, int>> wall_keys, floor_keys;
   AddJitteredRectangle(glm::vec3(-half, d, 0.0f), glm::vec3(1, 0, 0), 2.0f * half,
-                       glm::vec3(0, 0, 1), h, glm::vec3(0, -1, 0), pitch, cell, wall_offset, 11u, &wall,
-                       &wall_keys);
+                       glm::vec3(0, 0, 1), h, glm::vec3(0, -1, 0), pitch, cell, wall_offset, 11u,
+                       &wall, &wall_keys);
   AddJitteredRectangle(glm::vec3(-half, d - 2.0f * half, 0.0f), glm::vec3(1, 0, 0), 2.0f * half,
-                       glm::vec3(0, 1, 0), 2.0f * half, glm::vec3(0, 0, 1), pitch, cell, floor_offset, 23u,
-                       &floor, &floor_keys);
+                       glm::vec3(0, 1, 0), 2.0f * half, glm::vec3(0, 0, 1), pitch, cell,
+                       floor_offset, 23u, &floor, &floor_keys);
   // On the floor: the floor is the receiver's own plane (the gather does not return it).
   for (float x : {0.013f, 0.047f, 0.071f}) {
     for (float gap : {0.003f, 0.01f, 0.03f}) {
@@ -620,21 +627,13 @@ TEST(FootprintTest, AWallStandingOnTheFloorReachesIt) {
       r.position = glm::vec3(x, d - 1e-4f, z);
       r.normal = glm::vec3(0, -1, 0);
       // Rays at the floor below (z = 0, y < d), by symmetry the wall's case turned over.
-      int hits = 0;
-      const int n = 400;
-      for (int j = 0; j < n; ++j) {
-        for (int i = 0; i < n; ++i) {
-          const double u = (i + 0.5) / n, v = (j + 0.5) / n, rr = std::sqrt(u);
-          // Cosine-weighted about -y: (a, -sqrt(1 - u), b).
-          const glm::dvec3 dir(rr * std::cos(2.0 * kPi * v), -std::sqrt(1.0 - u),
-                               rr * std::sin(2.0 * kPi * v));
-          if (!(dir.z < 0.0)) continue;
-          const double t = -r.position.z / dir.z;
-          const glm::dvec3 q = glm::dvec3(r.position) + t * dir;
-          hits += q.x >= -half && q.x <= half && q.y >= d - 2.0 * half && q.y <= d;
-        }
-      }
-      const double want = static_cast<double>(hits) / (n * n);
+      const double want = CosineShare([&](const glm::dvec3& about_z) {
+        const glm::dvec3 dir(about_z.x, -about_z.z, about_z.y);  // cosine-weighted about -y
+        if (!(dir.z < 0.0)) return false;
+        const double t = -r.position.z / dir.z;
+        const glm::dvec3 q = glm::dvec3(r.position) + t * dir;
+        return q.x >= -half && q.x <= half && q.y >= d - 2.0 * half && q.y <= d;
+      });
       EXPECT_NEAR(MustShade(floor, r, Polygons(), &mb).occlusion, want, 0.03)
           << "wall receiver " << x << " " << z;
     }
