@@ -92,6 +92,16 @@ for f in reference.png pbgi_msa0.03_res12_cos.png error_msa0.03_res12_cos.png vi
   [ -s "$dir/eval_view/$f" ] && ok || fail "eval --view wrote no $f"
 done
 grep -q '"mode": "shared"' "$dir/eval_view/view.json" && ok || fail "view.json lacks the shared row"
+# eval --view --window: only the window's pixels are shaded and compared; --dump-receivers
+# lists them, each row's error its PBGI value less its reference.
+run eval_view_window "$pbgi" eval --view cornell -o "$dir/eval_win" --points 30000 --width 48 \
+  --height 32 --rays 64 --exact --window 8,8,16,8 --dump-receivers "$dir/win.csv"
+awk -F, 'NR > 1 {n++; if ($1 < 8 || $1 >= 24 || $2 < 8 || $2 >= 16) bad++;
+  d = $11 - ($10 - $9); if (d < -2e-6 || d > 2e-6) bad++}
+  END {exit !(n > 0 && n <= 128 && bad == 0)}' "$dir/win.csv" && ok ||
+  fail "eval --view --window dumped pixels outside the window or wrong errors"
+refuse eval_view_bad_window "X,Y,WIDTH,HEIGHT" "$pbgi" eval --view cornell -o "$dir/eval_win" \
+  --points 30000 --width 48 --height 32 --rays 64 --exact --window 40,8,16,8
 # The reference mode: demo --exact shades every receiver on its own; the default shares.
 run demo_exact "$pbgi" demo -o "$dir/demo_exact" --scene cornell --points 40000 --width 48 \
   --height 32 --memory 64M --cache 16M --exact
