@@ -161,21 +161,6 @@ struct RunDirGuard {
   }
 };
 
-// Points may lie outside declared bounds by float rounding (a sampled point on a triangle's
-// edge), never by more: a margin of 1e-5 of the box (and 1e-6 of its coordinates) catches a
-// stale or wrong declaration without refusing rounding.
-Bounds DeclaredBoundsTolerance(const Bounds& b) {
-  const glm::vec3 e = b.Extent();
-  const float m = std::max({e.x, e.y, e.z});
-  const float c = std::max({std::abs(b.lo.x), std::abs(b.lo.y), std::abs(b.lo.z), std::abs(b.hi.x),
-                            std::abs(b.hi.y), std::abs(b.hi.z)});
-  const float pad = 1e-5f * m + 1e-6f * c;
-  Bounds out = b;
-  out.lo -= glm::vec3(pad);
-  out.hi += glm::vec3(pad);
-  return out;
-}
-
 }  // namespace
 
 absl::StatusOr<BuildStats> BuildToSink(SurfelSource& source, PageSink& sink,
@@ -299,7 +284,7 @@ absl::StatusOr<BuildStats> BuildToSink(SurfelSource& source, PageSink& sink,
     PBGI_RETURN_IF_ERROR(sorter.ResumeFrom(kept.runs));
   } else {
     const MortonQuantizer quant(bounds);
-    const Bounds inside = DeclaredBoundsTolerance(bounds);
+    const Bounds inside = KeyBoundsTolerance(bounds);
     // Records are made in place in the sorter's run buffer.
     absl::Span<SortRecord> slots;
     size_t used = 0;

@@ -224,8 +224,15 @@ Bounds KeyBounds(const StoreMeta& meta) {
   Bounds b;
   b.lo = glm::vec3(v[0], v[1], v[2]);
   b.hi = glm::vec3(v[3], v[4], v[5]);
+  // The points may stick out of a declared key box by rounding (KeyBoundsTolerance): the
+  // builder kept such a box, and so must the reader. Refusing it for a point 6e-6 past a
+  // scene's bounds put the forest's cells half a cell off the octree's (bug:
+  // key_box_refused_for_rounding).
+  const Bounds tolerated = internal::KeyBoundsTolerance(b);
   for (int k = 0; k < 3; ++k) {
-    if (!(b.lo[k] <= meta.bounds.lo[k] && meta.bounds.hi[k] <= b.hi[k])) return meta.bounds;
+    if (!(tolerated.lo[k] <= meta.bounds.lo[k] && meta.bounds.hi[k] <= tolerated.hi[k])) {
+      return meta.bounds;
+    }
   }
   return b;
 }

@@ -66,6 +66,23 @@ inline TreePrefix PrefixAt(uint64_t key, uint32_t rank, uint32_t depth) {
   return {key, rank >> (3 * (kMaxSplitDepth - depth))};
 }
 
+// Points may lie outside declared bounds by float rounding (a sampled point on a triangle's
+// edge), never by more: a margin of 1e-5 of the box (and 1e-6 of its coordinates) catches a
+// stale or wrong declaration without refusing rounding. The builder refuses a point outside
+// it; the reader accepts a key box (build statistic key_bounds) whose tolerance holds the
+// points' box.
+inline Bounds KeyBoundsTolerance(const Bounds& b) {
+  const glm::vec3 e = b.Extent();
+  const float m = std::max({e.x, e.y, e.z});
+  const float c = std::max({std::abs(b.lo.x), std::abs(b.lo.y), std::abs(b.lo.z), std::abs(b.hi.x),
+                            std::abs(b.hi.y), std::abs(b.hi.z)});
+  const float pad = 1e-5f * m + 1e-6f * c;
+  Bounds out = b;
+  out.lo -= glm::vec3(pad);
+  out.hi += glm::vec3(pad);
+  return out;
+}
+
 // Maps positions to keys inside a cube around the bounds, padded so that rounding never pushes
 // a point out; points on the upper boundary land in the last cell (clamped), never outside.
 // The cube of the octree's root cell around the bounds, padded so that rounding never pushes

@@ -52,13 +52,11 @@ class DeclaredBoundsSource final : public SurfelSource {
   Bounds declared_;
 };
 
-TEST(KeyCubeCellsRegressionTest, CellsAreTheOctreeCellsOfTheDeclaredBoundsCube) {
-  // Points in the unit cube, bounds declared as [-1, 2]^3: the key cube has side 3 (and a
-  // little padding), the points' own cube side 1 at most.
-  const std::vector<Surfel> cloud = testing::RandomSceneSurfels(20000, 41);
-  Bounds declared;
-  declared.lo = glm::vec3(-1.0f);
-  declared.hi = glm::vec3(2.0f);
+// Builds `cloud` with bounds `declared` and checks every gathered cell against the octree over
+// the declared box's cube (side `root` from `origin`, padded as tree/morton.h pads it): on its
+// grid, at the node's depth, holding the node's content.
+void ExpectCellsOnTheKeyGrid(const std::vector<Surfel>& cloud, const Bounds& declared, double root,
+                             const glm::dvec3& origin) {
   testing_common::ScratchDir dir("key_cube");
   BuildOptions bo;
   bo.leaf_size = 8;
@@ -72,9 +70,7 @@ TEST(KeyCubeCellsRegressionTest, CellsAreTheOctreeCellsOfTheDeclaredBoundsCube) 
   auto reader = (*db)->NewReader();
   ASSERT_TRUE(reader.ok()) << reader.status();
 
-  constexpr double kRoot = 3.0;   // the declared cube's side
-  const glm::dvec3 origin(-1.0);  // its low corner
-  constexpr double kRel = 1e-5;   // the key cube's padding, relative (tree/morton.h)
+  constexpr double kRel = 1e-5;  // the key cube's padding, relative (tree/morton.h)
   const float tol = 1e-5f;
   std::vector<Receiver> receivers = testing::RandomReceivers(40, 7);
   for (size_t i = 0; i < 40; ++i) {
@@ -84,14 +80,14 @@ TEST(KeyCubeCellsRegressionTest, CellsAreTheOctreeCellsOfTheDeclaredBoundsCube) 
   uint64_t clusters = 0, leaves = 0;
   // Whether `cell` is a cell of the octree over the declared cube, at `depth` when given.
   auto on_grid = [&](const Bounds& cell, int depth) {
-    const int d = DepthOf(cell.hi.x - cell.lo.x, kRoot);
+    const int d = DepthOf(cell.hi.x - cell.lo.x, root);
     if (d < 0 || (depth >= 0 && d != std::min(depth, 21))) return false;
-    const double side = kRoot / std::exp2(d);
+    const double side = root / std::exp2(d);
     for (int a = 0; a < 3; ++a) {
       if (std::abs(double(cell.hi[a] - cell.lo[a]) - side) > 1e-4 * side) return false;
       const double k = (double(cell.lo[a]) - origin[a]) / side;
-      // The padding moves the origin by at most kRel * kRoot: a fraction of a cell at depth d.
-      if (std::abs(k - std::round(k)) > 1e-3 + kRel * kRoot / side) return false;
+      // The padding moves the origin by at most kRel * root: a fraction of a cell at depth d.
+      if (std::abs(k - std::round(k)) > 1e-3 + kRel * root / side) return false;
     }
     return true;
   };
@@ -120,6 +116,38 @@ TEST(KeyCubeCellsRegressionTest, CellsAreTheOctreeCellsOfTheDeclaredBoundsCube) 
   }
   EXPECT_GT(clusters, 100u);
   EXPECT_GT(leaves, 10u);
+}
+
+TEST(KeyCubeCellsRegressionTest, CellsAreTheOctreeCellsOfTheDeclaredBoundsCube) {
+  // Points in the unit cube, bounds declared as [-1, 2]^3: the key cube has side 3 (and a
+  // little padding), the points' own cube side 1 at most.
+  const std::vector<Surfel> cloud = testing::RandomSceneSurfels(20000, 41);
+  Bounds declared;
+  declared.lo = glm::vec3(-1.0f);
+  declared.hi = glm::vec3(2.0f);
+  ExpectCellsOnTheKeyGrid(cloud, declared, 3.0, glm::dvec3(-1.0));
+}
+
+// A sampled scene's points stick out of its declared bounds by rounding (a point on a triangle's
+// edge): the builder keeps such points (within KeyBoundsTolerance) and keys them in the declared
+// box's cube, but the reader refused the key box because the points' box was not inside it, and
+// fell back to the points' own cube (bug: key_box_refused_for_rounding: the forest's cells lay
+// half a cell off the octree's, the ground under every tree came out 0.7 opaque, and a trunk's
+// clusters lost their footprints' snap to their cells).
+TEST(KeyCubeCellsRegressionTest, PointsOutsideTheDeclaredBoxByRoundingKeepTheKeyGrid) {
+  std::vector<Surfel> cloud = testing::RandomSceneSurfels(20000, 43);
+  // Declared: y from -0.5 (below every point: the key cube differs from the points' own), and
+  // x up to just below the largest x, as rounding leaves it (1e-6 of the box, within the
+  // builder's 1e-5).
+  Bounds points;
+  for (const Surfel& s : cloud) points.Extend(s.position);
+  Bounds declared = points;
+  declared.lo.y = -0.5f;
+  declared.hi.x = points.hi.x - 1e-6f * (points.hi.x - points.lo.x);
+  ASSERT_LT(declared.hi.x, points.hi.x);
+  const glm::dvec3 lo(declared.lo), hi(declared.hi);
+  const double side = std::max({hi.x - lo.x, hi.y - lo.y, hi.z - lo.z});
+  ExpectCellsOnTheKeyGrid(cloud, declared, side, 0.5 * (lo + hi) - glm::dvec3(0.5 * side));
 }
 
 }  // namespace
