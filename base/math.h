@@ -27,6 +27,27 @@ inline void OrthonormalBasis(const glm::vec3& n, glm::vec3* t, glm::vec3* b) {
   *b = glm::vec3(bb, sign + n.y * n.y * a, -n.y);
 }
 
+// Content whose area-weighted normal is `normal_sum` (not zero) and whose surfel centres span a
+// box of extents `ext`: a surface with something standing on its front (the ground and a
+// tree's trunk, the street and a building's wall) when the box reaches farther along the
+// normal's dominant axis than the plane's tilt explains, by more than half of
+// kStandingTolerance times the box's in-plane size (a curved patch whose normals lie within
+// the flatness cone sags less). Returns how far to move the plane from the box centre towards
+// the box's back along that axis (0: it is not standing; the whole excess / 2 from the
+// tolerance on, ramping up continuously from half of it) and the axis in *axis.
+// docs/design.md, "Surfaces with things standing on them".
+inline constexpr float kStandingTolerance = 0.4f;
+inline float StandingShift(const glm::vec3& normal_sum, const glm::vec3& ext, int* axis) {
+  const glm::vec3 a(std::fabs(normal_sum.x), std::fabs(normal_sum.y), std::fabs(normal_sum.z));
+  const int k = a.x >= a.y && a.x >= a.z ? 0 : a.y >= a.z ? 1 : 2;
+  const int i = (k + 1) % 3, j = (k + 2) % 3;
+  *axis = k;
+  if (!(a[k] > 0.0f)) return 0.0f;
+  const float excess = ext[k] - (a[i] * ext[i] + a[j] * ext[j]) / a[k];
+  const float tol = kStandingTolerance * std::max(ext[i], ext[j]);
+  return std::min(0.5f * excess, std::max(0.0f, excess - 0.5f * tol));
+}
+
 // GGX as pbgi/raster.h defines it, D(x) = alpha^2 / (pi (1 + k x^2)^2), k = alpha^2 - 1 in
 // (-1, 0]: the integral of 1 / (1 + k t^2)^2 over [0, x] is
 //   x / (2 (1 + k x^2)) + atanh(m x) / (2 m),  m = sqrt(-k) = sqrt(1 - alpha^2)

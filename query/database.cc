@@ -456,7 +456,7 @@ absl::Status Reader::Impl::Traverse(const glm::vec3& p, const glm::vec3& n, cons
       ++q.nodes_culled;
       continue;
     }
-    const float max_sa = NodeMaxSolidAngle(cut, node.sh_area.data());
+    const float max_sa = NodeMaxSolidAngle(cut, node.sh_area.data(), node.lo, node.hi);
     if (!NodeNearFieldSphere(node.near_centre, node.near_radius2, p) &&
         (kLobe ? BelowLobeCut(node, p, max_sa, lobe)
                : ClearlyBelowCut(node, p, max_sa) ||

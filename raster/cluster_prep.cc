@@ -7,6 +7,7 @@
 #include <cstring>
 #include <limits>
 
+#include "base/math.h"
 #include "glm/geometric.hpp"
 #include "pbgi/sh.h"
 #include "raster/cluster_model.h"
@@ -53,6 +54,37 @@ constexpr float kSheetFlatness = 0.999f;
   s->normal = ToFrame(f, mw);
   s->plane = -std::fabs(towards);
   s->thick = 0.5f * (std::fabs(mw.x) * ext.x + std::fabs(mw.y) * ext.y + std::fabs(mw.z) * ext.z);
+  s->flat = s->plane < 0.0f ? 1 : 0;
+}
+
+// A flat cluster with something standing on it (StandingShift in base/math.h: the ground and a
+// tree's trunk, the street and a building's wall) does not have its plane through the box
+// centre: a ground plane drawn halfway up the trunk was seen from below by receivers under that
+// height, and the ground vanished behind it. Its plane lies at the box's back along the
+// dominant axis instead: what stands on a one-sided surface stands in front of it. Both
+// preparation paths call this one function for every flat cluster that may need it.
+// The lanes call StandingPlane() where their own estimate of the excess passes this share of
+// the threshold (the function decides exactly).
+constexpr float kStandingPrefilter = 0.9f;
+[[gnu::noinline]] void StandingPlane(const Cluster& c, const ClusterFrame& f, PreparedSplat* s) {
+  const glm::vec3 ns = sh::AreaAndNormalSum(c.sh_area.data()).normal_sum;
+  const float nl = glm::length(ns);
+  if (!(nl > 0.0f)) return;
+  const glm::vec3 m = ns / nl;
+  const glm::vec3 a(std::fabs(m.x), std::fabs(m.y), std::fabs(m.z));
+  const Bounds& box = c.bounds;
+  glm::vec3 ext = box.hi - box.lo;
+  int k = 0;
+  const float shift = StandingShift(ns, ext, &k);
+  if (!(shift > 0.0f)) return;
+  glm::vec3 rel = 0.5f * (box.lo + box.hi) - f.origin;
+  rel[k] += m[k] > 0.0f ? -shift : shift;
+  ext[k] -= 2.0f * shift;
+  const float towards = glm::dot(m, rel);
+  const glm::vec3 mw = towards > 0.0f ? -m : m;
+  s->normal = ToFrame(f, mw);
+  s->plane = -std::fabs(towards);
+  s->thick = 0.5f * (a.x * ext.x + a.y * ext.y + a.z * ext.z);
   s->flat = s->plane < 0.0f ? 1 : 0;
 }
 
@@ -137,6 +169,7 @@ bool PrepareClusterOne(const Cluster& c, const ClusterFrame& f, PreparedSplat* o
         return false;
       }
       s.flat = s.plane < 0.0f ? 1 : 0;
+      StandingPlane(c, f, &s);
     }
   }
   if (!flat) AxisPlane(c, f, &s);

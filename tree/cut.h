@@ -160,16 +160,28 @@ inline bool NodeIsFlat(const float* sh_area) {
   return glm::dot(m.normal_sum, m.normal_sum) >
          (kClusterFlatness * m.area) * (kClusterFlatness * m.area);
 }
+// NodeIsFlat() and nothing standing on it (StandingShift() in base/math.h): its mean plane
+// represents it.
+inline bool NodeIsFlat(const float* sh_area, const glm::vec3& lo, const glm::vec3& hi) {
+  const sh::FirstMoments m = sh::AreaAndNormalSum(sh_area);
+  if (!(glm::dot(m.normal_sum, m.normal_sum) >
+        (kClusterFlatness * m.area) * (kClusterFlatness * m.area))) {
+    return false;
+  }
+  int axis = 0;
+  return !(StandingShift(m.normal_sum, hi - lo, &axis) > 0.0f);
+}
 
 // The max_solid_angle of one node: the cut's, scaled by curved_scale when the node is not flat.
 // NodeCut is `cut` with it (the traversal reads the float alone: no copy of the Cut per node).
-inline float NodeMaxSolidAngle(const Cut& cut, const float* sh_area) {
-  if (cut.curved_scale == 1.0f || NodeIsFlat(sh_area)) return cut.max_solid_angle;
+inline float NodeMaxSolidAngle(const Cut& cut, const float* sh_area, const glm::vec3& lo,
+                               const glm::vec3& hi) {
+  if (cut.curved_scale == 1.0f || NodeIsFlat(sh_area, lo, hi)) return cut.max_solid_angle;
   return cut.max_solid_angle * cut.curved_scale;
 }
-inline Cut NodeCut(const Cut& cut, const float* sh_area) {
+inline Cut NodeCut(const Cut& cut, const float* sh_area, const glm::vec3& lo, const glm::vec3& hi) {
   Cut c = cut;
-  c.max_solid_angle = NodeMaxSolidAngle(cut, sh_area);
+  c.max_solid_angle = NodeMaxSolidAngle(cut, sh_area, lo, hi);
   return c;
 }
 

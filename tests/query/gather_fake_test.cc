@@ -150,10 +150,10 @@ TEST_P(GatherFakeTest, CurvedScaleRefinesTheCurvedNodesOnly) {
     ASSERT_TRUE(s.ok()) << s;
     more += curved.size() > plain.size();
     caught += !testing::CheckValidCut(plain, surfels, r, curved_cut).ok();
-    // Flat clusters of the plain cut stay whole in the curved one.
+    // Flat clusters of the plain cut (with nothing standing on them) stay whole in the curved one.
     size_t flat_plain = 0, flat_kept = 0;
     for (const Cluster& c : plain.clusters) {
-      if (!internal::NodeIsFlat(c.sh_area.data())) continue;
+      if (!internal::NodeIsFlat(c.sh_area.data(), c.bounds.lo, c.bounds.hi)) continue;
       ++flat_plain;
       for (const Cluster& d : curved.clusters) {
         if (d.first_point == c.first_point && d.point_count == c.point_count) {

@@ -172,7 +172,8 @@ TEST(LobeCut, CutIsValidAgainstBruteForceForRandomLobes) {
         if (internal::NodeLobeCosine(ns.centre, ns.radius2, r.position, l.axis) >= 1.0f) {
           ++in_core;
           EXPECT_LT(ClusterSolidAngle(c, r) * l.max_weight,
-                    internal::NodeCut(fine_cut, c.sh_area.data()).max_solid_angle);
+                    internal::NodeCut(fine_cut, c.sh_area.data(), c.bounds.lo, c.bounds.hi)
+                        .max_solid_angle);
         }
       }
       lobe_clusters += fine.clusters.size();

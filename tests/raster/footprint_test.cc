@@ -640,5 +640,68 @@ TEST(FootprintTest, AWallStandingOnTheFloorReachesIt) {
   }
 }
 
+// A thin pole standing on the ground, both sampled and clustered in cells of 1.2 (the pole's
+// cells hold ground and pole: flat by their mean normal, their boxes 1.2 tall), seen from a
+// receiver on a pole beside it, below the cells' tops, looking along the ground. The flat
+// cells' plane went through their box centre, 0.6 above the ground: the receiver at 0.3 saw it
+// from below, the ground in those cells vanished and the plane covered the sky above instead
+// (bug: standing_plane_through_box_centre; the forest's ground under its trees came out 0.7
+// opaque). The plane now lies at the box's back along its normal (StandingShift in
+// base/math.h), on the ground.
+TEST(FootprintTest, AGroundWithAPoleStandingOnItKeepsItsPlane) {
+  const float pitch = 0.05f, half = 6.0f, pole_r = 0.04f, pole_h = 2.4f;
+  const glm::vec2 pole(1.5f, 0.3f);
+  std::vector<Surfel> surfels;
+  for (float y = -half + 0.5f * pitch; y < half; y += pitch) {
+    for (float x = -half + 0.5f * pitch; x < half; x += pitch) {
+      if (glm::length(glm::vec2(x, y) - pole) < pole_r) continue;
+      Surfel s;
+      s.position = glm::vec3(x, y, 0.0f);
+      s.normal = glm::vec3(0, 0, 1);
+      s.radius = pitch / std::sqrt(static_cast<float>(kPi));
+      surfels.push_back(s);
+    }
+  }
+  const int around = 8;
+  const float dz = 2.0f * static_cast<float>(kPi) * pole_r / around;
+  for (float z = 0.5f * dz; z < pole_h; z += dz) {
+    for (int k = 0; k < around; ++k) {
+      const float a = 2.0f * static_cast<float>(kPi) * (k + 0.5f) / around;
+      Surfel s;
+      s.normal = glm::vec3(std::cos(a), std::sin(a), 0.0f);
+      s.position = glm::vec3(pole + pole_r * glm::vec2(s.normal), z);
+      s.radius = dz / std::sqrt(static_cast<float>(kPi));
+      surfels.push_back(s);
+    }
+  }
+  Gathered g;
+  g.clusters = ClustersInCells(surfels, 1.2f);
+  MicroBuffer mb;
+  for (float h : {0.15f, 0.3f, 0.5f}) {
+    ShadeReceiver r;
+    r.position = glm::vec3(0.0f, 0.0f, h);
+    r.normal = glm::vec3(1, 0, 0);
+    // Rays about +x at the ground square and the pole's cylinder.
+    const double want = CosineShare([&](const glm::dvec3& about_z) {
+      const glm::dvec3 dir(about_z.z, about_z.x, about_z.y);  // cosine-weighted about +x
+      const glm::dvec3 o(r.position);
+      // The pole: |(o + t dir).xy - pole| = pole_r.
+      const glm::dvec2 oc = glm::dvec2(o) - glm::dvec2(pole), d2(dir);
+      const double qa = glm::dot(d2, d2), qb = 2.0 * glm::dot(oc, d2),
+                   qc = glm::dot(oc, oc) - double(pole_r) * pole_r;
+      const double disc = qb * qb - 4.0 * qa * qc;
+      if (disc >= 0.0 && qa > 0.0) {
+        const double t = (-qb - std::sqrt(disc)) / (2.0 * qa);
+        const double z = o.z + t * dir.z;
+        if (t > 0.0 && z >= 0.0 && z <= pole_h) return true;
+      }
+      if (!(dir.z < 0.0)) return false;
+      const glm::dvec3 q = o - (o.z / dir.z) * dir;
+      return std::fabs(q.x) <= half && std::fabs(q.y) <= half;
+    });
+    EXPECT_NEAR(MustShade(g, r, Polygons(), &mb).occlusion, want, 0.02) << "receiver at " << h;
+  }
+}
+
 }  // namespace
 }  // namespace pbgi
