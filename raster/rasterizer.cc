@@ -521,7 +521,7 @@ void Rasterizer::Draw(const Gathered& g, uint32_t count) {
       if constexpr (kClamp) {
         if (closes_ >= kMinClosesToTest && BilinearConeClosed(s) && ClusterHidden(c, s)) return;
       }
-      BuildClusterFootprint(c, s);
+      if (!BuildClusterFootprint(c, s)) return;
     }
     if (s.near == 2) {
       SplatPolygons<kClamp, kRad>(s);

@@ -133,8 +133,9 @@ class Rasterizer {
   // Surfels grouped by leaf and normal into co-planar polygons (raster/footprints.cc).
   void PrepareSurfelGroups(const Gathered& g, ShadeResult* out);
   // The footprint polygons of prepared cluster splat s (raster/footprints.cc), built as it is
-  // drawn, so that a hidden cluster costs none.
-  void BuildClusterFootprint(const Cluster& c, PreparedSplat& s);
+  // drawn, so that a hidden cluster costs none. False: the cluster shows nothing (the
+  // receiver's own surface seen from behind).
+  bool BuildClusterFootprint(const Cluster& c, PreparedSplat& s);
   // With clamp, whether drawing cluster splat s (not yet built), whose BilinearConeClosed()
   // holds, would change nothing: every pixel that its footprint, or the cone splat it may fall
   // back to, could reach is closed and already as near (raster/footprints.cc). False when that
