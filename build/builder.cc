@@ -164,7 +164,11 @@ MemoryPlan PlanMemory(const BuildOptions& o, int64_t known_count) {
   // Under a small budget the threads' own memory would cut the sort's share so much that the
   // runs shrink (and the merge fans out) more than the overlap gains: 1 M points at 32 MiB made
   // 4,096 runs and took 20x longer. Threads only when they leave at least half the sort memory.
-  if (!many.fits || (many.spills && 2 * many.sort_bytes < one.sort_bytes)) return one;
+  // And when the threads' own memory does not fit where one thread's does (a budget below
+  // MinimumBuildMemory fits neither: the library takes those to force spills in tests).
+  if ((!many.fits && one.fits) || (many.spills && 2 * many.sort_bytes < one.sort_bytes)) {
+    return one;
+  }
   return many;
 }
 
