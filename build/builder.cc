@@ -89,26 +89,42 @@ int ThreadCount(const BuildOptions& o) {
 
 namespace {
 
+constexpr uint64_t kMinUpperBytes = 256 << 10;
+constexpr uint64_t kMinMergeBytes = 64 << 10;
+
+uint64_t BatchBytes(uint64_t m) { return std::clamp<uint64_t>(m / 16, kMiB, 64 * kMiB); }
+
+// PlanFor's fixed part on one thread.
+uint64_t FixedBytes(const BuildOptions& o) {
+  return 24 * kMiB + 4 * uint64_t{o.page_size} +
+         (o.estimate.radius || o.estimate.normals ? NeighbourEstimator::kMemoryBytes : 0);
+}
+
+// The smallest sort share a plan runs with: the smallest run, or the merge's smallest buffers.
+constexpr uint64_t kMinSortBytes =
+    std::max<uint64_t>(kMinRunRecords * kSortBytesPerRecord, kMinMergeBytes);
+
 MemoryPlan PlanFor(const BuildOptions& o, int64_t known_count, int threads) {
   MemoryPlan p;
   const uint64_t m = o.memory_bytes;
   p.threads = threads;
-  p.batch_bytes = std::clamp<uint64_t>(m / 16, kMiB, 64 * kMiB);
+  p.batch_bytes = BatchBytes(m);
   // Node packer pending sets, page buffers, the look-ahead window, the PLY reader, LMDB's own
   // allocations and the process's baseline (code, libraries). Threads add the merge's block
   // pipe and the LMDB writer's page slots, and LMDB's dirty pages then come from the writer
   // thread's malloc arena, which keeps about one more batch of freed pages resident
-  // (docs/format.md, "Memory plan").
-  const uint64_t fixed =
-      24 * kMiB + 4 * uint64_t{o.page_size} + (threads > 1 ? 4 * kMiB + p.batch_bytes : 0) +
-      (o.estimate.radius || o.estimate.normals ? NeighbourEstimator::kMemoryBytes : 0);
+  // (docs/design.md, "Memory plan").
+  const uint64_t fixed = FixedBytes(o) + (threads > 1 ? 4 * kMiB + p.batch_bytes : 0);
+  p.fixed_bytes = fixed;
   uint64_t sort_bytes = m > p.batch_bytes + fixed ? m - p.batch_bytes - fixed : 0;
   // The coherent layout's upper node groups grow during the octree pass, while the merge buffers
   // (or, without spill, the sorted run) are in use: they get their own share.
   p.upper_bytes =
-      std::clamp<uint64_t>(sort_bytes / 4, 256 << 10, NodePacker::kDefaultUpperLimitBytes);
+      std::clamp<uint64_t>(sort_bytes / 4, kMinUpperBytes, NodePacker::kDefaultUpperLimitBytes);
   sort_bytes = sort_bytes > p.upper_bytes ? sort_bytes - p.upper_bytes : 0;
   p.sort_bytes = sort_bytes;
+  p.fits =
+      sort_bytes >= (threads > 1 ? kMinRunRecords * kSortBytesPerRecordThreaded : kMinSortBytes);
   p.run_capacity = std::max<uint64_t>(kMinRunRecords, sort_bytes / kSortBytesPerRecord);
   if (known_count >= 0 && uint64_t(known_count) <= p.run_capacity) {
     // Fits one run: never spilled, so no second buffer either.
@@ -118,8 +134,9 @@ MemoryPlan PlanFor(const BuildOptions& o, int64_t known_count, int threads) {
     // A second run buffer fills while the first one is sorted and spilled.
     p.run_capacity = std::max<uint64_t>(kMinRunRecords, sort_bytes / kSortBytesPerRecordThreaded);
   }
-  // The merge reuses the sort's memory once the runs are spilled.
-  p.merge_bytes = std::max<uint64_t>(64 << 10, sort_bytes);
+  // The merge reuses the sort's memory once the runs are spilled (at most 8 MiB a run: a larger
+  // read buffer gains nothing and would stay resident through the whole merge).
+  p.merge_bytes = std::max<uint64_t>(kMinMergeBytes, sort_bytes);
   return p;
 }
 
@@ -128,10 +145,13 @@ MemoryPlan PlanFor(const BuildOptions& o, int64_t known_count, int threads) {
 }  // namespace internal
 
 uint64_t MinimumBuildMemory(const BuildOptions& o) {
-  // PlanFor's fixed part and smallest write batch, the smallest upper share and the smallest
-  // sorted run, on one thread (the plan drops to one under a small budget).
-  return internal::kMiB + 24 * internal::kMiB + 4 * uint64_t{o.page_size} + (256 << 10) +
-         internal::kMinRunRecords * internal::kSortBytesPerRecord;
+  // PlanFor's fixed part, the smallest upper share and the smallest sort share, on one thread
+  // (the plan drops to one under a small budget), and the write batch, a sixteenth of the
+  // budget: the smallest M with M - M/16 >= the rest.
+  const uint64_t rest =
+      internal::FixedBytes(o) + internal::kMinUpperBytes + internal::kMinSortBytes;
+  const uint64_t m = (rest * 16 + 14) / 15;
+  return std::max(m, rest + internal::BatchBytes(m));
 }
 
 namespace internal {
@@ -144,7 +164,11 @@ MemoryPlan PlanMemory(const BuildOptions& o, int64_t known_count) {
   // Under a small budget the threads' own memory would cut the sort's share so much that the
   // runs shrink (and the merge fans out) more than the overlap gains: 1 M points at 32 MiB made
   // 4,096 runs and took 20x longer. Threads only when they leave at least half the sort memory.
-  if (many.spills && 2 * many.sort_bytes < one.sort_bytes) return one;
+  // And when the threads' own memory does not fit where one thread's does (a budget below
+  // MinimumBuildMemory fits neither: the library takes those to force spills in tests).
+  if ((!many.fits && one.fits) || (many.spills && 2 * many.sort_bytes < one.sort_bytes)) {
+    return one;
+  }
   return many;
 }
 

@@ -23,7 +23,9 @@ struct MemoryPlan {
   uint64_t batch_bytes = 0;   // LMDB write batch (StoreOptions::batch_bytes)
   int threads = 1;            // BuildOptions::threads resolved (1 under a small budget)
   uint64_t sort_bytes = 0;    // run buffers (and later merge buffers), all together
+  uint64_t fixed_bytes = 0;   // the process and the small buffers (see PlanFor)
   bool spills = true;         // false: the input is known to fit one run
+  bool fits = true;           // the budget holds the fixed part, the batch and the smallest run
 };
 // BuildOptions::threads, 0 resolved to the machine's.
 int ThreadCount(const BuildOptions& options);

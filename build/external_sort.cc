@@ -23,6 +23,10 @@ constexpr uint64_t kMinMergeBufferBytes = 64 << 10;
 constexpr size_t kWriteChunkRecords = 4096;
 constexpr size_t kBlockRecords = 8192;  // merge output blocks (384 KiB)
 constexpr size_t kPipeBlocks = 4;
+// A run's read buffer, at most: reads of a few MiB already keep the disk streaming, and the
+// rest of Options::merge_bytes would only sit resident next to LMDB's write batch and the upper
+// node groups for the whole merge (docs/design.md, "Memory plan").
+constexpr uint64_t kMaxReaderBytes = uint64_t{8} << 20;
 
 absl::Status ErrnoError(const std::string& what, int err) {
   return absl::InternalError(absl::StrFormat("%s: %s", what, std::strerror(err)));
@@ -118,6 +122,7 @@ class ExternalSorter::RunReader {
     buf_.reset(new SortRecord[cap_]);
   }
   absl::Status Refill() { return dec_ == nullptr ? RefillRaw() : RefillCompact(); }
+  uint64_t buffer_bytes() const { return cap_ * sizeof(SortRecord) + io_cap_; }
   bool Valid() const { return pos_ < len_; }
   const SortRecord& Current() const { return buf_[pos_]; }
   absl::Status Advance() {
@@ -294,6 +299,12 @@ class ExternalSorter::Merger {
     }
     for (size_t i = m->heap_.size(); i-- > 0;) m->SiftDown(i);
     return m;
+  }
+
+  uint64_t buffer_bytes() const {
+    uint64_t b = 0;
+    for (const RunReader& r : readers_) b += r.buffer_bytes();
+    return b;
   }
 
   absl::StatusOr<size_t> Next(absl::Span<SortRecord> out) {
@@ -654,8 +665,8 @@ absl::Status ExternalSorter::MergeSpilled() {
   const uint64_t fan_in = std::max<uint64_t>(2, options_.merge_bytes / min_reader_bytes);
   while (runs_.size() > fan_in) {
     // Merge consecutive groups, in order, so that ties still resolve to the earlier input.
-    const size_t buffer_records =
-        std::max<size_t>(64, options_.merge_bytes / (fan_in + 1) / sizeof(SortRecord));
+    const size_t buffer_records = std::max<size_t>(
+        64, std::min(options_.merge_bytes / (fan_in + 1), kMaxReaderBytes) / sizeof(SortRecord));
     std::vector<Run> next;
     for (size_t i = 0; i < runs_.size(); i += fan_in) {
       std::vector<Run> group(runs_.begin() + i,
@@ -676,8 +687,8 @@ absl::Status ExternalSorter::MergeSpilled() {
     runs_ = std::move(next);
     ++merge_passes_;
   }
-  const size_t buffer_records =
-      std::max<size_t>(64, options_.merge_bytes / runs_.size() / sizeof(SortRecord));
+  const size_t buffer_records = std::max<size_t>(
+      64, std::min(options_.merge_bytes / runs_.size(), kMaxReaderBytes) / sizeof(SortRecord));
   PBGI_ASSIGN_OR_RETURN(merger_,
                         Merger::Create(runs_, buffer_records, &options_.tmp_dir, options_.compact));
   if (options_.threads > 1) {
@@ -685,6 +696,10 @@ absl::Status ExternalSorter::MergeSpilled() {
         kPipeBlocks, kBlockRecords, [this](absl::Span<SortRecord> out) { return Produce(out); });
   }
   return absl::OkStatus();
+}
+
+uint64_t ExternalSorter::merge_resident_bytes() const {
+  return merger_ == nullptr ? 0 : merger_->buffer_bytes();
 }
 
 absl::StatusOr<size_t> ExternalSorter::Produce(absl::Span<SortRecord> out) {

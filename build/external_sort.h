@@ -106,7 +106,8 @@ class ExternalSorter {
   struct Options {
     std::string tmp_dir;        // where spilled runs go
     uint64_t run_capacity = 0;  // records per in-memory run (> 0)
-    uint64_t merge_bytes = 0;   // read buffers of the merge, all runs together
+    uint64_t merge_bytes = 0;   // read buffers of the merge, all runs together (at most
+                                // 8 MiB a run: merge_resident_bytes())
     int threads = 1;            // > 1: background sort/spill and merge threads (see above)
     // Set: every spilled run, the input's and the merge passes', is written compact
     // (build/spill_codec.h: point records + key, zstd blocks) instead of as raw 48-byte records.
@@ -160,6 +161,10 @@ class ExternalSorter {
   // After FinishInput: the next block of records in key order, valid until the next call of
   // NextBlock or Next; empty at the end. With threads, produced ahead by a background thread.
   absl::StatusOr<absl::Span<const SortRecord>> NextBlock();
+
+  // The merge's read buffers (decoded blocks included), all readers together: at most
+  // Options::merge_bytes, and at most 8 MiB a run.
+  uint64_t merge_resident_bytes() const;
 
   uint64_t runs_spilled() const { return runs_spilled_; }
   uint64_t merge_passes() const { return merge_passes_; }

@@ -74,7 +74,8 @@ struct PageWriter::Impl {
     uint32_t size;  // stored bytes
   };
   std::vector<Pending> pending;
-  uint64_t batch_bytes = 0;
+  uint64_t batch_bytes = 0;  // LMDB's bytes for the pending pages (LmdbBytes)
+  uint64_t replays = 0;      // batches written again after the map grew under them
 
   bool has_last[2] = {false, false};
   uint64_t last[2] = {0, 0};
@@ -124,6 +125,43 @@ struct PageWriter::Impl {
 
   int Begin() { return mdb_txn_begin(env, nullptr, 0, &txn); }
 
+  // What LMDB allocates for a value of `size` bytes: without MDB_WRITEMAP every dirty page of a
+  // write transaction is a malloc'd copy until the commit, and a page value takes whole overflow
+  // pages (a 16-byte page header, then the value). The batch is counted in these bytes, so that
+  // StoreOptions::batch_bytes bounds the memory the open transaction holds.
+  uint64_t LmdbBytes(uint32_t size) const {
+    return (uint64_t{size} + 16 + env_page - 1) / env_page * env_page;
+  }
+
+  // The most map pages one batch can add: its values' overflow pages (the batch commits once
+  // they reach batch_bytes, so at most one page value more), a leaf entry per value and the
+  // branch and freelist pages, counted generously.
+  uint64_t BatchPagesBound() const {
+    const uint64_t overflow = (options.batch_bytes + LmdbBytes(options.page_size)) / env_page + 1;
+    return 2 * overflow + 64;
+  }
+
+  // Between transactions: grows the map (doubling, up to max_map_size) until a whole batch fits
+  // after the last page, so that a batch never meets MDB_MAP_FULL and is never written twice.
+  // A replay (GrowAndReplay) holds the batch's pages twice, once in its saved copy and once in
+  // the new transaction's dirty pages, which took the build's peak RSS over --memory whenever
+  // the map grew mid-batch (docs/design.md, "Memory plan").
+  absl::Status GrowAhead() {
+    MDB_envinfo info;
+    PBGI_RETURN_IF_ERROR(LmdbStatus(mdb_env_info(env, &info), Where()));
+    const uint64_t need = (uint64_t{info.me_last_pgno} + 1 + BatchPagesBound()) * env_page;
+    uint64_t next = map_size;
+    while (next < need && next < options.max_map_size) {
+      next = std::min(options.max_map_size, next * 2);
+    }
+    if (next == map_size) return absl::OkStatus();
+    PBGI_RETURN_IF_ERROR(LmdbStatus(
+        mdb_env_set_mapsize(env, next),
+        absl::StrFormat("%s: growing the map from %d to %d bytes", Where(), map_size, next)));
+    map_size = next;
+    return absl::OkStatus();
+  }
+
   int Reserve(Section section, uint64_t page_no, uint32_t size, uint8_t** out) {
     uint8_t key_bytes[8];
     internal::EncodeKey(page_no, key_bytes);
@@ -137,9 +175,12 @@ struct PageWriter::Impl {
   // MDB_MAP_FULL inside the open transaction: LMDB has poisoned it. Save the batch's pages,
   // abort, double the map (up to max_map_size) and write the batch again, as often as needed.
   absl::Status GrowAndReplay() {
-    std::vector<uint8_t> saved(pending.size() * size_t{options.page_size});
+    if (!pending.empty()) ++replays;
+    std::vector<size_t> at(pending.size() + 1, 0);
+    for (size_t i = 0; i < pending.size(); ++i) at[i + 1] = at[i] + pending[i].size;
+    std::vector<uint8_t> saved(at.back());
     for (size_t i = 0; i < pending.size(); ++i) {
-      std::memcpy(saved.data() + i * options.page_size, pending[i].page, pending[i].size);
+      std::memcpy(saved.data() + at[i], pending[i].page, pending[i].size);
     }
     for (;;) {
       if (txn != nullptr) {
@@ -162,7 +203,7 @@ struct PageWriter::Impl {
       for (size_t i = 0; i < pending.size() && rc == MDB_SUCCESS; ++i) {
         rc = Reserve(pending[i].section, pending[i].page_no, pending[i].size, &pending[i].page);
         if (rc == MDB_SUCCESS) {
-          std::memcpy(pending[i].page, saved.data() + i * options.page_size, pending[i].size);
+          std::memcpy(pending[i].page, saved.data() + at[i], pending[i].size);
         }
       }
       if (rc == MDB_MAP_FULL) continue;
@@ -261,6 +302,7 @@ PageWriter::PageWriter(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
 PageWriter::~PageWriter() = default;
 uint32_t PageWriter::page_size() const { return impl_->options.page_size; }
 uint64_t PageWriter::bytes_written() const { return impl_->bytes_written; }
+uint64_t PageWriter::batch_replays() const { return impl_->replays; }
 
 absl::StatusOr<std::unique_ptr<PageWriter>> PageWriter::Create(const std::string& path,
                                                                const StoreOptions& options) {
@@ -374,6 +416,8 @@ absl::Status PageWriter::Append(Section section, uint64_t page_no, PageKind kind
         SectionName(section), page_no, w.last[si]));
   }
   if (w.txn == nullptr) {
+    absl::Status grown = w.GrowAhead();
+    if (!grown.ok()) return w.Fail(grown);
     const int rc = w.Begin();
     if (rc != MDB_SUCCESS) return w.Fail(LmdbStatus(rc, w.Where()));
   }
@@ -437,7 +481,7 @@ absl::Status PageWriter::Append(Section section, uint64_t page_no, PageKind kind
   w.last[si] = page_no;
   ++w.pages[si];
   w.bytes_written += size;
-  w.batch_bytes += size;
+  w.batch_bytes += w.LmdbBytes(size);
   if (w.batch_bytes >= w.options.batch_bytes) {
     absl::Status s = w.CommitBatch();
     if (!s.ok()) return w.Fail(s);

@@ -48,7 +48,9 @@ struct DemoRun {
   std::shared_ptr<const Scene> scene;
   std::string db_path;
   BuildStats build;
-  double build_seconds = 0;  // sampling, baking and the build
+  uint64_t scene_bytes = 0;   // the scene's resident set when the build started
+  uint64_t build_memory = 0;  // the build's budget: --memory less scene_bytes
+  double build_seconds = 0;   // sampling, baking and the build
   ViewImages view;
   double shade_seconds = 0;  // tracing the view and shading it
 };
@@ -65,10 +67,31 @@ std::vector<DemoImage> Images(const ViewImages& v) {
           {"composite", &v.composite}};
 }
 
+// The build's share of the demo's --memory: what is left once the scene is loaded. The scene
+// (its triangles, Embree's BVH for the sampler's hidden-sample test and baking, the sampler's
+// buffers) lives in the same process through the build, and the build's plan counts only the
+// process it starts from (docs/design.md, "Memory plan"). So the scene's resident set, measured
+// as the growth of this process's RSS since `rss_before` (the process before the scene), comes
+// off --memory; the plan's fixed part already counts the rest of the process.
+absl::StatusOr<uint64_t> BuildShareOfMemory(uint64_t memory, uint64_t rss_before,
+                                            uint64_t rss_scene, uint64_t* scene_bytes) {
+  *scene_bytes = rss_scene > rss_before ? rss_scene - rss_before : 0;
+  const uint64_t minimum = MinimumBuildMemory(BuildOptions{});
+  if (*scene_bytes >= memory || memory - *scene_bytes < minimum) {
+    return absl::InvalidArgumentError(absl::StrFormat(
+        "--memory %s leaves the build %s once the scene holds %s (its triangles, BVH and "
+        "sampler), below the build's minimum of %s: give --memory at least %s",
+        FormatBytes(memory), FormatBytes(*scene_bytes >= memory ? 0 : memory - *scene_bytes),
+        FormatBytes(*scene_bytes), FormatBytes(minimum), FormatBytes(*scene_bytes + minimum)));
+  }
+  return memory - *scene_bytes;
+}
+
 // 1. The scene and its surfels, direct light baked in with Embree shadow rays; 2. the
-// out-of-core build, surfels streamed straight from the sampler.
+// out-of-core build, surfels streamed straight from the sampler, under --memory less the scene.
 absl::Status BuildDemoDatabase(const DemoArgs& a, uint64_t memory, DemoRun* run) {
   const internal::Stopwatch t;
+  const uint64_t rss_before = internal::CurrentRssBytes();
   PBGI_ASSIGN_OR_RETURN(run->scene, LoadScene(a.scene, a.seed, 0));
   const Scene& scene = *run->scene;
   PBGI_ASSIGN_OR_RETURN(int64_t points, ParseCount(a.points, "--points"));
@@ -81,9 +104,15 @@ absl::Status BuildDemoDatabase(const DemoArgs& a, uint64_t memory, DemoRun* run)
   std::fprintf(stderr, "demo: scene %s, %lld triangles, %s surfels requested\n", scene.name.c_str(),
                static_cast<long long>(scene.TriangleCount()),
                absl::StrFormat("%d", points).c_str());
+  PBGI_ASSIGN_OR_RETURN(
+      run->build_memory,
+      BuildShareOfMemory(memory, rss_before, internal::CurrentRssBytes(), &run->scene_bytes));
+  std::fprintf(stderr, "demo: the scene holds %s of --memory %s: the build gets %s\n",
+               FormatBytes(run->scene_bytes).c_str(), FormatBytes(memory).c_str(),
+               FormatBytes(run->build_memory).c_str());
   run->db_path = a.out_dir + "/" + scene.name + ".pbgi";
   BuildOptions build;
-  build.memory_bytes = memory;
+  build.memory_bytes = run->build_memory;
   build.channels = scene.has_radiance ? Channels::kRadiance : Channels::kOcclusion;
   build.tmp_dir = a.out_dir;
   build.provenance = SceneFingerprint(scene, a.seed, 0, UpAxis::kZ);
@@ -153,10 +182,12 @@ void PrintDemoSummary(const DemoArgs& a, const DemoRun& run, uint64_t memory, ui
               bs.points ? double(bs.bytes_on_disk) / double(bs.points) : 0.0);
   std::printf(
       "  build          %.1f s (%.2f M points/s incl. sampling and baking), %llu nodes, "
-      "%llu runs spilled, build memory cap %s\n",
+      "%llu runs spilled, build memory cap %s (--memory %s less the scene's %s), peak memory "
+      "%s by the end of the build\n",
       run.build_seconds, double(bs.points) / run.build_seconds / 1e6,
       static_cast<unsigned long long>(bs.nodes), static_cast<unsigned long long>(bs.runs_spilled),
-      FormatBytes(memory).c_str());
+      FormatBytes(run.build_memory).c_str(), FormatBytes(memory).c_str(),
+      FormatBytes(run.scene_bytes).c_str(), FormatBytes(bs.peak_rss_bytes).c_str());
   std::printf(
       "  shade          %.1f s: %llu receivers (%dx%d), %.1f us/receiver on %d threads, "
       "trace %.2f s\n",
@@ -217,8 +248,8 @@ CommandSetup Setup() {
         ->check(CountValidator(1, int64_t{1} << 40))
         ->capture_default_str();
     app->add_option("--memory", a->memory,
-                    "Memory cap of the build, with a unit (512M, 1G), or auto (512 MiB, less in a "
-                    "small machine)")
+                    "Memory cap of the scene and the build, with a unit (512M, 1G), or auto (512 "
+                    "MiB, less in a small machine): the build gets what the loaded scene leaves")
         ->check(BudgetValidator())
         ->capture_default_str();
     app->add_option(

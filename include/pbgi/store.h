@@ -287,6 +287,10 @@ class PageWriter {
   absl::Status Finish(const StoreMeta& meta);
   // Bytes written so far (pages, headers included).
   uint64_t bytes_written() const;
+  // Batches written a second time because the map had to grow inside them. The writer grows
+  // the map between batches, so this stays 0 unless max_map_size stops that growth; a replay
+  // holds the batch twice in memory.
+  uint64_t batch_replays() const;
 
  private:
   struct Impl;

@@ -243,7 +243,7 @@ TEST(PlanMemoryTest, SharesFitTheBudgetAndSmallBudgetsDropThreads) {
     o.memory_bytes = mib << 20;
     o.threads = 2;
     const internal::MemoryPlan p = internal::PlanMemory(o, 100000000);
-    EXPECT_LE(p.batch_bytes + p.upper_bytes + p.sort_bytes, o.memory_bytes);
+    EXPECT_LE(p.batch_bytes + p.upper_bytes + p.sort_bytes + p.fixed_bytes, o.memory_bytes);
     const uint64_t per_record =
         p.threads > 1 ? internal::kSortBytesPerRecordThreaded : internal::kSortBytesPerRecord;
     EXPECT_LE(p.run_capacity * per_record, p.sort_bytes);
@@ -256,6 +256,31 @@ TEST(PlanMemoryTest, SharesFitTheBudgetAndSmallBudgetsDropThreads) {
   const internal::MemoryPlan fits = internal::PlanMemory(o, 1000);
   EXPECT_EQ(fits.run_capacity, 1000u);
   EXPECT_FALSE(fits.spills);
+}
+
+// Every budget from the minimum up, for inputs from one surfel to the most a store holds (and
+// unknown): the sort's runs, then the merge with the write batch and the upper groups, each fit
+// in the budget together with the fixed part.
+TEST(PlanMemoryTest, EveryPhaseFitsTheBudgetForExtremeInputs) {
+  for (int threads : {1, 2}) {
+    for (uint64_t m : {MinimumBuildMemory(BuildOptions{}), uint64_t{40} << 20, uint64_t{256} << 20,
+                       uint64_t{2} << 30, uint64_t{64} << 30}) {
+      for (int64_t count : {int64_t{-1}, int64_t{1}, int64_t{1700000000}, int64_t{1} << 40}) {
+        SCOPED_TRACE(::testing::Message()
+                     << m << " bytes, " << count << " surfels, " << threads << " threads");
+        BuildOptions o;
+        o.memory_bytes = m;
+        o.threads = threads;
+        const internal::MemoryPlan p = internal::PlanMemory(o, count);
+        const uint64_t per_record = p.threads > 1 && p.spills
+                                        ? internal::kSortBytesPerRecordThreaded
+                                        : internal::kSortBytesPerRecord;
+        EXPECT_LE(p.fixed_bytes + p.run_capacity * per_record, m);  // the sort pass
+        EXPECT_LE(p.fixed_bytes + p.merge_bytes + p.batch_bytes + p.upper_bytes, m);  // the merge
+        EXPECT_GE(p.fixed_bytes, uint64_t{24} << 20);
+      }
+    }
+  }
 }
 
 }  // namespace

@@ -155,6 +155,26 @@ TEST(ExternalSortTest, SingleMergePassWhenBuffersSuffice) {
   ExpectStablySorted(in, Drain(s));
 }
 
+// The merge's read buffers stay within merge_bytes, and a large merge_bytes does not become
+// resident read buffers of a few runs: a run reads at most 8 MiB at a time (docs/design.md,
+// "Memory plan"), so the rest of the budget is not held through the whole merge.
+TEST(ExternalSortTest, MergeBuffersStayWithinTheirShareAnd8MiBARun) {
+  testing_build::ScratchDir dir("sort_merge_bytes");
+  auto in = RandomRecords(3000, 6);
+  for (uint64_t merge_bytes : {uint64_t{64} << 10, uint64_t{6} << 20, uint64_t{1} << 30}) {
+    SCOPED_TRACE(merge_bytes);
+    ExternalSorter s({dir.path(), 1000, merge_bytes});
+    for (const auto& r : in) ASSERT_TRUE(s.Add(r).ok());
+    ASSERT_TRUE(s.FinishInput().ok());
+    EXPECT_EQ(s.runs_spilled(), 3u);
+    const uint64_t resident = s.merge_resident_bytes();
+    EXPECT_GT(resident, 0u);
+    EXPECT_LE(resident, std::max<uint64_t>(merge_bytes, 3 * 64 * sizeof(SortRecord)));
+    EXPECT_LE(resident, 3 * (uint64_t{8} << 20));
+    ExpectStablySorted(in, Drain(s));
+  }
+}
+
 TEST(ExternalSortTest, MissingTmpDirIsAClearError) {
   ExternalSorter s({"/nonexistent/pbgi/tmp", 10, 1 << 20});
   absl::Status st;

@@ -1,0 +1,47 @@
+#!/usr/bin/env bash
+# Issue 20, "memory caps are promises", through the command: a streamed build of many runs
+# (its LMDB map doubles several times) peaks within --memory, on one thread and two; `pbgi demo`
+# gives its build --memory less the loaded scene, says so, and refuses a --memory the scene
+# leaves too little of, naming the --memory that would do.
+# Usage: memory_cap_cli_test.sh PBGI_BINARY SCRATCH_DIR
+set -uo pipefail
+pbgi="$1"
+dir="$2"
+rm -rf "$dir"
+mkdir -p "$dir"
+failures=0
+passes=0
+ok() { passes=$((passes + 1)); }
+fail() { echo "FAIL: $*" >&2; failures=$((failures + 1)); }
+json() { python3 -c "import json,sys; print(json.load(open(sys.argv[1]))[sys.argv[2]])" "$1" "$2"; }
+
+# 6 M forest surfels at 48 MiB: 30-odd runs, a ~90 MB database (the map grows from 64 MiB).
+for threads in 1 2; do
+  "$pbgi" generate forest -n 6000000 --no-bake -o - 2>/dev/null |
+    "$pbgi" build - -o "$dir/f$threads.db" --channels occlusion --memory 48M --threads "$threads" \
+      --stats-json "$dir/f$threads.json" >/dev/null 2>"$dir/f$threads.err" ||
+    fail "build, $threads threads: $(tail -n 2 "$dir/f$threads.err")"
+  runs=$(json "$dir/f$threads.json" runs_spilled) peak=$(json "$dir/f$threads.json" peak_rss_bytes)
+  [ "$runs" -ge 10 ] && ok || fail "$threads threads: only $runs runs spilled"
+  [ "$peak" -le $((48 << 20)) ] && ok ||
+    fail "$threads threads: peak RSS $peak bytes above --memory 48M ($((48 << 20)) bytes)"
+done
+
+# The demo's split, and its refusal.
+"$pbgi" demo --scene forest --points 200k --memory 160M --cache 32M --width 64 --height 36 \
+  -o "$dir/demo" >"$dir/demo.out" 2>"$dir/demo.err" || fail "demo: $(tail -n 2 "$dir/demo.err")"
+grep -qE 'the scene holds [0-9.]+ MiB of --memory 160.0 MiB: the build gets [0-9.]+ MiB' \
+  "$dir/demo.err" && ok || fail "demo did not say how --memory was split: $(head -c 300 "$dir/demo.err")"
+grep -qE 'build memory cap [0-9.]+ MiB \(--memory 160.0 MiB less the scene' "$dir/demo.out" && ok ||
+  fail "demo summary lacks the build's cap: $(grep build "$dir/demo.out")"
+if "$pbgi" demo --scene forest --points 200k --memory 40M -o "$dir/demo2" >/dev/null \
+  2>"$dir/demo2.err"; then
+  fail "demo ran with --memory 40M although the forest scene alone holds more"
+else
+  grep -qE 'below the build.s minimum .* give --memory at least' "$dir/demo2.err" && ok ||
+    fail "demo's refusal does not name the --memory needed: $(head -c 300 "$dir/demo2.err")"
+fi
+[ ! -e "$dir/demo2/forest.pbgi" ] && ok || fail "the refused demo left a database"
+
+echo "$passes passed, $failures failed"
+[ "$failures" -eq 0 ]
