@@ -2,17 +2,8 @@
 # End-to-end test of the `pbgi` command: every subcommand on a small scene, the properties of
 # what they write, and clear errors (non-zero exit, a message naming the problem) on bad input.
 # Usage: cli_test.sh PBGI_BINARY SCRATCH_DIR
-set -uo pipefail
-pbgi="$1"
-dir="$2"
+source "$(dirname "$0")/harness.sh" "$@"
 here="$(cd "$(dirname "$0")" && pwd)"
-rm -rf "$dir"
-mkdir -p "$dir"
-failures=0
-passes=0
-
-ok() { passes=$((passes + 1)); }
-fail() { echo "FAIL: $*" >&2; failures=$((failures + 1)); }
 
 # run NAME CMD...: must exit 0.
 run() {
@@ -317,5 +308,4 @@ s = c["shaded"]
 sys.exit(0 if 0 < s["occlusion"] <= 1 and c["gathered"]["clusters"] < p["gathered"]["clusters"] else 1)
 PY
 
-echo "$passes passed, $failures failed"
-[ "$failures" -eq 0 ]
+finish

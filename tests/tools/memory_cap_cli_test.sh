@@ -4,15 +4,7 @@
 # gives its build --memory less the loaded scene, says so, and refuses a --memory the scene
 # leaves too little of, naming the --memory that would do.
 # Usage: memory_cap_cli_test.sh PBGI_BINARY SCRATCH_DIR
-set -uo pipefail
-pbgi="$1"
-dir="$2"
-rm -rf "$dir"
-mkdir -p "$dir"
-failures=0
-passes=0
-ok() { passes=$((passes + 1)); }
-fail() { echo "FAIL: $*" >&2; failures=$((failures + 1)); }
+source "$(dirname "$0")/harness.sh" "$@"
 json() { python3 -c "import json,sys; print(json.load(open(sys.argv[1]))[sys.argv[2]])" "$1" "$2"; }
 
 # 6 M forest surfels at 48 MiB: 30-odd runs, a ~90 MB database (the map grows from 64 MiB).
@@ -43,5 +35,4 @@ else
 fi
 [ ! -e "$dir/demo2/forest.pbgi" ] && ok || fail "the refused demo left a database"
 
-echo "$passes passed, $failures failed"
-[ "$failures" -eq 0 ]
+finish

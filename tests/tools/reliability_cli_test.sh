@@ -2,16 +2,8 @@
 # Regressions of issue 17 ("Nothing crashes, nothing lies") through the `pbgi` command: outputs
 # inside a database directory, two builds to one path, leftovers of a killed build.
 # Usage: reliability_cli_test.sh PBGI_BINARY SCRATCH_DIR
-set -uo pipefail
-pbgi="$1"
-dir="$2"
-rm -rf "$dir"
-mkdir -p "$dir"
-failures=0
-passes=0
+source "$(dirname "$0")/harness.sh" "$@"
 
-ok() { passes=$((passes + 1)); }
-fail() { echo "FAIL: $*" >&2; failures=$((failures + 1)); }
 run() {
   local name="$1"; shift
   if "$@" >"$dir/$name.out" 2>"$dir/$name.err"; then ok; else
@@ -134,5 +126,4 @@ count=$(grep -a -m1 '^element vertex' "$dir/o4.ply" | awk '{print $3 + 0}')
 [ "$count" = "$(grep -a -m1 '^element vertex' "$dir/r20k.ply" | awk '{print $3 + 0}')" ] && ok ||
   fail "chunked shade wrote $count vertices"
 
-echo "reliability_cli_test: $passes passed, $failures failed"
-[ "$failures" -eq 0 ]
+finish

@@ -6,15 +6,7 @@
 # Pages are compared through LMDB's own mdb_dump (every key and value of the nodes and points
 # sub-databases; the meta record holds timings and differs between any two builds).
 # Usage: stream_cli_test.sh PBGI_BINARY SCRATCH_DIR
-set -uo pipefail
-pbgi="$1"
-dir="$2"
-rm -rf "$dir"
-mkdir -p "$dir"
-failures=0
-passes=0
-ok() { passes=$((passes + 1)); }
-fail() { echo "FAIL: $*" >&2; failures=$((failures + 1)); }
+source "$(dirname "$0")/harness.sh" "$@"
 refuse() {
   local name="$1" pattern="$2"; shift 2
   if "$@" >"$dir/$name.out" 2>"$dir/$name.err"; then
@@ -103,5 +95,4 @@ refuse nothing 'nothing to resume' \
 [ "${PIPESTATUS[1]}" = 0 ] && ok || fail "stream resume: $(tail -n 2 "$dir/sresume.err")"
 same "resumed stream" "$dir/file.db" "$dir/sres.db"
 
-echo "$passes passed, $failures failed"
-[ "$failures" -eq 0 ]
+finish
