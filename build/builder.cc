@@ -81,9 +81,8 @@ absl::Status CheckOptions(const BuildOptions& o, uint32_t page_size) {
 }  // namespace
 
 int ThreadCount(const BuildOptions& o) {
-  // 0 means one: on the 2-core machine this project measures on, the pipelined build was never
-  // faster than one thread (docs/format.md: 1 M to 50 M points, medians of 3), because the
-  // double-buffered runs are half as long and the hand-offs cost what the overlap gains.
+  // 0 means one here; `pbgi build` resolves its default 0 to the cores, since the pipelined build
+  // pays on 2 idle cores (docs/format.md, "Session 11: build throughput from a PLY").
   return o.threads > 0 ? o.threads : 1;
 }
 

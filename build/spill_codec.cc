@@ -38,6 +38,11 @@ uint64_t KeyCell(uint64_t key) {
   return PackCell(GatherBits3(key), GatherBits3(key >> 1), GatherBits3(key >> 2));
 }
 
+// A fast negative zstd level: a run is written once and read once, and on the sort thread the
+// compression was the largest share of the pipelined build's input pass (docs/design.md,
+// "Build"); the spilled bytes grow a little (docs/format.md, "Session 11: build throughput").
+constexpr int kSpillZstdLevel = -3;
+
 void PutU32(uint8_t* p, uint32_t v) { std::memcpy(p, &v, 4); }
 uint32_t GetU32(const uint8_t* p) {
   uint32_t v;
@@ -88,7 +93,7 @@ absl::Status SpillBlockWriter::Append(absl::Span<const SortRecord> recs,
   out->resize(at + kSpillBlockHeaderBytes + ZSTD_compressBound(c.end));
   const size_t z =
       ZSTD_compressCCtx(static_cast<ZSTD_CCtx*>(cctx_), out->data() + at + kSpillBlockHeaderBytes,
-                        out->size() - at - kSpillBlockHeaderBytes, raw, c.end, 1);
+                        out->size() - at - kSpillBlockHeaderBytes, raw, c.end, kSpillZstdLevel);
   if (ZSTD_isError(z)) {
     out->resize(at);
     return absl::InternalError(

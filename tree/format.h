@@ -23,6 +23,16 @@
 
 namespace pbgi::internal {
 
+// std::llround (half away from zero) inline and without branches: the libm call was a visible
+// share of the sort thread's record encoding (docs/design.md, "Build"). The truncation's
+// remainder x - q is exact for |x| < 2^52; other values (and NaN) go to std::llround.
+inline int64_t RoundHalfAway(double x) {
+  if (!(std::fabs(x) < 4503599627370496.0)) return std::llround(x);
+  const int64_t q = static_cast<int64_t>(x);
+  const double f = x - static_cast<double>(q);
+  return q + static_cast<int64_t>(f >= 0.5) - static_cast<int64_t>(f <= -0.5);
+}
+
 // Where a node lives: page number (high 48 bits) and slot in the page (low 16 bits).
 using NodeRef = uint64_t;
 inline constexpr NodeRef MakeNodeRef(uint64_t page_no, uint32_t slot) {
@@ -97,7 +107,7 @@ struct PositionGrid {
     const double t = (double{v} - double{origin[axis]}) / double{step} - 0.5;
     if (!(t > 0.0)) return 0;
     if (t >= double{kGridMax}) return kGridMax;
-    return static_cast<uint32_t>(std::llround(t));
+    return static_cast<uint32_t>(RoundHalfAway(t));
   }
   // The largest q with Coord(q) <= v (0 when none is): a lower bound rounded down.
   uint32_t Floor(int axis, float v) const {
@@ -184,8 +194,8 @@ inline void EncodeOctahedral(const float n[3], int16_t out[2]) {
     x = ox;
     y = oy;
   }
-  out[0] = static_cast<int16_t>(std::lround(std::clamp(x, -1.0f, 1.0f) * 32767.0f));
-  out[1] = static_cast<int16_t>(std::lround(std::clamp(y, -1.0f, 1.0f) * 32767.0f));
+  out[0] = static_cast<int16_t>(RoundHalfAway(std::clamp(x, -1.0f, 1.0f) * 32767.0f));
+  out[1] = static_cast<int16_t>(RoundHalfAway(std::clamp(y, -1.0f, 1.0f) * 32767.0f));
 }
 inline glm::vec3 DecodeOctahedral(const int16_t in[2]) {
   float x = static_cast<float>(in[0]) * (1.0f / 32767.0f);
@@ -297,7 +307,7 @@ inline float EncodeScaled(const float* c, int n, Int* q) {
   for (int k = 0; k < n; ++k) {
     // In double: near kMax a float has too few fraction bits to round to the nearest step.
     q[k] = static_cast<Int>(
-        std::clamp<long>(std::lround(double{c[k]} / double{s} * kMax), -kMax, kMax));
+        std::clamp<int64_t>(RoundHalfAway(double{c[k]} / double{s} * kMax), -kMax, kMax));
   }
   return s;
 }

@@ -133,6 +133,12 @@ fixtures="$here/fixtures"
 assimp_ply=/usr/share/assimp/models/PLY  # Debian's assimp-testmodels (scripts/install-deps.sh)
 json() { python3 -c "import json, sys; j = json.load(open(sys.argv[1])); print($2)" "$1"; }
 
+# `pbgi build` without --threads pipelines on every core (docs/format.md, "Session 11: build
+# throughput from a PLY"), and says so in its statistics.
+cores=$(getconf _NPROCESSORS_ONLN)
+built_threads=$(json "$dir/stats.json" "j['threads']")
+[ "$built_threads" = "$cores" ] && ok || fail "build without --threads ran $built_threads threads on $cores cores"
+
 # An output that is an input is refused before anything is opened, and the input stays intact.
 cp "$dir/c.ply" "$dir/same.ply"
 refuse same_output "is the input" "$pbgi" shade "$dir/c.pbgi" --receivers "$dir/same.ply" -o "$dir/same.ply"

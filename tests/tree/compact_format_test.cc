@@ -51,6 +51,41 @@ Encoded EncodeSurfel(const Surfel& s, Channels c, const PositionGrid& g) {
   return e;
 }
 
+TEST(CompactFormatTest, RoundHalfAwayIsLlround) {
+  // Ties both ways, values next to ties, the 2^52 edge and beyond it, and random values in the
+  // ranges the encoders round (grid cells, octahedral normals, scaled radiance).
+  std::vector<double> xs = {0.0,
+                            -0.0,
+                            0.5,
+                            -0.5,
+                            1.5,
+                            -1.5,
+                            2.5,
+                            -2.5,
+                            0.49999999999999994,
+                            -0.49999999999999994,
+                            32767.0,
+                            -32767.0,
+                            2097151.5,
+                            4503599627370495.5,
+                            4503599627370496.0,
+                            -4503599627370497.0,
+                            1e17,
+                            -1e17};
+  for (double x : {0.5, 1.5, 1e6 + 0.5, 2097150.5}) {
+    xs.push_back(std::nextafter(x, 0.0));
+    xs.push_back(std::nextafter(x, 1e300));
+    xs.push_back(-std::nextafter(x, 0.0));
+  }
+  std::mt19937_64 rng(20);
+  std::uniform_real_distribution<double> u(-2.2e6, 2.2e6);
+  for (int i = 0; i < 100000; ++i) {
+    xs.push_back(u(rng));
+    xs.push_back(std::floor(u(rng)) + 0.5);
+  }
+  for (double x : xs) EXPECT_EQ(RoundHalfAway(x), std::llround(x)) << std::hexfloat << x;
+}
+
 TEST(CompactFormatTest, RecordSizes) {
   EXPECT_EQ(PointRecordSize(Channels::kOcclusion), 14u);
   EXPECT_EQ(PointRecordSize(Channels::kRadiance), 20u);
