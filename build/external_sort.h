@@ -1,6 +1,6 @@
-// External sort of SortRecords by Morton key inside a memory budget (docs/design.md, "Build" step 2):
-// runs of `run_capacity` records are radix-sorted in memory and spilled to temporary files; a
-// k-way merge streams them back in key order. An input that fits one run is never spilled.
+// External sort of SortRecords by Morton key inside a memory budget (docs/design.md, "Build",
+// step 2): runs of `run_capacity` records are radix-sorted in memory and spilled to temporary
+// files; a k-way merge streams them back in key order. An input that fits one run is never spilled.
 //
 // The sort is stable (equal keys keep their input order), so spilled and in-memory builds of the
 // same input produce identical databases. Temporary files are unlinked as soon as they are
@@ -175,9 +175,9 @@ class ExternalSorter {
   struct Run {
     int fd = -1;
     uint64_t count = 0;
-    uint64_t bytes = 0;   // its size on disk
-    std::string path;     // a named run (run_dir), else empty
-    uint32_t crc = 0;     // of its bytes, when `checked`
+    uint64_t bytes = 0;    // its size on disk
+    std::string path;      // a named run (run_dir), else empty
+    uint32_t crc = 0;      // of its bytes, when `checked`
     bool checked = false;  // compare the CRC as the run is read back
   };
   class RunReader;
@@ -215,7 +215,7 @@ class ExternalSorter {
   std::string run_dir_;
   RunsWritten runs_written_;
   std::vector<std::string> named_;  // paths of the named runs, to remove unless kept
-  uint64_t emitted_ = 0;  // in-memory mode: records returned so far
+  uint64_t emitted_ = 0;            // in-memory mode: records returned so far
   std::unique_ptr<Merger> merger_;
   // NextBlock without threads: a block of the in-memory gather.
   std::vector<SortRecord> block_;

@@ -79,8 +79,8 @@ std::string InputIdentity(const std::string& input, const PlyHeader& h) {
   struct stat st = {};
   (void)stat(input.c_str(), &st);
   return absl::StrFormat("%s, %d bytes, mtime %d.%09d, header %016x",
-                         std::filesystem::absolute(input).lexically_normal().string(),
-                         st.st_size, st.st_mtim.tv_sec, st.st_mtim.tv_nsec, hash);
+                         std::filesystem::absolute(input).lexically_normal().string(), st.st_size,
+                         st.st_mtim.tv_sec, st.st_mtim.tv_nsec, hash);
 }
 
 // What a build may write to: a new path, an empty directory, or an existing database with
@@ -124,8 +124,8 @@ absl::Status CheckBuildOutput(const std::string& out, bool force) {
 absl::Status Run(const Args& a) {
   const bool from_stdin = a.input == "-";
   const std::string in_name = from_stdin ? std::string("standard input") : a.input;
-  PBGI_RETURN_IF_ERROR(CheckOutputsAreNotInputs({from_stdin ? std::string() : a.input},
-                                                {a.output, a.stats_json}));
+  PBGI_RETURN_IF_ERROR(
+      CheckOutputsAreNotInputs({from_stdin ? std::string() : a.input}, {a.output, a.stats_json}));
   PBGI_RETURN_IF_ERROR(CheckBuildOutput(a.output, a.force));
   if (!a.stats_json.empty()) PBGI_RETURN_IF_ERROR(CheckOutsideStores(a.stats_json));
   BuildOptions o;
