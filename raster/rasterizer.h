@@ -99,12 +99,17 @@ class Rasterizer {
     float open = px.open;
     if (px.porous == 0.0f) {
       if (const uint64_t hidden = px.open_mask & px.closed_mask; hidden != 0) {
-        open *= static_cast<float>(std::popcount(px.open_mask & ~hidden)) /
-                static_cast<float>(std::popcount(px.open_mask));
+        // Only the masked share: coverage that came without a mask (a translucent cluster's
+        // box silhouette) is not known to lie on those samples (bug:
+        // unmasked_coverage_scaled_by_hidden_samples).
+        const float masked = std::min(px.open_masked, open);
+        open -= masked * (1.0f - static_cast<float>(std::popcount(px.open_mask & ~hidden)) /
+                                     static_cast<float>(std::popcount(px.open_mask)));
       }
       px.closed_mask |= px.open_mask;
     }
     px.open_mask = 0;
+    px.open_masked = 0.0f;
     const float e = free_layer && px.closed == 0.0f && !behind ? open
                     : px.porous != 0.0f ? std::min(open, 1.0f) * std::max(0.0f, 1.0f - px.closed)
                                         : std::min(open, std::max(0.0f, 1.0f - px.closed));
@@ -356,6 +361,7 @@ class Rasterizer {
       cov *= static_cast<float>(std::popcount(mask & ~px.open_mask)) /
              static_cast<float>(std::popcount(mask));
     }
+    if (mask != 0) px.open_masked += cov;
     px.open_mask |= mask;
     if constexpr (kRad) {
       Store4(&px.open, Load4(&px.open) + cov * f.rgb1);
