@@ -841,6 +841,31 @@ TEST(FootprintTest, ATowersFaceEndsAtItsCorner) {
   RecordProperty("rays", std::to_string(want));
 }
 
+// A flat fragment's depth range in a pixel lies within the element's extent of its centre
+// whatever the angle: a plane 1 below the receiver seen 0.57 degrees from edge-on put its range
+// at [-400, 600] for an element at depth 10 +- 2 (bug: grazing_plane_range_merges_layers;
+// 2CylinderEngine's receivers enclosed by its casing 0.96 for rays' 1, docs/eval.md, Session
+// 12). Head-on, the plane's own range is kept.
+TEST(FootprintTest, AGrazingPlanesDepthRangeStaysWithinItsElement) {
+  const glm::vec3 normal(0, 0, 1);  // facing the receiver, which lies 1 above the plane
+  const float plane = -1.0f, thick = 0.0f, half_width = 0.05f;
+  internal::PixelDir grazing{};
+  const glm::vec3 d = glm::normalize(glm::vec3(1.0f, 0.0f, -0.01f));
+  grazing.x = d.x, grazing.y = d.y, grazing.z = d.z, grazing.half_width = half_width;
+  float lo = 8.0f, hi = 12.0f;
+  internal::Rasterizer::PlaneDepthRange(grazing, normal, plane, thick, 8.0f, 12.0f, &lo, &hi);
+  EXPECT_GE(lo, 8.0f);
+  EXPECT_LE(hi, 12.0f);
+  EXPECT_LE(lo, hi);
+  internal::PixelDir head_on{};
+  head_on.z = -1.0f;
+  head_on.half_width = half_width;
+  lo = 0.5f, hi = 1.5f;
+  internal::Rasterizer::PlaneDepthRange(head_on, normal, plane, thick, 0.5f, 1.5f, &lo, &hi);
+  EXPECT_FLOAT_EQ(lo, 1.0f - half_width);
+  EXPECT_FLOAT_EQ(hi, 1.0f + half_width);
+}
+
 // A thin pole standing on the ground, both sampled and clustered in cells of 1.2 (the pole's
 // cells hold ground and pole: flat by their mean normal, their boxes 1.2 tall), seen from a
 // receiver on a pole beside it, below the cells' tops, looking along the ground. The flat
