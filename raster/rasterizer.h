@@ -99,12 +99,17 @@ class Rasterizer {
     float open = px.open;
     if (px.porous == 0.0f) {
       if (const uint64_t hidden = px.open_mask & px.closed_mask; hidden != 0) {
-        open *= static_cast<float>(std::popcount(px.open_mask & ~hidden)) /
-                static_cast<float>(std::popcount(px.open_mask));
+        // Only the masked share: coverage that came without a mask (a translucent cluster's
+        // box silhouette) is not known to lie on those samples (bug:
+        // unmasked_coverage_scaled_by_hidden_samples).
+        const float masked = std::min(px.open_masked, open);
+        open -= masked * (1.0f - static_cast<float>(std::popcount(px.open_mask & ~hidden)) /
+                                     static_cast<float>(std::popcount(px.open_mask)));
       }
       px.closed_mask |= px.open_mask;
     }
     px.open_mask = 0;
+    px.open_masked = 0.0f;
     const float e = free_layer && px.closed == 0.0f && !behind ? open
                     : px.porous != 0.0f ? std::min(open, 1.0f) * std::max(0.0f, 1.0f - px.closed)
                                         : std::min(open, std::max(0.0f, 1.0f - px.closed));
@@ -118,6 +123,29 @@ class Rasterizer {
     }
     px.closed = closed;  // exactly closed + e, not closed + (e / open) * open
     px.far = 0.0f;
+  }
+
+  // A flat fragment's depth range along pixel direction u: where the pixel's central ray meets
+  // the slab of half thickness `thick` around its plane, widened by t * half the pixel's width /
+  // cos(incidence), a bound on the depth change across half the pixel (t * half width *
+  // tan(incidence)) that needs no square root (same MAE on cornell and sphere-in-box, 3% fewer
+  // instructions). Co-planar fragments then get the same range in a pixel however far apart their
+  // centres lie, so a surface seen at a grazing angle stays one layer without chaining. The range
+  // is clamped to the element's own [lo0, hi0] (its centre's depth -+ its extent): every hit of
+  // the element lies there. Unclamped, a plane seen nearly edge-on reached hundreds of extents
+  // past the element, and the fragments behind it joined its open layer (bug:
+  // grazing_plane_range_merges_layers; docs/eval.md, Session 12). A ray (nearly) parallel to the
+  // plane keeps [lo, hi] as given.
+  [[gnu::always_inline]] static void PlaneDepthRange(const PixelDir& u, const glm::vec3& normal,
+                                                     float plane, float thick, float lo0, float hi0,
+                                                     float* lo, float* hi) {
+    const float mu = normal.x * u.x + normal.y * u.y + normal.z * u.z;
+    if (!(mu < -kMinPlaneCos)) return;
+    const float inv = -1.0f / mu;  // 1 / cos(incidence)
+    const float t = -plane * inv;
+    const float half = (thick + t * u.half_width) * inv;
+    *lo = std::clamp(t - half, lo0, hi0);
+    *hi = std::clamp(t + half, lo0, hi0);
   }
 
  private:
@@ -258,22 +286,8 @@ class Rasterizer {
   template <bool kClamp, bool kRad>
   void SplatPolygons(const PreparedSplat& s);
 
-  // A flat fragment's depth range in pixel p: where the pixel's central ray meets the slab of
-  // half thickness `thick` around its plane, widened by t * half the pixel's width /
-  // cos(incidence), a bound on the depth change across half the pixel (t * half width *
-  // tan(incidence)) that needs no square root (same MAE on cornell and sphere-in-box, 3% fewer
-  // instructions). Co-planar fragments then get the same range in a pixel however far apart their
-  // centres lie, so a surface seen at a grazing angle stays one layer without chaining; a ray
-  // (nearly) parallel to the plane keeps [lo, hi].
   [[gnu::always_inline]] void PlaneRange(uint32_t p, const Frag& f, float* lo, float* hi) const {
-    const PixelDir& u = dirs_[p];
-    const float mu = f.normal.x * u.x + f.normal.y * u.y + f.normal.z * u.z;
-    if (!(mu < -kMinPlaneCos)) return;
-    const float inv = -1.0f / mu;  // 1 / cos(incidence)
-    const float t = -f.plane * inv;
-    const float half = (f.thick + t * u.half_width) * inv;
-    *lo = t - half;
-    *hi = t + half;
+    PlaneDepthRange(dirs_[p], f.normal, f.plane, f.thick, f.lo, f.hi, lo, hi);
   }
 
   // Adds a fragment of coverage `cov` to pixel p. With clamp, fragments arrive front to back:
@@ -356,6 +370,7 @@ class Rasterizer {
       cov *= static_cast<float>(std::popcount(mask & ~px.open_mask)) /
              static_cast<float>(std::popcount(mask));
     }
+    if (mask != 0) px.open_masked += cov;
     px.open_mask |= mask;
     if constexpr (kRad) {
       Store4(&px.open, Load4(&px.open) + cov * f.rgb1);
@@ -381,8 +396,9 @@ class Rasterizer {
         const V4 inv = -1.0f / mu;
         const V4 t = -f.plane * inv;
         const V4 half = (f.thick + t * Load2x2(half_width_ + p0)) * inv;
-        lo = ok ? t - half : lo;
-        hi = ok ? t + half : hi;
+        const V4 flo = Splat4(f.lo), fhi = Splat4(f.hi);
+        lo = ok ? Min4(Max4(t - half, flo), fhi) : lo;
+        hi = ok ? Min4(Max4(t + half, flo), fhi) : hi;
       }
       // Unrolled by hand: the loop stayed a loop, with the lanes going through memory.
       auto one = [&](uint32_t q, float c, float l, float h) [[gnu::always_inline]] {

@@ -36,6 +36,7 @@ inline int Movemask4(V4i m) {
 }
 
 inline V4 Max4(V4 a, V4 b) { return a > b ? a : b; }
+inline V4 Min4(V4 a, V4 b) { return a < b ? a : b; }
 
 inline V4 Sqrt4(V4 v) {
 #if defined(__SSE__)

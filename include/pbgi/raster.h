@@ -195,17 +195,19 @@ struct alignas(16) PixelState {
   float closed_rgb[3];
   float open;  // coverage of the open layer
   float open_rgb[3];
-  float far;        // far end of the open layer's depth range
-  float depth;      // nearest fragment's depth
-  float normal[3];  // the open layer's first fragment's normal (0: none)
-  float porous;     // 1 when the open layer's first fragment is porous (kSplatPorous)
-  float front;      // 1 once a fragment not flagged kSplatBack reached the pixel
+  float far;          // far end of the open layer's depth range
+  float depth;        // nearest fragment's depth
+  float normal[3];    // the open layer's first fragment's normal (0: none)
+  float porous;       // 1 when the open layer's first fragment is porous (kSplatPorous)
+  float front;        // 1 once a fragment not flagged kSplatBack reached the pixel
+  float open_masked;  // the share of `open` that came with coverage masks (open_mask)
   // Coverage masks (polygon footprints with clamp): which of the pixel's 8 x 8 sample points
   // the open layer's polygon fragments cover, and those of the closed layers (see
   // Rasterizer::Layer()).
   uint64_t open_mask;
   uint64_t closed_mask;
 };
+static_assert(sizeof(PixelState) == 80);  // open_masked fills what was padding before the masks
 struct PixelDir {
   float x, y, z;
   float inv_width;   // 1 / (angular width of the pixel)
