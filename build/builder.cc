@@ -283,6 +283,7 @@ absl::StatusOr<BuildStats> BuildToSink(SurfelSource& source, PageSink& sink,
   sort_options.threads = plan.threads;
   if (CompactSpill(options)) {
     sort_options.compact = SpillCodec{options.channels, GridOfCube(MortonCube(bounds))};
+    sort_options.packed_input = true;
   }
   ExternalSorter::RunsWritten runs_written;
   if (!run_dir.empty() && !resume) {
@@ -336,7 +337,11 @@ absl::StatusOr<BuildStats> BuildToSink(SurfelSource& source, PageSink& sink,
           }
           if (options.estimate.radius) s.radius = 0.0f;
           if (!radiance) s.radiance = glm::vec3(0.0f);
-          slots[used++] = MakeSortRecord(quant.Key(s.position), s);
+          if (sort_options.packed_input) {
+            sort_options.compact->Pack(MakeSortRecord(quant.Key(s.position), s), &slots[used++]);
+          } else {
+            slots[used++] = MakeSortRecord(quant.Key(s.position), s);
+          }
           return absl::OkStatus();
         }));
     sorter.Commit(used);
@@ -373,6 +378,7 @@ absl::StatusOr<BuildStats> BuildToSink(SurfelSource& source, PageSink& sink,
   NodePacker packer(options.layout, options.channels, &sink, options.shuffle_seed, grid);
   packer.set_upper_limit_bytes(plan.upper_bytes);
   PointPageWriter points(options.channels, &sink, grid);
+  points.set_input_quantized(sorter.output_quantized());
   OctreeBuilder octree(options.leaf_size, options.channels, &points, &packer);
   const bool estimate = options.estimate.radius || options.estimate.normals;
   NeighbourEstimator estimator(options.estimate, bounds);

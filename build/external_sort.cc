@@ -225,8 +225,10 @@ class ExternalSorter::RunReader {
 // Writes a run file, raw or compact (blocks of kSpillBlockRecords), with its CRC-32C.
 class ExternalSorter::RunWriter {
  public:
-  RunWriter(int fd, const std::optional<SpillCodec>& codec, const std::string& dir)
-      : fd_(fd), dir_(dir) {
+  // `packed`: the records given to Append are packed (SpillCodec::Pack).
+  RunWriter(int fd, const std::optional<SpillCodec>& codec, const std::string& dir,
+            bool packed = false)
+      : fd_(fd), dir_(dir), packed_(packed) {
     if (codec) enc_ = std::make_unique<SpillBlockWriter>(*codec);
   }
   absl::Status Append(const SortRecord* recs, size_t n) {
@@ -258,7 +260,7 @@ class ExternalSorter::RunWriter {
     return absl::OkStatus();
   }
   absl::Status EncodePending() {
-    PBGI_RETURN_IF_ERROR(enc_->Append(absl::MakeConstSpan(pending_), &out_));
+    PBGI_RETURN_IF_ERROR(enc_->Append(absl::MakeConstSpan(pending_), &out_, packed_));
     pending_.clear();
     return absl::OkStatus();
   }
@@ -270,6 +272,7 @@ class ExternalSorter::RunWriter {
   }
   int fd_;
   const std::string& dir_;
+  bool packed_;
   std::unique_ptr<SpillBlockWriter> enc_;
   std::vector<SortRecord> pending_;
   std::vector<uint8_t> out_;
@@ -538,7 +541,7 @@ absl::Status ExternalSorter::SpillBuffer(const SortRecord* recs, uint64_t n) {
   SortBuffer(recs, n);
   PBGI_ASSIGN_OR_RETURN(Run run, NewRunFile(!run_dir_.empty()));
   runs_.push_back(run);
-  RunWriter writer(run.fd, options_.compact, options_.tmp_dir);
+  RunWriter writer(run.fd, options_.compact, options_.tmp_dir, options_.packed_input);
   std::vector<SortRecord> chunk(std::min<uint64_t>(kWriteChunkRecords, n));
   for (uint64_t i = 0; i < n;) {
     size_t k = static_cast<size_t>(std::min<uint64_t>(chunk.size(), n - i));
@@ -708,6 +711,9 @@ absl::StatusOr<size_t> ExternalSorter::Produce(absl::Span<SortRecord> out) {
   for (size_t i = 0; i < n; ++i) {
     if (emitted_ + i + 16 < size_) __builtin_prefetch(&records_[sorted_[emitted_ + i + 16].index]);
     out[i] = records_[sorted_[emitted_ + i].index];
+  }
+  if (options_.packed_input) {
+    for (size_t i = 0; i < n; ++i) out[i] = options_.compact->Unpack(out[i]);
   }
   emitted_ += n;
   return n;

@@ -112,7 +112,11 @@ class ExternalSorter {
     // Set: every spilled run, the input's and the merge passes', is written compact
     // (build/spill_codec.h: point records + key, zstd blocks) instead of as raw 48-byte records.
     std::optional<SpillCodec> compact = std::nullopt;
+    // With `compact`: the records given to Add and Reserve are packed (SpillCodec::Pack), and
+    // the sorter hands them back unpacked. Moves the encoding off the sort thread.
+    bool packed_input = false;
   };
+  // REQUIRES: options.compact when options.packed_input.
   explicit ExternalSorter(const Options& options);
   ~ExternalSorter();
   ExternalSorter(const ExternalSorter&) = delete;
@@ -165,6 +169,13 @@ class ExternalSorter {
   // The merge's read buffers (decoded blocks included), all readers together: at most
   // Options::merge_bytes, and at most 8 MiB a run.
   uint64_t merge_resident_bytes() const;
+
+  // After FinishInput (or ResumeFrom): every record that Next and NextBlock give went through a
+  // compact run, so it is Decode(Encode(r)) on Options::compact's grid (build/spill_codec.h).
+  // Packed input is quantized too, spilled or not.
+  bool output_quantized() const {
+    return options_.compact.has_value() && (merger_ != nullptr || options_.packed_input);
+  }
 
   uint64_t runs_spilled() const { return runs_spilled_; }
   uint64_t merge_passes() const { return merge_passes_; }

@@ -23,8 +23,7 @@ PointPageWriter::PointPageWriter(Channels channels, PageSink* sink, const Positi
 absl::Status PointPageWriter::Add(const SortRecord& r, SortRecord* stored) {
   uint8_t* dst = buf_.data() + size_t{count_} * record_size_;
   EncodePointRecord(r.position, r.normal, r.radius, r.radiance, channels_, grid_, dst);
-  const Surfel s = DecodePointRecord(dst, channels_, grid_);
-  *stored = MakeSortRecord(r.key, s);
+  *stored = input_quantized_ ? r : MakeSortRecord(r.key, DecodePointRecord(dst, channels_, grid_));
   ++points_;
   if (++count_ == per_page_) return Flush();
   return absl::OkStatus();

@@ -35,6 +35,11 @@ class PointPageWriter {
   // Appends r and sets *stored to r as the page holds it (quantized): what every reader of the
   // store will decode, so the node aggregates are made from it.
   absl::Status Add(const SortRecord& r, SortRecord* stored);
+  // Every record that Add will get is already as a page holds it (it was decoded from a compact
+  // sort run, build/spill_codec.h), so Add hands it back as it is: encoding a decoded record is
+  // idempotent, and decoding it again was about 7 % of the octree pass thread's instructions
+  // (docs/format.md, "Session 12").
+  void set_input_quantized(bool q) { input_quantized_ = q; }
   absl::Status Flush();
   uint64_t pages() const { return next_page_; }
   uint64_t points() const { return points_; }
@@ -49,6 +54,7 @@ class PointPageWriter {
   uint32_t count_ = 0;
   uint64_t next_page_ = 0;
   uint64_t points_ = 0;
+  bool input_quantized_ = false;
 };
 
 // Sums of a node's points, in double (docs/design.md, "Build" step 4).

@@ -60,8 +60,8 @@ size_t SpillCodec::max_block_bytes() const {
 SpillBlockWriter::SpillBlockWriter(const SpillCodec& codec) : codec_(codec) {}
 SpillBlockWriter::~SpillBlockWriter() { ZSTD_freeCCtx(static_cast<ZSTD_CCtx*>(cctx_)); }
 
-absl::Status SpillBlockWriter::Append(absl::Span<const SortRecord> recs,
-                                      std::vector<uint8_t>* out) {
+absl::Status SpillBlockWriter::Append(absl::Span<const SortRecord> recs, std::vector<uint8_t>* out,
+                                      bool packed) {
   const size_t n = recs.size();
   if (n == 0 || n > kSpillBlockRecords) {
     return absl::InternalError(absl::StrFormat("a spill block of %d records", n));
@@ -73,14 +73,17 @@ absl::Status SpillBlockWriter::Append(absl::Span<const SortRecord> recs,
   raw_.resize(c.end);
   uint8_t* raw = raw_.data();
   uint64_t prev = 0;
-  uint8_t rec[kPointRecordRadianceBytes];
+  uint8_t encoded[kPointRecordRadianceBytes];
   for (size_t i = 0; i < n; ++i) {
     const SortRecord& r = recs[i];
     const uint64_t delta = r.key - prev;
     prev = r.key;
     std::memcpy(raw + c.keys + 8 * i, &delta, 8);
-    EncodePointRecord(r.position, r.normal, r.radius, r.radiance, codec_.channels, codec_.grid,
-                      rec);
+    const uint8_t* rec = packed ? SpillCodec::PackedBytes(&r) : encoded;
+    if (!packed) {
+      EncodePointRecord(r.position, r.normal, r.radius, r.radiance, codec_.channels, codec_.grid,
+                        encoded);
+    }
     uint64_t cell;
     std::memcpy(&cell, rec, 8);
     cell ^= KeyCell(r.key);

@@ -23,6 +23,7 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <cstring>
 #include <vector>
 
 #include "absl/status/status.h"
@@ -44,7 +45,26 @@ struct SpillCodec {
   uint32_t raw_record_bytes() const { return 8 + PointRecordSize(channels); }
   // The largest stored block (header and frame) of kSpillBlockRecords records.
   size_t max_block_bytes() const;
+
+  // A packed SortRecord holds its key and, where the floats were, its point record already
+  // encoded (the rest zero). The builder packs records as it reads them, so that the sort
+  // thread, which was the bottleneck of the pipelined input pass, only copies the encoded bytes
+  // (docs/format.md, "Session 12"). Unpack(Pack(r)) is the record a compact run hands back.
+  void Pack(const SortRecord& r, SortRecord* packed) const {
+    packed->key = r.key;
+    uint8_t* p = PackedBytes(packed);
+    std::memset(p, 0, sizeof(SortRecord) - sizeof(uint64_t));
+    EncodePointRecord(r.position, r.normal, r.radius, r.radiance, channels, grid, p);
+  }
+  SortRecord Unpack(const SortRecord& packed) const {
+    return MakeSortRecord(packed.key, DecodePointRecord(PackedBytes(&packed), channels, grid));
+  }
+  static uint8_t* PackedBytes(SortRecord* r) { return reinterpret_cast<uint8_t*>(r->position); }
+  static const uint8_t* PackedBytes(const SortRecord* r) {
+    return reinterpret_cast<const uint8_t*>(r->position);
+  }
 };
+static_assert(sizeof(SortRecord) - sizeof(uint64_t) >= kPointRecordRadianceBytes);
 
 class SpillBlockWriter {
  public:
@@ -53,8 +73,10 @@ class SpillBlockWriter {
   SpillBlockWriter(const SpillBlockWriter&) = delete;
   SpillBlockWriter& operator=(const SpillBlockWriter&) = delete;
 
-  // Appends recs (1..kSpillBlockRecords records) as one block to `out`.
-  absl::Status Append(absl::Span<const SortRecord> recs, std::vector<uint8_t>* out);
+  // Appends recs (1..kSpillBlockRecords records) as one block to `out`; `packed`: the records
+  // are packed (SpillCodec::Pack), else plain.
+  absl::Status Append(absl::Span<const SortRecord> recs, std::vector<uint8_t>* out,
+                      bool packed = false);
 
  private:
   SpillCodec codec_;

@@ -1,7 +1,9 @@
 // Compact sort runs (build/spill_codec.h): a block round-trips quantized records exactly, the
 // external sort over compact runs gives the stable order of the quantized input in several
 // merge passes and with threads, its runs are far smaller than raw ones, and damaged blocks
-// are DataLoss naming the run.
+// are DataLoss naming the run. Packed input (SpillCodec::Pack) gives the same blocks and the
+// same sorted output, and a point page writer told that its input is quantized writes the same
+// pages and hands back the same records.
 #include "build/spill_codec.h"
 
 #include <algorithm>
@@ -11,7 +13,9 @@
 #include <vector>
 
 #include "build/external_sort.h"
+#include "build/octree_builder.h"
 #include "gtest/gtest.h"
+#include "store/mem_page_store.h"
 #include "tests/build/test_clouds.h"
 #include "tree/morton.h"
 
@@ -218,6 +222,107 @@ TEST(SpillCodecTest, DamagedKeptRunIsReported) {
   EXPECT_TRUE(absl::IsDataLoss(st)) << st;
   EXPECT_NE(st.message().find(kept[1].name), std::string::npos) << st;
   s.KeepRuns();
+}
+
+// Packing is the encoding the sort thread did: the same blocks, and Unpack is the quantized record.
+TEST(SpillCodecTest, PackedRecordsGiveTheSameBlocks) {
+  for (Channels ch : {Channels::kOcclusion, Channels::kRadiance}) {
+    const SpillCodec codec = Codec(ch);
+    const std::vector<SortRecord> in = Records(2500, 11, CloudBounds(), true);
+    std::vector<SortRecord> packed(in.size());
+    for (size_t i = 0; i < in.size(); ++i) {
+      codec.Pack(in[i], &packed[i]);
+      EXPECT_EQ(packed[i].key, in[i].key);
+      const SortRecord want = Quantized(in[i], codec);
+      const SortRecord got = codec.Unpack(packed[i]);
+      ASSERT_EQ(0, std::memcmp(&got, &want, sizeof(SortRecord))) << i;
+    }
+    SpillBlockWriter plain_writer(codec), packed_writer(codec);
+    std::vector<uint8_t> plain_bytes, packed_bytes;
+    for (size_t i = 0; i < in.size(); i += kSpillBlockRecords) {
+      const size_t n = std::min<size_t>(kSpillBlockRecords, in.size() - i);
+      ASSERT_TRUE(plain_writer.Append(absl::MakeConstSpan(in).subspan(i, n), &plain_bytes).ok());
+      ASSERT_TRUE(
+          packed_writer.Append(absl::MakeConstSpan(packed).subspan(i, n), &packed_bytes, true)
+              .ok());
+    }
+    EXPECT_EQ(plain_bytes, packed_bytes);
+  }
+}
+
+// The external sort over packed input, spilled (with and without threads) or not: the same
+// records in the same order as plain input through compact runs, and quantized either way.
+TEST(SpillCodecTest, ExternalSortOverPackedInput) {
+  testing_build::ScratchDir dir("sort_packed");
+  const SpillCodec codec = Codec(Channels::kRadiance);
+  std::vector<SortRecord> in = Records(20000, 13, CloudBounds(), true);
+  for (size_t i = 0; i < in.size(); ++i) in[i].key %= 2039;  // duplicates: stability
+  std::vector<SortRecord> want(in.size());
+  std::transform(in.begin(), in.end(), want.begin(),
+                 [&](const SortRecord& r) { return Quantized(r, codec); });
+  std::stable_sort(want.begin(), want.end(),
+                   [](const SortRecord& a, const SortRecord& b) { return a.key < b.key; });
+  for (uint64_t capacity : {uint64_t{3000}, uint64_t{20000}}) {
+    for (int threads : {1, 2}) {
+      SCOPED_TRACE(::testing::Message() << "run " << capacity << " threads " << threads);
+      ExternalSorter::Options o{dir.path().string(), capacity, 64 << 20, threads};
+      o.compact = codec;
+      o.packed_input = true;
+      ExternalSorter s(o);
+      for (const auto& r : in) {
+        SortRecord p;
+        codec.Pack(r, &p);
+        ASSERT_TRUE(s.Add(p).ok());
+      }
+      ASSERT_TRUE(s.FinishInput().ok());
+      EXPECT_EQ(s.runs_spilled() > 0, capacity < in.size());
+      EXPECT_TRUE(s.output_quantized());
+      std::vector<SortRecord> got;
+      for (;;) {
+        auto block = s.NextBlock();
+        ASSERT_TRUE(block.ok()) << block.status();
+        if (block->empty()) break;
+        got.insert(got.end(), block->begin(), block->end());
+      }
+      ASSERT_EQ(got.size(), want.size());
+      for (size_t i = 0; i < got.size(); ++i) {
+        ASSERT_EQ(0, std::memcmp(&got[i], &want[i], sizeof(SortRecord))) << i;
+      }
+    }
+  }
+  // Plain input is quantized only when it went through compact runs.
+  ExternalSorter::Options o{dir.path().string(), 100000, 64 << 20, 1};
+  o.compact = codec;
+  ExternalSorter unspilled(o);
+  for (const auto& r : in) ASSERT_TRUE(unspilled.Add(r).ok());
+  ASSERT_TRUE(unspilled.FinishInput().ok());
+  EXPECT_FALSE(unspilled.output_quantized());
+}
+
+// A point page writer told that its input is quantized skips decoding it again: the same pages
+// and the same records handed back as when it decodes, for quantized input.
+TEST(SpillCodecTest, QuantizedInputSkipsTheDecodeWithTheSameResult) {
+  for (Channels ch : {Channels::kOcclusion, Channels::kRadiance}) {
+    const SpillCodec codec = Codec(ch);
+    std::vector<SortRecord> in = Records(5000, 17, CloudBounds(), true);
+    for (SortRecord& r : in) {
+      r = Quantized(r, codec);
+      if (!HasRadiance(ch)) r.radiance[0] = r.radiance[1] = r.radiance[2] = 0.0f;
+    }
+    MemPageStore decoding(4096), skipping(4096);
+    PointPageWriter a(ch, &decoding, codec.grid), b(ch, &skipping, codec.grid);
+    b.set_input_quantized(true);
+    for (size_t i = 0; i < in.size(); ++i) {
+      SortRecord sa, sb;
+      ASSERT_TRUE(a.Add(in[i], &sa).ok());
+      ASSERT_TRUE(b.Add(in[i], &sb).ok());
+      ASSERT_EQ(0, std::memcmp(&sa, &sb, sizeof(SortRecord))) << i;
+    }
+    ASSERT_TRUE(a.Flush().ok());
+    ASSERT_TRUE(b.Flush().ok());
+    EXPECT_GT(decoding.page_count(Section::kPoints), 1u);
+    EXPECT_EQ(decoding.pages(Section::kPoints), skipping.pages(Section::kPoints));
+  }
 }
 
 }  // namespace
