@@ -48,6 +48,21 @@ Bounds CloudBounds() { return Bounds{glm::vec3(-3.5f, -3.5f, -1.0f), glm::vec3(3
 
 SpillCodec Codec(Channels c) { return SpillCodec{c, GridOfCube(MortonCube(CloudBounds()))}; }
 
+// Drains the sorter's output and checks that it is `want`, record for record.
+void ExpectOutput(ExternalSorter& s, const std::vector<SortRecord>& want) {
+  std::vector<SortRecord> got;
+  for (;;) {
+    auto block = s.NextBlock();
+    ASSERT_TRUE(block.ok()) << block.status();
+    if (block->empty()) break;
+    got.insert(got.end(), block->begin(), block->end());
+  }
+  ASSERT_EQ(got.size(), want.size());
+  for (size_t i = 0; i < got.size(); ++i) {
+    ASSERT_EQ(0, std::memcmp(&got[i], &want[i], sizeof(SortRecord))) << i;
+  }
+}
+
 TEST(SpillCodecTest, BlockRoundTripsQuantizedRecordsExactly) {
   for (Channels ch : {Channels::kOcclusion, Channels::kRadiance}) {
     const SpillCodec codec = Codec(ch);
@@ -147,17 +162,7 @@ TEST(SpillCodecTest, ExternalSortOverCompactRuns) {
     if (s.merge_passes() == 0) {
       EXPECT_LT(s.spill_bytes(), in.size() * 24);
     }
-    std::vector<SortRecord> got;
-    for (;;) {
-      auto block = s.NextBlock();
-      ASSERT_TRUE(block.ok()) << block.status();
-      if (block->empty()) break;
-      got.insert(got.end(), block->begin(), block->end());
-    }
-    ASSERT_EQ(got.size(), want.size());
-    for (size_t i = 0; i < got.size(); ++i) {
-      ASSERT_EQ(0, std::memcmp(&got[i], &want[i], sizeof(SortRecord))) << i;
-    }
+    ASSERT_NO_FATAL_FAILURE(ExpectOutput(s, want));
     EXPECT_TRUE(std::filesystem::is_empty(dir.path()));
   }
 }
@@ -277,17 +282,7 @@ TEST(SpillCodecTest, ExternalSortOverPackedInput) {
       ASSERT_TRUE(s.FinishInput().ok());
       EXPECT_EQ(s.runs_spilled() > 0, capacity < in.size());
       EXPECT_TRUE(s.output_quantized());
-      std::vector<SortRecord> got;
-      for (;;) {
-        auto block = s.NextBlock();
-        ASSERT_TRUE(block.ok()) << block.status();
-        if (block->empty()) break;
-        got.insert(got.end(), block->begin(), block->end());
-      }
-      ASSERT_EQ(got.size(), want.size());
-      for (size_t i = 0; i < got.size(); ++i) {
-        ASSERT_EQ(0, std::memcmp(&got[i], &want[i], sizeof(SortRecord))) << i;
-      }
+      ASSERT_NO_FATAL_FAILURE(ExpectOutput(s, want));
     }
   }
   // Plain input is quantized only when it went through compact runs.
