@@ -8,6 +8,7 @@
 #include <bit>
 #include <cstdint>
 #include <cstring>
+#include <limits>
 #include <vector>
 
 #include "absl/status/status.h"
@@ -286,8 +287,12 @@ class Rasterizer {
   template <bool kClamp, bool kRad>
   void SplatPolygons(const PreparedSplat& s);
 
+  // Polygon footprints only: a splat spreads its element's coverage over pixels past the
+  // element's extent (its filter), and one surface's splats must keep sharing a range there.
   [[gnu::always_inline]] void PlaneRange(uint32_t p, const Frag& f, float* lo, float* hi) const {
-    PlaneDepthRange(dirs_[p], f.normal, f.plane, f.thick, f.lo, f.hi, lo, hi);
+    constexpr float kInf = std::numeric_limits<float>::infinity();
+    PlaneDepthRange(dirs_[p], f.normal, f.plane, f.thick, polygons_ ? f.lo : -kInf,
+                    polygons_ ? f.hi : kInf, lo, hi);
   }
 
   // Adds a fragment of coverage `cov` to pixel p. With clamp, fragments arrive front to back:
@@ -396,7 +401,8 @@ class Rasterizer {
         const V4 inv = -1.0f / mu;
         const V4 t = -f.plane * inv;
         const V4 half = (f.thick + t * Load2x2(half_width_ + p0)) * inv;
-        const V4 flo = Splat4(f.lo), fhi = Splat4(f.hi);
+        constexpr float kInf = std::numeric_limits<float>::infinity();
+        const V4 flo = Splat4(polygons_ ? f.lo : -kInf), fhi = Splat4(polygons_ ? f.hi : kInf);
         lo = ok ? Min4(Max4(t - half, flo), fhi) : lo;
         hi = ok ? Min4(Max4(t + half, flo), fhi) : hi;
       }
