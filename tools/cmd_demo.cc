@@ -190,9 +190,10 @@ void PrintDemoSummary(const DemoArgs& a, const DemoRun& run, uint64_t memory, ui
       FormatBytes(run.scene_bytes).c_str(), FormatBytes(bs.peak_rss_bytes).c_str());
   std::printf(
       "  shade          %.1f s: %llu receivers (%dx%d), %.1f us/receiver on %d threads, "
-      "trace %.2f s\n",
+      "trace %.2f s, ShadeBatch %.1f s, compose %.2f s\n",
       run.shade_seconds, static_cast<unsigned long long>(view.receivers), a.width, a.height,
-      view.shade.seconds * 1e6 / receivers, ResolveThreads(a.threads), view.trace_seconds);
+      view.shade.seconds * 1e6 / receivers, ResolveThreads(a.threads), view.trace_seconds,
+      view.shade.seconds, view.compose_seconds);
   std::printf("%s\n", SharingSummary(view.shade).c_str());
   std::printf(
       "  cache          %s cap, reader hits %.2f%%, shared hits %.2f%%, %llu pages read "

@@ -98,6 +98,7 @@ struct ViewImages {
   uint64_t receivers = 0;
   double trace_seconds = 0;
   ShadeStats shade;
+  double compose_seconds = 0;  // the direct light (shadow rays) and the images, after shading
 };
 
 // Traces the camera's primary rays with Embree, shades the hit points from `db` (in

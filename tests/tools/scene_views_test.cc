@@ -3,6 +3,7 @@
 // the database's is refused; and the tools' output helpers (tools/outputs.h, tools/args.h).
 #include "tools/scene_views.h"
 
+#include <algorithm>
 #include <cmath>
 #include <fstream>
 #include <string>
@@ -89,6 +90,48 @@ TEST(SceneViewsTest, GlossyViewUsesEachPixelsReflectionDirection) {
     ASSERT_NE(got, rm[i].irradiance);
   }
   EXPECT_GT(differ, pixel.size() / 2) << "the reflection direction barely matters?";
+}
+
+// Composing runs on all cores (it was a serial loop of shadow rays): every pixel still gets the
+// tracer's direct light for its own receiver and pixel, the shaded values of its receiver, and
+// the sky where nothing was hit, whatever the split of the loop.
+TEST(SceneViewsTest, ComposedPixelsAreEachPixelsOwnDirectLightAndShading) {
+  const testing_common::ScratchDir dir;
+  const Built b = BuildScene(dir, "cornell", 1);
+  auto db = Database::Open(b.db_path);
+  ASSERT_TRUE(db.ok()) << db.status();
+  auto tracer = Tracer::Create(*b.scene);
+  ASSERT_TRUE(tracer.ok());
+  const Camera camera = DefaultCamera(*b.scene, 96, 64);
+  ShadeOptions so;
+  so.threads = 2;
+  so.raster.compute_radiance = true;
+  auto view = RenderView(**tracer, **db, camera, so);
+  ASSERT_TRUE(view.ok()) << view.status();
+  EXPECT_GE(view->compose_seconds, 0.0);
+
+  const CameraReceivers cr = MakeCameraReceivers(**tracer, camera);
+  ASSERT_EQ(view->receivers, cr.receivers.size());
+  ASSERT_GT(cr.receivers.size(), 4000u);
+  std::vector<ShadeResult> shaded(cr.shade.size());
+  ASSERT_TRUE(ShadeBatch(**db, cr.shade, so, absl::MakeSpan(shaded)).ok());
+  for (size_t i = 0; i < cr.receivers.size(); ++i) {
+    const uint32_t p = cr.pixel_of[i];
+    const glm::vec3 direct = (*tracer)->SurfaceRadiance(cr.receivers[i].position,
+                                                        cr.receivers[i].normal, cr.surface[i], p);
+    ASSERT_EQ(view->direct.pixels[p], direct) << "pixel " << p;
+    ASSERT_EQ(view->occlusion.pixels[p],
+              glm::vec3(1.0f - std::clamp(shaded[i].occlusion, 0.0f, 1.0f)))
+        << "pixel " << p;
+    ASSERT_EQ(view->composite.pixels[p], direct + view->indirect.pixels[p]) << "pixel " << p;
+  }
+  size_t sky = 0;
+  for (size_t p = 0; p < cr.hits.size(); ++p) {
+    if (cr.hits[p].hit) continue;
+    ++sky;
+    ASSERT_EQ(view->composite.pixels[p], b.scene->lights.sky) << "pixel " << p;
+  }
+  EXPECT_EQ(sky + cr.receivers.size(), cr.hits.size());
 }
 
 TEST(SceneViewsTest, AViewOfAnotherSceneIsRefused) {
