@@ -403,7 +403,9 @@ absl::StatusOr<ViewImages> RenderView(const Tracer& tracer, Database& db, const 
   const glm::vec3 sky = scene.lights.sky;
   out.occlusion = Image(camera.width, camera.height);
   out.indirect = Image(camera.width, camera.height);
-  out.glossy = Image(camera.width, camera.height);
+  // Without a glossy lobe there is no glossy image to hold (0x0).
+  const bool glossy = options.raster.lobe != GlossyLobe::kNone;
+  if (glossy) out.glossy = Image(camera.width, camera.height);
   out.direct = Image(camera.width, camera.height);
   out.composite = Image(camera.width, camera.height);
   std::fill(out.composite.pixels.begin(), out.composite.pixels.end(), sky);
@@ -423,7 +425,7 @@ absl::StatusOr<ViewImages> RenderView(const Tracer& tracer, Database& db, const 
                         out.occlusion.pixels[p] = glm::vec3(open);
                         out.direct.pixels[p] = direct;
                         if (radiance) {
-                          out.glossy.pixels[p] = r.glossy;
+                          if (glossy) out.glossy.pixels[p] = r.glossy;
                           out.indirect.pixels[p] = m.albedo * r.irradiance * float(1.0 / sh::kPi);
                           out.composite.pixels[p] = direct + out.indirect.pixels[p];
                         } else {

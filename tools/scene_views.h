@@ -91,7 +91,7 @@ struct ViewImages {
   Image occlusion;  // 1 - occlusion (white = open), grey
   Image indirect;   // diffuse indirect light: albedo / pi * irradiance
   // Glossy indirect light: the lobe-weighted mean radiance around each pixel's reflection
-  // direction (ShadeResult::glossy); black unless the options ask for a glossy lobe.
+  // direction (ShadeResult::glossy); empty (0x0) unless the options ask for a glossy lobe.
   Image glossy;
   Image direct;     // direct light * albedo + emission, from the tracer
   Image composite;  // direct + indirect, sky where nothing was hit

@@ -110,6 +110,10 @@ TEST(SceneViewsTest, ComposedPixelsAreEachPixelsOwnDirectLightAndShading) {
   auto view = RenderView(**tracer, **db, camera, so);
   ASSERT_TRUE(view.ok()) << view.status();
   EXPECT_GE(view->compose_seconds, 0.0);
+  // No lobe asked for: no glossy image is held.
+  EXPECT_EQ(view->glossy.width, 0);
+  EXPECT_TRUE(view->glossy.pixels.empty());
+  EXPECT_EQ(view->direct.pixels.size(), size_t(96) * 64);
 
   const CameraReceivers cr = MakeCameraReceivers(**tracer, camera);
   ASSERT_EQ(view->receivers, cr.receivers.size());
