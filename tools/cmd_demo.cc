@@ -153,7 +153,9 @@ absl::Status ShadeDemoView(const DemoArgs& a, uint64_t cache, DemoRun* run) {
   Progress progress("demo: shade", "receivers");  // the total: the pixels whose rays hit
   so.progress = [&](const ShadeProgress& p) { progress.Update(p.done, int64_t(p.total)); };
   const Camera camera = DefaultCamera(scene, a.width, a.height);
-  PBGI_ASSIGN_OR_RETURN(run->view, RenderView(*tracer, *db, camera, so));
+  // The database closes once the view is shaded: its page cache (up to --cache) is not held
+  // beside the images while they are composed.
+  PBGI_ASSIGN_OR_RETURN(run->view, RenderView(*tracer, *db, camera, so, [&db]() { db.reset(); }));
   progress.Finish(run->view.receivers);
   run->shade_seconds = t.Seconds();
   return absl::OkStatus();

@@ -5,6 +5,7 @@
 #include <cmath>
 #include <cstring>
 #include <filesystem>
+#include <functional>
 #include <vector>
 
 #include "absl/strings/numbers.h"
@@ -372,7 +373,8 @@ ShadeOptions CameraReceivers::WithLayout(const ShadeOptions& options) const {
 }
 
 absl::StatusOr<ViewImages> RenderView(const Tracer& tracer, Database& db, const Camera& camera,
-                                      const ShadeOptions& options) {
+                                      const ShadeOptions& options,
+                                      const std::function<void()>& after_shading) {
   using Clock = std::chrono::steady_clock;
   const Scene& scene = tracer.scene();
   ViewImages out;
@@ -394,12 +396,15 @@ absl::StatusOr<ViewImages> RenderView(const Tracer& tracer, Database& db, const 
   std::vector<ShadeResult> results(receivers.size());
   PBGI_RETURN_IF_ERROR(
       ShadeBatch(db, cr.shade, cr.WithLayout(options), absl::MakeSpan(results), &out.shade));
+  const bool radiance = HasRadiance(db.meta().channels);
+  // The database is not used after this: a caller that closes it here composes without its
+  // page cache.
+  if (after_shading) after_shading();
 
   // Composing is a shadow-ray query per pixel (the direct light); each pixel's value depends
   // only on its receiver and its pixel (the tracer's key), so the loop runs on all cores and the
   // images keep their bits.
   const auto t1 = Clock::now();
-  const bool radiance = HasRadiance(db.meta().channels);
   const glm::vec3 sky = scene.lights.sky;
   out.occlusion = Image(camera.width, camera.height);
   out.indirect = Image(camera.width, camera.height);

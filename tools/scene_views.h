@@ -3,6 +3,7 @@
 #ifndef PBGI_TOOLS_SCENE_VIEWS_H_
 #define PBGI_TOOLS_SCENE_VIEWS_H_
 
+#include <functional>
 #include <map>
 #include <memory>
 #include <string>
@@ -105,8 +106,12 @@ struct ViewImages {
 // options.mode; kShared gets the view's image layout) and composes the images. With an
 // occlusion-only database, `indirect` is black and `composite` is direct * (1 - occlusion) plus the
 // sky's ambient term.
+// `after_shading`, when set, is called once the view is shaded, before it is composed; `db` is
+// not used after it, so it may close the database (its page cache is then not held beside the
+// images: the peak memory of a large view).
 absl::StatusOr<ViewImages> RenderView(const Tracer& tracer, Database& db, const Camera& camera,
-                                      const ShadeOptions& options);
+                                      const ShadeOptions& options,
+                                      const std::function<void()>& after_shading = {});
 
 }  // namespace pbgi::tools
 

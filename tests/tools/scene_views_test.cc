@@ -142,6 +142,42 @@ TEST(SceneViewsTest, ComposedPixelsAreEachPixelsOwnDirectLightAndShading) {
   EXPECT_EQ(sky + cr.receivers.size(), cr.hits.size());
 }
 
+// A caller may close the database once the view is shaded (the demo does, so that its page
+// cache is not held beside the images): the callback runs once, the database is not used after
+// it, and the images are those of a view whose database stayed open.
+TEST(SceneViewsTest, TheDatabaseMayCloseBeforeTheViewIsComposed) {
+  const testing_common::ScratchDir dir;
+  const Built b = BuildScene(dir, "city", 1);
+  auto tracer = Tracer::Create(*b.scene);
+  ASSERT_TRUE(tracer.ok());
+  const Camera camera = DefaultCamera(*b.scene, 64, 48);
+  ShadeOptions so;
+  so.threads = 2;
+  so.raster.compute_radiance = true;
+  so.mode = ShadeMode::kShared;
+  auto open = Database::Open(b.db_path);
+  ASSERT_TRUE(open.ok()) << open.status();
+  auto kept = RenderView(**tracer, **open, camera, so);
+  ASSERT_TRUE(kept.ok()) << kept.status();
+
+  auto closing = Database::Open(b.db_path);
+  ASSERT_TRUE(closing.ok()) << closing.status();
+  std::unique_ptr<Database> db = std::move(closing).value();
+  int calls = 0;
+  auto closed = RenderView(**tracer, *db, camera, so, [&]() {
+    ++calls;
+    db.reset();
+  });
+  ASSERT_TRUE(closed.ok()) << closed.status();
+  EXPECT_EQ(calls, 1);
+  EXPECT_EQ(db, nullptr);
+  EXPECT_EQ(closed->receivers, kept->receivers);
+  EXPECT_EQ(closed->composite.pixels, kept->composite.pixels);
+  EXPECT_EQ(closed->indirect.pixels, kept->indirect.pixels);
+  EXPECT_EQ(closed->occlusion.pixels, kept->occlusion.pixels);
+  EXPECT_EQ(closed->direct.pixels, kept->direct.pixels);
+}
+
 TEST(SceneViewsTest, AViewOfAnotherSceneIsRefused) {
   const testing_common::ScratchDir dir;
   const Built b = BuildScene(dir, "cornell", 3);
