@@ -74,6 +74,7 @@ struct EvalArgs {
   bool view = false;
   int width = 960, height = 540;
   std::string window;
+  std::string db;  // --view --db
   std::string hitsides = "front";
   double error_scale = 0.1;
   // --view: shared rows besides the exact ones (tools/view_eval.h).
@@ -952,6 +953,9 @@ CommandSetup Setup() {
     app->add_option("--width", a->width, "--view: image width")
         ->check(CLI::Range(16, 8192))
         ->capture_default_str();
+    app->add_option("--db", a->db,
+                    "--view: shade this database, built from the same scene and seed (e.g. by "
+                    "pbgi demo), instead of building one from --points");
     app->add_option("--window", a->window,
                     "--view: shade and compare only the pixels of this window, X,Y,WIDTH,HEIGHT "
                     "(to look at one artifact closely; the images keep the view's size)");
@@ -993,6 +997,9 @@ CommandSetup Setup() {
           std::find(a->cuts.begin(), a->cuts.end(), "lobe") != a->cuts.end()) {
         return absl::InvalidArgumentError("--cuts lobe is for --mode glossy (a glossy lobe)");
       }
+      if (!a->view && !a->db.empty()) {
+        return absl::InvalidArgumentError("--db is for --view (a camera view of a built database)");
+      }
       if (!a->view) return RunEval(*a);
       ViewEvalArgs v;
       if (a->mode == "glossy") {
@@ -1025,6 +1032,7 @@ CommandSetup Setup() {
       v.width = a->width;
       v.height = a->height;
       v.window = a->window;
+      v.db = a->db;
       v.dump_receivers = a->dump_receivers;
       v.hitsides = a->hitsides;
       PBGI_ASSIGN_OR_RETURN(const auto budgets, EvalBudgets(*a));

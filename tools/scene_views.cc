@@ -5,11 +5,14 @@
 #include <cmath>
 #include <cstring>
 #include <filesystem>
+#include <functional>
 #include <vector>
 
 #include "absl/strings/numbers.h"
 #include "absl/strings/str_format.h"
 #include "absl/strings/str_split.h"
+#include "oneapi/tbb/blocked_range.h"
+#include "oneapi/tbb/parallel_for.h"
 #include "pbgi/status.h"
 
 namespace pbgi::tools {
@@ -336,7 +339,13 @@ CameraReceivers MakeCameraReceivers(const Tracer& tracer, const Camera& camera) 
   out.width = camera.width;
   out.height = camera.height;
   out.hits = tracer.TraceCamera(camera);
-  out.receivers.reserve(out.hits.size());
+  // Reserved for every hit, so that no vector grows to twice what it holds.
+  size_t hit_count = 0;
+  for (const CameraHit& h : out.hits) hit_count += h.hit ? 1 : 0;
+  out.receivers.reserve(hit_count);
+  out.shade.reserve(hit_count);
+  out.pixel_of.reserve(hit_count);
+  out.surface.reserve(hit_count);
   for (size_t p = 0; p < out.hits.size(); ++p) {
     if (!out.hits[p].hit) continue;
     const int x = static_cast<int>(p % size_t(camera.width));
@@ -364,56 +373,74 @@ ShadeOptions CameraReceivers::WithLayout(const ShadeOptions& options) const {
 }
 
 absl::StatusOr<ViewImages> RenderView(const Tracer& tracer, Database& db, const Camera& camera,
-                                      const ShadeOptions& options) {
+                                      const ShadeOptions& options,
+                                      const std::function<void()>& after_shading) {
   using Clock = std::chrono::steady_clock;
   const Scene& scene = tracer.scene();
   ViewImages out;
-  out.occlusion = Image(camera.width, camera.height);
-  out.indirect = Image(camera.width, camera.height);
-  out.glossy = Image(camera.width, camera.height);
-  out.direct = Image(camera.width, camera.height);
-  out.composite = Image(camera.width, camera.height);
 
   const auto t0 = Clock::now();
-  const CameraReceivers cr = MakeCameraReceivers(tracer, camera);
-  const std::vector<CameraHit>& hits = cr.hits;
-  const std::vector<Receiver>& receivers = cr.receivers;
-  const std::vector<uint32_t>& pixel_of = cr.pixel_of;
+  CameraReceivers cr = MakeCameraReceivers(tracer, camera);
   out.trace_seconds = std::chrono::duration<double>(Clock::now() - t0).count();
-  out.receivers = receivers.size();
+  out.receivers = cr.receivers.size();
+  // Memory: the page cache fills up during shading and stays full until the database closes,
+  // so what the view holds beside it sets the peak (docs/shade.md, Session 12). The hits and
+  // the plain receivers are not needed after this point (the shade receivers carry the same
+  // positions and normals, `surface` the materials, and a pixel without a receiver is sky),
+  // and the images are made only once the shading's own buffers are gone.
+  std::vector<CameraHit>().swap(cr.hits);
+  std::vector<Receiver>().swap(cr.receivers);
+  const std::vector<ShadeReceiver>& receivers = cr.shade;
+  const std::vector<uint32_t>& pixel_of = cr.pixel_of;
 
   std::vector<ShadeResult> results(receivers.size());
   PBGI_RETURN_IF_ERROR(
       ShadeBatch(db, cr.shade, cr.WithLayout(options), absl::MakeSpan(results), &out.shade));
-
   const bool radiance = HasRadiance(db.meta().channels);
+  // The database is not used after this: a caller that closes it here composes without its
+  // page cache.
+  if (after_shading) after_shading();
+
+  // Composing is a shadow-ray query per pixel (the direct light); each pixel's value depends
+  // only on its receiver and its pixel (the tracer's key), so the loop runs on all cores and the
+  // images keep their bits.
+  const auto t1 = Clock::now();
   const glm::vec3 sky = scene.lights.sky;
-  for (size_t p = 0; p < hits.size(); ++p) {
-    if (!hits[p].hit) {
-      out.composite.pixels[p] = sky;
-      out.direct.pixels[p] = sky;
-      out.occlusion.pixels[p] = glm::vec3(1.0f);
-    }
-  }
-  for (size_t i = 0; i < receivers.size(); ++i) {
-    const uint32_t p = pixel_of[i];
-    const CameraHit& h = hits[p];
-    const Material& m = scene.materials[std::min<size_t>(h.material, scene.materials.size() - 1)];
-    const ShadeResult& r = results[i];
-    const glm::vec3 direct =
-        tracer.SurfaceRadiance(receivers[i].position, receivers[i].normal, h.material, p);
-    const float open = 1.0f - std::clamp(r.occlusion, 0.0f, 1.0f);
-    out.occlusion.pixels[p] = glm::vec3(open);
-    out.direct.pixels[p] = direct;
-    if (radiance) {
-      out.glossy.pixels[p] = r.glossy;
-      out.indirect.pixels[p] = m.albedo * r.irradiance * float(1.0 / sh::kPi);
-      out.composite.pixels[p] = direct + out.indirect.pixels[p];
-    } else {
-      // Occlusion only: an ambient term from the sky, dimmed by the occlusion.
-      out.composite.pixels[p] = direct + m.albedo * sky * open;
-    }
-  }
+  out.occlusion = Image(camera.width, camera.height);
+  out.indirect = Image(camera.width, camera.height);
+  // Without a glossy lobe there is no glossy image to hold (0x0).
+  const bool glossy = options.raster.lobe != GlossyLobe::kNone;
+  if (glossy) out.glossy = Image(camera.width, camera.height);
+  out.direct = Image(camera.width, camera.height);
+  out.composite = Image(camera.width, camera.height);
+  std::fill(out.composite.pixels.begin(), out.composite.pixels.end(), sky);
+  std::fill(out.direct.pixels.begin(), out.direct.pixels.end(), sky);
+  std::fill(out.occlusion.pixels.begin(), out.occlusion.pixels.end(), glm::vec3(1.0f));
+  tbb::parallel_for(tbb::blocked_range<size_t>(0, receivers.size(), 1024),
+                    [&](const tbb::blocked_range<size_t>& range) {
+                      for (size_t i = range.begin(); i != range.end(); ++i) {
+                        const uint32_t p = pixel_of[i];
+                        const uint32_t material = cr.surface[i];
+                        const Material& m =
+                            scene.materials[std::min<size_t>(material, scene.materials.size() - 1)];
+                        const ShadeResult& r = results[i];
+                        const glm::vec3 direct = tracer.SurfaceRadiance(
+                            receivers[i].position, receivers[i].normal, material, p);
+                        const float open = 1.0f - std::clamp(r.occlusion, 0.0f, 1.0f);
+                        out.occlusion.pixels[p] = glm::vec3(open);
+                        out.direct.pixels[p] = direct;
+                        if (radiance) {
+                          if (glossy) out.glossy.pixels[p] = r.glossy;
+                          out.indirect.pixels[p] = m.albedo * r.irradiance * float(1.0 / sh::kPi);
+                          out.composite.pixels[p] = direct + out.indirect.pixels[p];
+                        } else {
+                          // Occlusion only: an ambient term from the sky, dimmed by the
+                          // occlusion.
+                          out.composite.pixels[p] = direct + m.albedo * sky * open;
+                        }
+                      }
+                    });
+  out.compose_seconds = std::chrono::duration<double>(Clock::now() - t1).count();
   return out;
 }
 

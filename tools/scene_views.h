@@ -3,6 +3,7 @@
 #ifndef PBGI_TOOLS_SCENE_VIEWS_H_
 #define PBGI_TOOLS_SCENE_VIEWS_H_
 
+#include <functional>
 #include <map>
 #include <memory>
 #include <string>
@@ -91,21 +92,26 @@ struct ViewImages {
   Image occlusion;  // 1 - occlusion (white = open), grey
   Image indirect;   // diffuse indirect light: albedo / pi * irradiance
   // Glossy indirect light: the lobe-weighted mean radiance around each pixel's reflection
-  // direction (ShadeResult::glossy); black unless the options ask for a glossy lobe.
+  // direction (ShadeResult::glossy); empty (0x0) unless the options ask for a glossy lobe.
   Image glossy;
   Image direct;     // direct light * albedo + emission, from the tracer
   Image composite;  // direct + indirect, sky where nothing was hit
   uint64_t receivers = 0;
   double trace_seconds = 0;
   ShadeStats shade;
+  double compose_seconds = 0;  // the direct light (shadow rays) and the images, after shading
 };
 
 // Traces the camera's primary rays with Embree, shades the hit points from `db` (in
 // options.mode; kShared gets the view's image layout) and composes the images. With an
 // occlusion-only database, `indirect` is black and `composite` is direct * (1 - occlusion) plus the
 // sky's ambient term.
+// `after_shading`, when set, is called once the view is shaded, before it is composed; `db` is
+// not used after it, so it may close the database (its page cache is then not held beside the
+// images: the peak memory of a large view).
 absl::StatusOr<ViewImages> RenderView(const Tracer& tracer, Database& db, const Camera& camera,
-                                      const ShadeOptions& options);
+                                      const ShadeOptions& options,
+                                      const std::function<void()>& after_shading = {});
 
 }  // namespace pbgi::tools
 

@@ -160,33 +160,55 @@ absl::Status RunViewEval(const ViewEvalArgs& a) {
         absl::StrFormat("scene %s has no radiance: use --mode occlusion", scene->name));
   }
   auto t = Clock::now();
-  SamplerOptions sampler;
-  sampler.count = a.points;
-  sampler.seed = a.seed;
-  sampler.bake = !occlusion;
-  PBGI_ASSIGN_OR_RETURN(auto surfels, MakeSceneSurfelSource(scene, sampler));
-  const std::string db_path = a.out_dir + "/" + scene->name + ".pbgi";
-  BuildOptions bo;
-  bo.memory_bytes = memory;
-  bo.channels = occlusion ? Channels::kOcclusion : Channels::kRadiance;
-  bo.tmp_dir = a.out_dir;
-  bo.provenance = SceneFingerprint(*scene, a.seed, a.size, up, orient);
-  bo.provenance["source"] = "pbgi eval --view";
-  bo.provenance["tool"] = kToolVersion;
-  bo.provenance["built_at"] = NowIso8601();
-  Progress build_progress("eval --view: build", "points", a.points);
-  std::string pass;
-  bo.progress = [&](const BuildProgress& p) {
-    if (pass != p.pass) {
-      pass = p.pass;
-      build_progress.Phase(absl::StrFormat("eval --view: build: %s", p.pass), p.points_total);
+  // --db: a database that is already built (a 128 M-surfel city takes minutes to build and
+  // fits the disk once), checked to be of this scene; else one is built from the scene.
+  std::string db_path = a.out_dir + "/" + scene->name + ".pbgi";
+  uint64_t points = 0;
+  if (!a.db.empty()) {
+    db_path = a.db;
+    PBGI_ASSIGN_OR_RETURN(std::unique_ptr<Database> built, Database::Open(db_path, {}));
+    std::string warning;
+    auto fingerprint = SceneFingerprint(*scene, a.seed, a.size, up, orient);
+    if (fingerprint.count("scene.up") != 0) fingerprint["scene.file"] = a.scene;
+    PBGI_RETURN_IF_ERROR(
+        CheckSceneMatchesDatabase(*scene, fingerprint, built->meta(), db_path, &warning));
+    if (!warning.empty()) std::fprintf(stderr, "eval --view: warning: %s\n", warning.c_str());
+    if (!occlusion && !HasRadiance(built->meta().channels)) {
+      return absl::FailedPreconditionError(absl::StrFormat(
+          "--db %s stores occlusion only: --mode %s needs radiance", db_path, a.mode));
     }
-    build_progress.Update(p.points_done, p.points_total);
-  };
-  PBGI_ASSIGN_OR_RETURN(BuildStats bs, BuildDatabase(*surfels, db_path, bo));
-  build_progress.Finish(bs.points);
-  std::fprintf(stderr, "eval --view: %s, built %llu surfels in %.1f s\n", scene->name.c_str(),
-               static_cast<unsigned long long>(bs.points), Since(t));
+    points = built->meta().point_count;
+    std::fprintf(stderr, "eval --view: %s, %llu surfels from %s (not rebuilt)\n",
+                 scene->name.c_str(), static_cast<unsigned long long>(points), db_path.c_str());
+  } else {
+    SamplerOptions sampler;
+    sampler.count = a.points;
+    sampler.seed = a.seed;
+    sampler.bake = !occlusion;
+    PBGI_ASSIGN_OR_RETURN(auto surfels, MakeSceneSurfelSource(scene, sampler));
+    BuildOptions bo;
+    bo.memory_bytes = memory;
+    bo.channels = occlusion ? Channels::kOcclusion : Channels::kRadiance;
+    bo.tmp_dir = a.out_dir;
+    bo.provenance = SceneFingerprint(*scene, a.seed, a.size, up, orient);
+    bo.provenance["source"] = "pbgi eval --view";
+    bo.provenance["tool"] = kToolVersion;
+    bo.provenance["built_at"] = NowIso8601();
+    Progress build_progress("eval --view: build", "points", a.points);
+    std::string pass;
+    bo.progress = [&](const BuildProgress& p) {
+      if (pass != p.pass) {
+        pass = p.pass;
+        build_progress.Phase(absl::StrFormat("eval --view: build: %s", p.pass), p.points_total);
+      }
+      build_progress.Update(p.points_done, p.points_total);
+    };
+    PBGI_ASSIGN_OR_RETURN(const BuildStats bs, BuildDatabase(*surfels, db_path, bo));
+    build_progress.Finish(bs.points);
+    points = bs.points;
+    std::fprintf(stderr, "eval --view: %s, built %llu surfels in %.1f s\n", scene->name.c_str(),
+                 static_cast<unsigned long long>(points), Since(t));
+  }
 
   PBGI_ASSIGN_OR_RETURN(std::unique_ptr<Tracer> tracer, Tracer::Create(*scene));
   const Camera camera = DefaultCamera(*scene, a.width, a.height);
@@ -313,7 +335,7 @@ absl::Status RunViewEval(const ViewEvalArgs& a) {
   std::printf(
       "pbgi eval --view: scene %s, %s, %llu surfels, %dx%d, %zu receivers, reference %d rays "
       "(own MAE ~%.2g), hitsides %s\n",
-      scene->name.c_str(), mode_tag.c_str(), static_cast<unsigned long long>(bs.points), a.width,
+      scene->name.c_str(), mode_tag.c_str(), static_cast<unsigned long long>(points), a.width,
       a.height, cr.receivers.size(), 2 * half_rays, ref_noise, a.hitsides.c_str());
   std::string rows_json;
   bool dumped = false;  // --dump-receivers: the first PBGI row
@@ -523,7 +545,7 @@ absl::Status RunViewEval(const ViewEvalArgs& a) {
                       "\"reference_seconds\": %.4g, \"hitsides\": \"%s\", \"threads\": %d,\n  "
                       "\"rows\": [\n%s\n  "
                       "]\n}\n",
-                      scene->name, a.mode, bs.points, a.width, a.height, cr.receivers.size(),
+                      scene->name, a.mode, points, a.width, a.height, cr.receivers.size(),
                       2 * half_rays, ref_noise, ref_seconds, a.hitsides, threads, rows_json)));
   std::printf(
       "wrote %s/{reference,pbgi_*,error_*}.png (error: red = PBGI too high, blue = too low, "

@@ -85,6 +85,9 @@ struct ViewEvalArgs {
   std::string window;
   // A CSV of the first PBGI row's receivers (pixel, position, normal, reference, PBGI, error).
   std::string dump_receivers;
+  // A database already built from this scene (same fingerprint) instead of building one from
+  // `points` surfels; empty: build.
+  std::string db;
 };
 
 absl::Status RunViewEval(const ViewEvalArgs& args);

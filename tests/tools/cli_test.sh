@@ -83,6 +83,17 @@ for f in reference.png pbgi_msa0.03_res12_cos.png error_msa0.03_res12_cos.png vi
   [ -s "$dir/eval_view/$f" ] && ok || fail "eval --view wrote no $f"
 done
 grep -q '"mode": "shared"' "$dir/eval_view/view.json" && ok || fail "view.json lacks the shared row"
+# eval --view --db: the database of the run above, shaded again without a build; another
+# scene's database is refused.
+run eval_view_db "$pbgi" eval --view cornell -o "$dir/eval_view_db" --db "$dir/eval_view/cornell.pbgi" \
+  --width 48 --height 32 --rays 64 --exact
+grep -q "not rebuilt" "$dir/eval_view_db.err" && [ ! -e "$dir/eval_view_db/cornell.pbgi" ] && ok ||
+  fail "eval --view --db built a database"
+grep -q '"mode": "exact"' "$dir/eval_view_db/view.json" && ok || fail "eval --view --db wrote no rows"
+refuse eval_view_db_other "built from another scene|scene" "$pbgi" eval --view city \
+  -o "$dir/eval_view_db2" --db "$dir/eval_view/cornell.pbgi" --width 48 --height 32 --rays 64
+refuse eval_db_not_view "for --view" "$pbgi" eval cornell -o "$dir/eval_db_nv" \
+  --db "$dir/eval_view/cornell.pbgi"
 # eval --view --window: only the window's pixels are shaded and compared; --dump-receivers
 # lists them, each row's error its PBGI value less its reference.
 run eval_view_window "$pbgi" eval --view cornell -o "$dir/eval_win" --points 30000 --width 48 \

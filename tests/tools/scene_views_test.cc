@@ -3,6 +3,7 @@
 // the database's is refused; and the tools' output helpers (tools/outputs.h, tools/args.h).
 #include "tools/scene_views.h"
 
+#include <algorithm>
 #include <cmath>
 #include <fstream>
 #include <string>
@@ -89,6 +90,92 @@ TEST(SceneViewsTest, GlossyViewUsesEachPixelsReflectionDirection) {
     ASSERT_NE(got, rm[i].irradiance);
   }
   EXPECT_GT(differ, pixel.size() / 2) << "the reflection direction barely matters?";
+}
+
+// Composing runs on all cores (it was a serial loop of shadow rays), after the camera hits are
+// dropped and on images made after shading (memory): every pixel still gets the tracer's direct
+// light for its own receiver, material and pixel, the shaded values of its receiver, and the
+// sky where nothing was hit.
+TEST(SceneViewsTest, ComposedPixelsAreEachPixelsOwnDirectLightAndShading) {
+  const testing_common::ScratchDir dir;
+  const Built b = BuildScene(dir, "city", 1);
+  auto db = Database::Open(b.db_path);
+  ASSERT_TRUE(db.ok()) << db.status();
+  auto tracer = Tracer::Create(*b.scene);
+  ASSERT_TRUE(tracer.ok());
+  const Camera camera = DefaultCamera(*b.scene, 96, 64);
+  ShadeOptions so;
+  so.threads = 2;
+  so.raster.compute_radiance = true;
+  auto view = RenderView(**tracer, **db, camera, so);
+  ASSERT_TRUE(view.ok()) << view.status();
+  EXPECT_GE(view->compose_seconds, 0.0);
+  // No lobe asked for: no glossy image is held.
+  EXPECT_EQ(view->glossy.width, 0);
+  EXPECT_TRUE(view->glossy.pixels.empty());
+  EXPECT_EQ(view->direct.pixels.size(), size_t(96) * 64);
+
+  const CameraReceivers cr = MakeCameraReceivers(**tracer, camera);
+  ASSERT_EQ(view->receivers, cr.receivers.size());
+  ASSERT_GT(cr.receivers.size(), 3000u);
+  std::vector<ShadeResult> shaded(cr.shade.size());
+  ASSERT_TRUE(ShadeBatch(**db, cr.shade, so, absl::MakeSpan(shaded)).ok());
+  for (size_t i = 0; i < cr.receivers.size(); ++i) {
+    const uint32_t p = cr.pixel_of[i];
+    const glm::vec3 direct = (*tracer)->SurfaceRadiance(cr.receivers[i].position,
+                                                        cr.receivers[i].normal, cr.surface[i], p);
+    ASSERT_EQ(view->direct.pixels[p], direct) << "pixel " << p;
+    ASSERT_EQ(view->occlusion.pixels[p],
+              glm::vec3(1.0f - std::clamp(shaded[i].occlusion, 0.0f, 1.0f)))
+        << "pixel " << p;
+    ASSERT_EQ(view->composite.pixels[p], direct + view->indirect.pixels[p]) << "pixel " << p;
+  }
+  size_t sky = 0;
+  for (size_t p = 0; p < cr.hits.size(); ++p) {
+    if (cr.hits[p].hit) continue;
+    ++sky;
+    ASSERT_EQ(view->composite.pixels[p], b.scene->lights.sky) << "pixel " << p;
+    ASSERT_EQ(view->direct.pixels[p], b.scene->lights.sky) << "pixel " << p;
+    ASSERT_EQ(view->occlusion.pixels[p], glm::vec3(1.0f)) << "pixel " << p;
+  }
+  EXPECT_GT(sky, 200u) << "the view should show some sky";
+  EXPECT_EQ(sky + cr.receivers.size(), cr.hits.size());
+}
+
+// A caller may close the database once the view is shaded (the demo does, so that its page
+// cache is not held beside the images): the callback runs once, the database is not used after
+// it, and the images are those of a view whose database stayed open.
+TEST(SceneViewsTest, TheDatabaseMayCloseBeforeTheViewIsComposed) {
+  const testing_common::ScratchDir dir;
+  const Built b = BuildScene(dir, "city", 1);
+  auto tracer = Tracer::Create(*b.scene);
+  ASSERT_TRUE(tracer.ok());
+  const Camera camera = DefaultCamera(*b.scene, 64, 48);
+  ShadeOptions so;
+  so.threads = 2;
+  so.raster.compute_radiance = true;
+  so.mode = ShadeMode::kShared;
+  auto open = Database::Open(b.db_path);
+  ASSERT_TRUE(open.ok()) << open.status();
+  auto kept = RenderView(**tracer, **open, camera, so);
+  ASSERT_TRUE(kept.ok()) << kept.status();
+
+  auto closing = Database::Open(b.db_path);
+  ASSERT_TRUE(closing.ok()) << closing.status();
+  std::unique_ptr<Database> db = std::move(closing).value();
+  int calls = 0;
+  auto closed = RenderView(**tracer, *db, camera, so, [&]() {
+    ++calls;
+    db.reset();
+  });
+  ASSERT_TRUE(closed.ok()) << closed.status();
+  EXPECT_EQ(calls, 1);
+  EXPECT_EQ(db, nullptr);
+  EXPECT_EQ(closed->receivers, kept->receivers);
+  EXPECT_EQ(closed->composite.pixels, kept->composite.pixels);
+  EXPECT_EQ(closed->indirect.pixels, kept->indirect.pixels);
+  EXPECT_EQ(closed->occlusion.pixels, kept->occlusion.pixels);
+  EXPECT_EQ(closed->direct.pixels, kept->direct.pixels);
 }
 
 TEST(SceneViewsTest, AViewOfAnotherSceneIsRefused) {
