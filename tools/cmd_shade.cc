@@ -254,10 +254,9 @@ absl::Status ShadeCamera(const ShadeArgs& a, Database& db, const ShadeOptions& b
   PBGI_ASSIGN_OR_RETURN(std::shared_ptr<const Scene> scene,
                         LoadScene(a.scene, a.seed, a.size, up, orient));
   std::string warning;
-  auto fingerprint = SceneFingerprint(*scene, a.seed, a.size, up, orient);
-  if (fingerprint.count("scene.up") != 0) fingerprint["scene.file"] = a.scene;
-  const absl::Status match =
-      CheckSceneMatchesDatabase(*scene, fingerprint, db.meta(), a.db, &warning);
+  const absl::Status match = CheckSceneMatchesDatabase(
+      *scene, SpecFingerprint(*scene, a.scene, a.seed, a.size, up, orient), db.meta(), a.db,
+      &warning);
   if (!match.ok()) {
     if (!a.any_scene) return match;
     std::fprintf(stderr, "pbgi shade: warning (--any-scene): %s\n",

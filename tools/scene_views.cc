@@ -131,6 +131,14 @@ std::map<std::string, std::string> SceneFingerprint(const Scene& scene, uint64_t
   return f;
 }
 
+std::map<std::string, std::string> SpecFingerprint(const Scene& scene, const std::string& spec,
+                                                   uint64_t seed, int size, UpAxis up,
+                                                   bool oriented) {
+  auto fingerprint = SceneFingerprint(scene, seed, size, up, oriented);
+  if (fingerprint.count("scene.up") != 0) fingerprint["scene.file"] = spec;
+  return fingerprint;
+}
+
 std::map<std::string, std::string> LightsProvenance(const Lights& lights) {
   std::map<std::string, std::string> f;
   if (lights.has_sun) {

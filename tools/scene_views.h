@@ -46,6 +46,11 @@ void RotateYUpToZUp(Scene* scene);
 // meta record's stats, so that a view can be checked against the database it is shaded from.
 std::map<std::string, std::string> SceneFingerprint(const Scene& scene, uint64_t seed, int size,
                                                     UpAxis up, bool oriented = true);
+// SceneFingerprint() of the scene that `spec` names (LoadScene()'s), as a view checks it against
+// a database: a mesh file's also records the file as "scene.file", as `pbgi import` does.
+std::map<std::string, std::string> SpecFingerprint(const Scene& scene, const std::string& spec,
+                                                   uint64_t seed, int size, UpAxis up,
+                                                   bool oriented);
 // The lights that baked an imported mesh's surfels ("light.sun": DX,DY,DZ,R,G,B; "light.sky":
 // R,G,B), kept with its fingerprint so that a view of the mesh is lit the same way; and back.
 std::map<std::string, std::string> LightsProvenance(const Lights& lights);

@@ -168,10 +168,9 @@ absl::Status RunViewEval(const ViewEvalArgs& a) {
     db_path = a.db;
     PBGI_ASSIGN_OR_RETURN(std::unique_ptr<Database> built, Database::Open(db_path, {}));
     std::string warning;
-    auto fingerprint = SceneFingerprint(*scene, a.seed, a.size, up, orient);
-    if (fingerprint.count("scene.up") != 0) fingerprint["scene.file"] = a.scene;
-    PBGI_RETURN_IF_ERROR(
-        CheckSceneMatchesDatabase(*scene, fingerprint, built->meta(), db_path, &warning));
+    PBGI_RETURN_IF_ERROR(CheckSceneMatchesDatabase(
+        *scene, SpecFingerprint(*scene, a.scene, a.seed, a.size, up, orient), built->meta(),
+        db_path, &warning));
     if (!warning.empty()) std::fprintf(stderr, "eval --view: warning: %s\n", warning.c_str());
     if (!occlusion && !HasRadiance(built->meta().channels)) {
       return absl::FailedPreconditionError(absl::StrFormat(

@@ -150,9 +150,9 @@ inline float NodeLobeWeight(const LobeCut& l, const glm::vec3& centre, float rad
 
 // Whether a node with projected-area SH `sh_area` and bounds [lo, hi] is flat (see
 // kClusterFlatness): band 0 holds pi Y0 A and band 1 holds (2 pi / 3) Y1 N, for A(w) = sum A_i
-// max(0, n_i.w). A
-// two-sided card, whose pairs cancel in N, is not flat by this test, so the cut refines it like
-// a curved node (the rasterizer still draws it by its plane: raster/cluster_prep.cc AxisPlane).
+// max(0, n_i.w). A two-sided card, whose pairs cancel in N, is not flat by this test, so the cut
+// refines it like a curved node (the rasterizer still draws it by its plane:
+// raster/cluster_prep.cc AxisPlane).
 // Counting a dominant axis of the second moment as flat here too (sh::AxisDominates) also kept
 // thin slabs and wedges of one-sided surfels whole, and doubled cornell's error (docs/eval.md,
 // Session 5 summary). Nor is a node with something standing on it (StandingShift() in

@@ -867,12 +867,12 @@ TEST(FootprintTest, AGrazingPlanesDepthRangeStaysWithinItsElement) {
 }
 
 // Two two-sided walls meeting at a right angle (a thin casing's corner, porous surfels), each
-// on its cells' sides (so no cell holds both), clustered, seen from inside the corner. Their opaque pieces tile the pixels along the
-// seam with complementary coverage masks, but a porous fragment of another facing was composed
-// as an independent leaf, a + b - ab, whatever its mask said: the seam's pixels came out 0.78
-// for 1, and 2CylinderEngine's receivers enclosed by its casing 0.95-0.97 (bug:
-// masked_porous_pieces_composed_as_leaves). With masks on both sides, the fragment adds the
-// share of its samples that the layer does not cover yet, as solid ones do.
+// on its cells' sides (so no cell holds both), clustered, seen from inside the corner. Their opaque
+// pieces tile the pixels along the seam with complementary coverage masks, but a porous fragment of
+// another facing was composed as an independent leaf, a + b - ab, whatever its mask said: the
+// seam's pixels came out 0.78 for 1, and 2CylinderEngine's receivers enclosed by its casing
+// 0.95-0.97 (bug: masked_porous_pieces_composed_as_leaves). With masks on both sides, the fragment
+// adds the share of its samples that the layer does not cover yet, as solid ones do.
 TEST(FootprintTest, TwoSidedWallsMeetingAtACornerTileTheSeam) {
   const float side = 2.0f, pitch = 0.05f;
   std::vector<Surfel> surfels;
