@@ -29,14 +29,15 @@
 namespace pbgi {
 
 using internal::AbsMax;
+using internal::BelowCurvedBoxCut;
 using internal::BelowPlainCut;
 using internal::CachedPage;
 using internal::DecodedPage;
 using internal::NodeBeyondMargin;
 using internal::NodeCutCosine;
 using internal::NodeHot;
+using internal::NodeIsFlat;
 using internal::NodeMarginOf;
-using internal::NodeMaxSolidAngle;
 using internal::NodeNearFieldSphere;
 using internal::NodeRef;
 using internal::NodeSolidAngleFrom;
@@ -399,6 +400,10 @@ absl::Status Reader::Impl::Gather(const Receiver& receiver, const Cut& cut, Gath
     return absl::InvalidArgumentError(
         absl::StrFormat("Gather: Cut.curved_scale = %g: must be in (0, 1]", cut.curved_scale));
   }
+  if (!(cut.curved_box_scale >= 0.0f && std::isfinite(cut.curved_box_scale))) {
+    return absl::InvalidArgumentError(absl::StrFormat(
+        "Gather: Cut.curved_box_scale = %g: must be finite and >= 0", cut.curved_box_scale));
+  }
   if (absl::Status s = ValidateCutLobe(cut.lobe); !s.ok()) {
     return absl::InvalidArgumentError(absl::StrCat("Gather: ", s.message()));
   }
@@ -416,6 +421,9 @@ absl::Status Reader::Impl::Traverse(const glm::vec3& p, const glm::vec3& n, cons
   const float max_d = cut.max_distance;
   const bool check_distance = std::isfinite(max_d);
   const float p_abs_max = AbsMax(p);
+  // Whether a node's flatness matters (Cut::curved_scale, Cut::curved_box_scale).
+  const bool need_flat = cut.curved_scale != 1.0f || cut.curved_box_scale > 0.0f;
+  const float curved_max_sa = cut.max_solid_angle * cut.curved_scale;
   // The corner of every node farthest along n (NodeWhollyBehindMargin's choice, as indices).
   const uint32_t far_word[3] = {n.x > 0 ? 4u : 0u, n.y > 0 ? 5u : 1u, n.z > 0 ? 6u : 2u};
 
@@ -456,15 +464,22 @@ absl::Status Reader::Impl::Traverse(const glm::vec3& p, const glm::vec3& n, cons
       ++q.nodes_culled;
       continue;
     }
-    const float max_sa = NodeMaxSolidAngle(cut, node.sh_area.data(), node.lo, node.hi);
+    // NodeMaxSolidAngle, with the flatness that the curved-box test needs too.
+    const bool flat = !need_flat || NodeIsFlat(node.sh_area.data(), node.lo, node.hi);
+    const float max_sa = flat ? cut.max_solid_angle : curved_max_sa;
+    const auto cosine = [&] { return NodeCutCosine(node.near_centre, node.near_radius2, p, n); };
     if (!NodeNearFieldSphere(node.near_centre, node.near_radius2, p) &&
         (kLobe ? BelowLobeCut(node, p, max_sa, lobe)
                : ClearlyBelowCut(node, p, max_sa) ||
                      BelowPlainCut(NodeSolidAngleFrom(node.centre, node.sh_area.data(), p), max_sa,
-                                   cosine_weighted, [&] {
-                                     return NodeCutCosine(node.near_centre, node.near_radius2, p,
-                                                          n);
-                                   }))) {
+                                   cosine_weighted, cosine)) &&
+        BelowCurvedBoxCut(cut, flat, node.centre, node.lo, node.hi, p, [&] {
+          if constexpr (kLobe) {
+            return internal::NodeLobeWeight(lobe, node.near_centre, node.near_radius2, p);
+          } else {
+            return cosine_weighted ? cosine() : 1.0f;
+          }
+        })) {
       // Built in place (C++20 aggregate initialization): no zeroing of ~200 bytes first.
       const float area = page->areas[slot];
 #if defined(__cpp_aggregate_paren_init)

@@ -11,13 +11,16 @@
 namespace pbgi::testing {
 namespace {
 
+using internal::BelowCurvedBoxCut;
 using internal::BelowCut;
 using internal::LobeCut;
 using internal::MakeLobeCut;
 using internal::NearSphere;
 using internal::NodeBeyond;
+using internal::NodeBoxSolidAngleFrom;
 using internal::NodeCut;
 using internal::NodeCutCosine;
+using internal::NodeIsFlat;
 using internal::NodeLobeWeight;
 using internal::NodeNearField;
 using internal::NodeNearSphere;
@@ -121,6 +124,16 @@ absl::Status CheckValidCut(const Gathered& result, absl::Span<const Surfel> surf
                           "the cut",
                           name, sa, cosine(), lobe.active ? lobe_weight() : 1.0f));
     }
+    const bool flat = NodeIsFlat(cl.sh_area.data(), cl.bounds.lo, cl.bounds.hi);
+    const glm::vec3 centre = 0.5f * (cl.bounds.lo + cl.bounds.hi);
+    const auto box_weight = [&] {
+      return lobe.active ? lobe_weight() : cut.cosine_weighted ? cosine() : 1.0f;
+    };
+    if (!BelowCurvedBoxCut(cut, flat, centre, cl.bounds.lo, cl.bounds.hi, p, box_weight)) {
+      return fail(absl::StrFormat(
+          "%s is not flat and its box subtends %g sr (weight %g), not below the curved-box cut",
+          name, NodeBoxSolidAngleFrom(centre, cl.bounds.lo, cl.bounds.hi, p), box_weight()));
+    }
     if (NodeWhollyBehind(cl.bounds.lo, cl.bounds.hi, reach, p, nrm)) {
       return fail(name + " lies wholly behind the tangent plane");
     }
@@ -172,7 +185,11 @@ absl::Status CheckFinerCutNotSmaller(const Gathered& coarse, const Gathered& fin
   };
   if (fine_cut.max_solid_angle > coarse_cut.max_solid_angle ||
       fine_cut.max_solid_angle * fine_cut.curved_scale >
-          coarse_cut.max_solid_angle * coarse_cut.curved_scale) {
+          coarse_cut.max_solid_angle * coarse_cut.curved_scale ||
+      (coarse_cut.curved_box_scale > 0.0f &&
+       !(fine_cut.curved_box_scale > 0.0f &&
+         fine_cut.max_solid_angle * fine_cut.curved_box_scale <=
+             coarse_cut.max_solid_angle * coarse_cut.curved_box_scale))) {
     return absl::InvalidArgumentError("CheckFinerCutNotSmaller: fine_cut is coarser");
   }
   const uint64_t n = surfels.size();

@@ -38,6 +38,10 @@ absl::Status Validate(absl::Span<const ShadeReceiver> receivers, const ShadeOpti
     return absl::InvalidArgumentError(
         absl::StrFormat("Cut.curved_scale = %g: must be in (0, 1]", options.cut.curved_scale));
   }
+  if (!(options.cut.curved_box_scale >= 0.0f && std::isfinite(options.cut.curved_box_scale))) {
+    return absl::InvalidArgumentError(absl::StrFormat(
+        "Cut.curved_box_scale = %g: must be finite and >= 0", options.cut.curved_box_scale));
+  }
   PBGI_RETURN_IF_ERROR(ValidateCutLobe(options.cut.lobe));
   PBGI_RETURN_IF_ERROR(ValidateRasterOptions(options.raster));
   for (size_t i = 0; i < receivers.size(); ++i) {

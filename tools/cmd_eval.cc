@@ -55,6 +55,7 @@ struct EvalArgs {
   std::vector<std::string> cuts = {"cosine"};
   std::vector<std::string> footprints = {"polygons"};  // RasterOptions::footprint
   float curved_scale = 0.3f;                           // Cut::curved_scale
+  float curved_box_scale = 1.0f;                       // Cut::curved_box_scale
   float lobe_min_weight = CutLobe{}.min_weight;        // CutLobe::min_weight (--cuts lobe)
   std::string memory = "auto";
   std::string cache = "auto";
@@ -369,6 +370,7 @@ ShadeOptions EvalShadeOptions(const EvalArgs& a, const EvalSetup& e, float msa, 
                               const std::string& cut) {
   ShadeOptions so;
   so.cut.curved_scale = a.curved_scale;
+  so.cut.curved_box_scale = a.curved_box_scale;
   so.cut.lobe.min_weight = a.lobe_min_weight;
   so.raster.footprint = ParseFootprint(a.footprints.front());
   so.threads = e.threads;
@@ -913,6 +915,11 @@ CommandSetup Setup() {
                     "max solid angle")
         ->check(CLI::Range(1e-3f, 1.0f))
         ->capture_default_str();
+    app->add_option("--curved-box-scale", a->curved_box_scale,
+                    "Cut::curved_box_scale: curved nodes are taken whole only when their box, "
+                    "too, subtends below this times the max solid angle (0: off)")
+        ->check(CLI::Range(0.0f, 1e3f))
+        ->capture_default_str();
     app->add_option("--memory", a->memory, "Memory cap of the build, with a unit (512M), or auto")
         ->check(BudgetValidator())
         ->capture_default_str();
@@ -1029,6 +1036,7 @@ CommandSetup Setup() {
       if (app->count("--cuts")) v.cuts = a->cuts;
       v.footprints = a->footprints;
       v.curved_scale = a->curved_scale;
+      v.curved_box_scale = a->curved_box_scale;
       v.width = a->width;
       v.height = a->height;
       v.window = a->window;

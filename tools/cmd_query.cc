@@ -298,6 +298,7 @@ absl::Status Run(const Args& a) {
   ShadeOptions so;
   ApplyFootprintFlags(a.footprint, &so);
   cut.curved_scale = so.cut.curved_scale;
+  cut.curved_box_scale = so.cut.curved_box_scale;
   const Receiver receiver{p, glm::normalize(n)};
   PBGI_ASSIGN_OR_RETURN(QueryRun q, GatherColdAndWarm(*reader, receiver, cut));
   // The values `pbgi shade` writes for this receiver, from the same cut.

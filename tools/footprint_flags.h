@@ -1,6 +1,7 @@
 // The flags that choose how `pbgi shade`, `demo` and `eval` draw the gathered elements
-// (RasterOptions::footprint) and how finely the cut takes curved nodes (Cut::curved_scale).
-// The commands default to footprints that tile with curved_scale 0.3 (docs/eval.md, "Session 4").
+// (RasterOptions::footprint) and how finely the cut takes curved nodes (Cut::curved_scale,
+// Cut::curved_box_scale). The commands default to footprints that tile with curved_scale 0.3
+// (docs/eval.md, "Session 4") and curved_box_scale 1 ("Session 13").
 #ifndef PBGI_TOOLS_FOOTPRINT_FLAGS_H_
 #define PBGI_TOOLS_FOOTPRINT_FLAGS_H_
 
@@ -20,6 +21,7 @@ inline Footprint ParseFootprint(const std::string& name) {
 struct FootprintFlags {
   std::string footprint = "polygons";  // or "splats"
   float curved_scale = 0.3f;
+  float curved_box_scale = 1.0f;
 };
 
 inline void AddFootprintFlags(CLI::App* app, FootprintFlags* f) {
@@ -32,11 +34,17 @@ inline void AddFootprintFlags(CLI::App* app, FootprintFlags* f) {
                   "Curved nodes are taken whole only below this times the max solid angle")
       ->check(CLI::Range(1e-3f, 1.0f))
       ->capture_default_str();
+  app->add_option("--curved-box-scale", f->curved_box_scale,
+                  "Curved nodes are taken whole only when their box, too, subtends below this "
+                  "times the max solid angle (0: off)")
+      ->check(CLI::Range(0.0f, 1e3f))
+      ->capture_default_str();
 }
 
 inline void ApplyFootprintFlags(const FootprintFlags& f, ShadeOptions* options) {
   options->raster.footprint = ParseFootprint(f.footprint);
   options->cut.curved_scale = f.curved_scale;
+  options->cut.curved_box_scale = f.curved_box_scale;
 }
 
 }  // namespace pbgi::tools

@@ -410,6 +410,7 @@ absl::Status RunViewEval(const ViewEvalArgs& a) {
             so.raster.compute_radiance = !occlusion;
             so.raster.hitsides = sides;
             so.cut.curved_scale = a.curved_scale;
+            so.cut.curved_box_scale = a.curved_box_scale;
             so.raster.footprint = ParseFootprint(footprint);
             if (glossy) {
               so.raster.lobe = a.lobe.lobe;
@@ -473,6 +474,9 @@ absl::Status RunViewEval(const ViewEvalArgs& a) {
               label += " splats";
             }
             if (a.curved_scale != 1.0f) label += absl::StrFormat(" curved %g", a.curved_scale);
+            if (a.curved_box_scale != 1.0f) {
+              label += absl::StrFormat(" box %g", a.curved_box_scale);
+            }
             if (m.shared) {
               tag += absl::StrFormat("_shared%s_s%d_t%g", a.layout == "image" ? "" : "pts",
                                      m.spacing, m.tolerance);
@@ -521,14 +525,14 @@ absl::Status RunViewEval(const ViewEvalArgs& a) {
             add_json(absl::StrFormat(
                 "{\"setting\": \"%s\", \"method\": \"pbgi\", \"mode\": \"%s\", "
                 "\"max_solid_angle\": %g, \"raster_res\": %d, \"cut\": \"%s\", "
-                "\"footprint\": \"%s\", \"curved_scale\": %g, "
+                "\"footprint\": \"%s\", \"curved_scale\": %g, \"curved_box_scale\": %g, "
                 "\"spacing\": %d, \"tolerance\": %g, \"us_per_receiver\": %.4g, "
                 "\"thread_us_per_receiver\": %.4g, \"cpu_us_per_receiver\": %.4g, \"shaded\": %d, "
                 "\"interpolated\": %d, "
                 "\"clusters\": %.4g, \"surfels\": %.4g, \"speed_ratio\": %.4g, \"errors\": %s}",
                 tag, m.shared ? (a.layout == "image" ? "shared" : "shared_points") : "exact", msa,
-                res, cut, footprint, a.curved_scale, m.spacing, m.tolerance, us, thread_us, cpu_us,
-                st.shaded, st.interpolated, double(st.query.clusters) / n,
+                res, cut, footprint, a.curved_scale, a.curved_box_scale, m.spacing, m.tolerance, us,
+                thread_us, cpu_us, st.shaded, st.interpolated, double(st.query.clusters) / n,
                 double(st.query.surfels) / n, ref_us > 0 ? ref_us / us : 0.0, ErrorsJson(e)));
           }
         }

@@ -174,6 +174,40 @@ inline float NodeMaxSolidAngle(const Cut& cut, const float* sh_area, const glm::
   if (cut.curved_scale == 1.0f || NodeIsFlat(sh_area, lo, hi)) return cut.max_solid_angle;
   return cut.max_solid_angle * cut.curved_scale;
 }
+// The curved-box test (Cut::curved_box_scale): a node that is not flat is drawn as its box
+// (raster/footprints.cc, BoxSilhouette), its content's projected area spread evenly over the
+// box's silhouette. So besides the SH test, such a node is taken whole only when that silhouette
+// is small too: BoxProjectedArea(lo, hi, w) / d^2, times the same weight as the SH test (1, the
+// cosine or the lobe weight), below curved_box_scale * max_solid_angle. A wall's cell that also
+// holds a piece of a block beside it is seen nearly edge-on from a receiver on the wall: a small
+// projected area, but a box that covers a large part of the hemisphere, drawn translucent
+// (docs/design.md, "The curved-box test").
+// The area of the silhouette of the box [lo, hi] seen from unit direction w:
+// |w.x| * ey * ez + |w.y| * ex * ez + |w.z| * ex * ey.
+inline float BoxProjectedArea(const glm::vec3& lo, const glm::vec3& hi, const glm::vec3& w) {
+  const glm::vec3 e = hi - lo;
+  return std::fabs(w.x) * (e.y * e.z) + std::fabs(w.y) * (e.x * e.z) + std::fabs(w.z) * (e.x * e.y);
+}
+// The solid angle of that silhouette from p, the box's centre `centre` (0.5f * (lo + hi)) at
+// distance d: BoxProjectedArea / d^2 (infinite when p is the centre).
+inline float NodeBoxSolidAngleFrom(const glm::vec3& centre, const glm::vec3& lo,
+                                   const glm::vec3& hi, const glm::vec3& p) {
+  const glm::vec3 v = p - centre;
+  const float d2 = glm::dot(v, v);
+  if (!(d2 > 0.0f)) return std::numeric_limits<float>::infinity();
+  return BoxProjectedArea(lo, hi, v / std::sqrt(d2)) / d2;
+}
+// Whether a node passes the curved-box test: flat nodes and curved_box_scale 0 always do;
+// `weight` is the SH test's weight (called only when needed).
+template <typename WeightFn>
+inline bool BelowCurvedBoxCut(const Cut& cut, bool flat, const glm::vec3& centre,
+                              const glm::vec3& lo, const glm::vec3& hi, const glm::vec3& p,
+                              WeightFn&& weight) {
+  if (flat || !(cut.curved_box_scale > 0.0f)) return true;
+  return NodeBoxSolidAngleFrom(centre, lo, hi, p) * weight() <
+         cut.curved_box_scale * cut.max_solid_angle;
+}
+
 inline Cut NodeCut(const Cut& cut, const float* sh_area, const glm::vec3& lo, const glm::vec3& hi) {
   Cut c = cut;
   c.max_solid_angle = NodeMaxSolidAngle(cut, sh_area, lo, hi);

@@ -150,6 +150,7 @@ int Run(const Args& a) {
   cut.max_solid_angle = a.msa;
   cut.cosine_weighted = true;
   cut.curved_scale = 0.3f;
+  cut.curved_box_scale = 1.0f;
   RasterOptions ro;
   ro.resolution = a.res;
   ro.footprint = Footprint::kPolygons;

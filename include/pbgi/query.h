@@ -139,6 +139,13 @@ struct Cut {
   // A flat cluster is drawn exactly (its plane); a curved one only approximately (its box), so
   // refining just the curved nodes buys accuracy where it is lost (docs/eval.md).
   float curved_scale = 1.0f;
+  // A node that is not flat is drawn as its box, its projected area spread evenly over the
+  // box's silhouette; so it is taken whole only when that silhouette, too, subtends (times the
+  // same cosine or lobe weight) below curved_box_scale * max_solid_angle. 0 turns the test off
+  // (the default here; the tools use 1, with polygon footprints). >= 0. A wall's cell that also
+  // holds a piece of a block beside it, seen nearly edge-on from a receiver on the wall, has a
+  // small projected area but a box over much of the hemisphere (docs/design.md).
+  float curved_box_scale = 0.0f;
   // The lobe-aware cut for glossy light (CutLobe): refine a node by how much of the receiver's
   // glossy lobe it covers. With a lobe, a node is accepted when its solid angle times
   // LobeWeight() over its near sphere is below max_solid_angle, instead of the plain (or the

@@ -9,8 +9,9 @@
 //   whose point range covers it), nothing is represented twice, no surfel wholly behind the
 //   tangent plane or beyond max_distance is emitted, and every cluster obeys the cut (the
 //   receiver is outside its near field, its solid angle, with Cut::cosine_weighted times its
-//   cosine weight, with Cut::lobe times its lobe weight, is below max_solid_angle, it is not
-//   wholly behind or beyond, its bounds hold its surfels).
+//   cosine weight, with Cut::lobe times its lobe weight, is below max_solid_angle, and, not
+//   flat, its box too with Cut::curved_box_scale; it is not wholly behind or beyond, its bounds
+//   hold its surfels).
 // - CheckFinerCutNotSmaller checks that a finer cut refines a coarser one and never gathers
 //   fewer elements than the coarse elements that stand for something in front.
 //

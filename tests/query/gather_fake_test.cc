@@ -168,6 +168,60 @@ TEST_P(GatherFakeTest, CurvedScaleRefinesTheCurvedNodesOnly) {
   EXPECT_GT(caught, 10u);
 }
 
+// Cut::curved_box_scale: a curved node is also taken whole only when its box subtends below
+// the scaled max solid angle; flat nodes are kept as they were. The harness checks the gather
+// against the box test (a gather that ignored it fails the check), and the cut refines the one
+// without it.
+TEST_P(GatherFakeTest, CurvedBoxScaleRefinesTheCurvedNodesOnly) {
+  Gathered plain, boxed;
+  Cut plain_cut{0.03f};
+  plain_cut.cosine_weighted = true;
+  plain_cut.curved_scale = 0.3f;
+  Cut box_cut = plain_cut;
+  box_cut.curved_box_scale = 1.0f;
+  size_t more = 0, caught = 0;
+  for (const Receiver& r : Receivers(surfels, 400, 13)) {
+    ASSERT_TRUE(reader->Gather(r, plain_cut, &plain).ok());
+    ASSERT_TRUE(reader->Gather(r, box_cut, &boxed).ok());
+    absl::Status s = testing::CheckValidCut(boxed, surfels, r, box_cut);
+    ASSERT_TRUE(s.ok()) << s;
+    s = testing::CheckFinerCutNotSmaller(plain, boxed, surfels, r, plain_cut, box_cut);
+    ASSERT_TRUE(s.ok()) << s;
+    more += boxed.size() > plain.size();
+    caught += !testing::CheckValidCut(plain, surfels, r, box_cut).ok();
+    for (const Cluster& c : boxed.clusters) {
+      if (internal::NodeIsFlat(c.sh_area.data(), c.bounds.lo, c.bounds.hi)) continue;
+      const glm::vec3 centre = 0.5f * (c.bounds.lo + c.bounds.hi);
+      const internal::NearSphere near =
+          internal::NodeNearSphere(c.bounds.lo, c.bounds.hi, internal::NodeReach(c.area));
+      const glm::vec3 n = glm::normalize(r.normal);
+      EXPECT_LT(internal::NodeBoxSolidAngleFrom(centre, c.bounds.lo, c.bounds.hi, r.position) *
+                    NodeCutCosine(near.centre, near.radius2, r.position, n),
+                box_cut.max_solid_angle);
+    }
+    // Flat clusters of the plain cut (with nothing standing on them) stay whole.
+    size_t flat_plain = 0, flat_kept = 0;
+    for (const Cluster& c : plain.clusters) {
+      if (!internal::NodeIsFlat(c.sh_area.data(), c.bounds.lo, c.bounds.hi)) continue;
+      ++flat_plain;
+      for (const Cluster& d : boxed.clusters) {
+        if (d.first_point == c.first_point && d.point_count == c.point_count) {
+          ++flat_kept;
+          break;
+        }
+      }
+    }
+    EXPECT_EQ(flat_kept, flat_plain);
+  }
+  EXPECT_GT(more, 20u);
+  EXPECT_GT(caught, 10u);
+  // A negative or non-finite scale is refused.
+  Cut bad = box_cut;
+  bad.curved_box_scale = -1.0f;
+  EXPECT_EQ(reader->Gather(Receivers(surfels, 1, 1)[0], bad, &boxed).code(),
+            absl::StatusCode::kInvalidArgument);
+}
+
 // NodeCutCosine against brute force: the largest cosine to the normal over many points of the
 // sphere's surface (where the maximum lies), for spheres all around the receiver.
 TEST(CutCosine, BoundsTheSphereTightlyAndHasItsAnalyticValues) {

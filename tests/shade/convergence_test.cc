@@ -80,6 +80,7 @@ class SceneUnderTest {
     ShadeOptions o;
     o.cut.max_solid_angle = msa;
     o.cut.curved_scale = 0.3f;
+    o.cut.curved_box_scale = 1.0f;
     o.raster.footprint = Footprint::kPolygons;
     o.raster.resolution = resolution;
     o.raster.compute_radiance = false;
