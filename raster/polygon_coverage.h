@@ -190,6 +190,52 @@ inline void Spans(const Poly2& p, int y0, int y1, MaskSpans* s) {
   }
 }
 
+// The samples whose cells a convex polygon overlaps, for an upper bound of what it covers
+// (PixelState::touched): per sample row's band [j, j + 1) / kMaskSide of face-pixel rows
+// [y0, y1], the polygon's x-extent within the band (BandSpans), then per pixel the columns whose
+// cells that extent overlaps (Touched).
+inline void BandSpans(const Poly2& p, int y0, int y1, MaskSpans* s) {
+  s->row0 = y0 * kMaskSide;
+  s->rows = std::min((y1 - y0 + 1) * kMaskSide, kMaxMaskRows);
+  float* xl = s->xl;
+  float* xr = s->xr;
+  for (int j = 0; j < s->rows; ++j) xl[j] = 1e30f, xr[j] = -1e30f;
+  constexpr float kSide = kMaskSide;
+  for (int i = 0; i < p.n; ++i) {
+    const int k = i + 1 == p.n ? 0 : i + 1;
+    float ax = p.x[i], ay = p.y[i], bx = p.x[k], by = p.y[k];
+    if (ay > by) std::swap(ax, bx), std::swap(ay, by);
+    const int j0 = std::max(s->row0, static_cast<int>(std::floor(ay * kSide)));
+    const int j1 = std::min(s->row0 + s->rows - 1, static_cast<int>(std::floor(by * kSide)));
+    const float slope = by > ay ? (bx - ax) / (by - ay) : 0.0f;
+    for (int j = j0; j <= j1; ++j) {
+      const float lo = std::max(ay, static_cast<float>(j) / kSide);
+      const float hi = std::min(by, static_cast<float>(j + 1) / kSide);
+      const float xa = by > ay ? ax + (lo - ay) * slope : std::min(ax, bx);
+      const float xb = by > ay ? ax + (hi - ay) * slope : std::max(ax, bx);
+      xl[j - s->row0] = std::min({xl[j - s->row0], xa, xb});
+      xr[j - s->row0] = std::max({xr[j - s->row0], xa, xb});
+    }
+  }
+}
+struct TouchedSamples {
+  uint64_t bits;
+};
+inline uint64_t Touched(const MaskSpans& s, int col, int row) {
+  uint64_t m = 0;
+  for (int j = 0; j < kMaskSide; ++j) {
+    const int r = row * kMaskSide + j - s.row0;
+    if (r < 0 || r >= s.rows || s.xl[r] > s.xr[r]) continue;
+    const float a = (s.xl[r] - static_cast<float>(col)) * kMaskSide;
+    const float b = (s.xr[r] - static_cast<float>(col)) * kMaskSide;
+    const int c0 = std::max(0, static_cast<int>(std::floor(a)));
+    const int c1 = std::min(kMaskSide - 1, static_cast<int>(std::ceil(b)) - 1);
+    if (c0 > c1) continue;
+    m |= (((uint64_t{2} << c1) - 1) & ~((uint64_t{1} << c0) - 1)) << (kMaskSide * j);
+  }
+  return m == 0 ? ~uint64_t{0} : m;
+}
+
 // The coverage mask of pixel (col, row), which must lie in the spans' rows: its eight sample
 // rows in eight lanes. Sample column i of the pixel lies at x = col + (i + 0.5) / kMaskSide;
 // a row holds the columns with xl <= x <= xr.
@@ -243,8 +289,12 @@ inline void RasterizePolygonTo(const Polygon& p, int res, std::vector<float>* ac
   using namespace polygon_coverage;  // NOLINT(build/namespaces): this file's own helpers
 
   if (p.n < 3) return;
-  // Whether the sink takes a pixel's coverage mask as a third argument.
-  constexpr bool kMasks = std::is_invocable_v<Sink, uint32_t, float, uint64_t>;
+  // Whether the sink takes a pixel's coverage mask as a third argument, or instead the samples
+  // whose cells the polygon overlaps (Touched).
+  constexpr bool kBoth = std::is_invocable_v<Sink, uint32_t, float, uint64_t, TouchedSamples>;
+  constexpr bool kTouched = std::is_invocable_v<Sink, uint32_t, float, TouchedSamples>;
+  constexpr bool kMasks =
+      kBoth || (!kTouched && std::is_invocable_v<Sink, uint32_t, float, uint64_t>);
   // The face of each vertex; a polygon whose vertices all lie in one face's pyramid lies in it
   // (the pyramid is convex) and needs no clipping.
   int home = -1;
@@ -322,8 +372,10 @@ inline void RasterizePolygonTo(const Polygon& p, int res, std::vector<float>* ac
     // A sink that takes a third argument gets each pixel's coverage mask (the face's sample
     // spans are found for its first partly covered pixel; a pixel that the polygon covers whole
     // holds every sample, most of a large polygon's pixels).
-    MaskSpans spans;
+    MaskSpans spans;  // Spans(), or BandSpans() for a sink of TouchedSamples alone
     bool have_spans = false;
+    [[maybe_unused]] MaskSpans bands;  // BandSpans() for a sink of both
+    [[maybe_unused]] bool have_bands = false;
     auto emit = [&](int col, int row, float area2) {
       const float cov = std::min(1.0f, 0.5f * std::fabs(area2));
       if (!(cov > 1e-6f)) return;
@@ -337,7 +389,29 @@ inline void RasterizePolygonTo(const Polygon& p, int res, std::vector<float>* ac
           }
           mask = Mask(spans, col, row);
         }
-        sink(pixel, cov, mask);
+        if constexpr (kBoth) {
+          uint64_t touched = ~uint64_t{0};
+          if (cov < 1.0f) {
+            if (!have_bands) {
+              BandSpans(whole, y0, y1, &bands);
+              have_bands = true;
+            }
+            touched = Touched(bands, col, row);
+          }
+          sink(pixel, cov, mask, TouchedSamples{touched});
+        } else {
+          sink(pixel, cov, mask);
+        }
+      } else if constexpr (kTouched) {
+        uint64_t touched = ~uint64_t{0};
+        if (cov < 1.0f) {
+          if (!have_spans) {
+            BandSpans(whole, y0, y1, &spans);
+            have_spans = true;
+          }
+          touched = Touched(spans, col, row);
+        }
+        sink(pixel, cov, TouchedSamples{touched});
       } else {
         sink(pixel, cov);
       }

@@ -167,17 +167,22 @@ void Rasterizer::SplatPolygons(const PreparedSplat& s) {
       return RectClosed(first, col0, col1, row0, row1, fr.depth);
     };
     // An opaque polygon's fragments carry their coverage masks (see Layer()). One of lower
-    // opacity covers an unknown part of its pixels' samples: its fragments stay scalar.
+    // opacity covers an unknown part of its pixels' samples: its fragments stay scalar. Both
+    // pass the samples whose cells their footprint overlaps (PixelState::touched).
     if (alpha >= kMaskOpacity) {
-      auto masked = [&](uint32_t pixel, float cov, uint64_t mask) {
-        Emit<kClamp, kRad>(pixel, alpha * cov, fr, mask);
+      auto masked = [&](uint32_t pixel, float cov, uint64_t mask,
+                        polygon_coverage::TouchedSamples t) {
+        Emit<kClamp, kRad>(pixel, alpha * cov, fr, mask, t.bits);
       };
       for (uint32_t k = 0; k < s.poly_count; ++k) {
         RasterizePolygonTo(polys[k], res_, &mb_.accumulation_, masked, skip);
       }
     } else {
+      auto scalar = [&](uint32_t pixel, float cov, polygon_coverage::TouchedSamples t) {
+        Emit<kClamp, kRad>(pixel, alpha * cov, fr, 0, t.bits, /*translucent=*/true);
+      };
       for (uint32_t k = 0; k < s.poly_count; ++k) {
-        RasterizePolygonTo(polys[k], res_, &mb_.accumulation_, emit, skip);
+        RasterizePolygonTo(polys[k], res_, &mb_.accumulation_, scalar, skip);
       }
     }
   } else {
@@ -434,6 +439,7 @@ inline void Rasterizer::Integrate(const ShadeReceiver& r, ShadeResult* out) {
     for (size_t i = 0; i < n; ++i) {
       PixelState& px = px_[hp[i]];
       Close<true>(px, /*behind=*/false, free_layer_);
+      if (bound_) CapByTouched<true>(px);
       sum += __builtin_convertvector(Load4(&px.closed), V4d) * static_cast<double>(w[i]);
       cover += static_cast<double>(std::min(1.0f, px.closed)) * om[i];
     }
@@ -442,6 +448,7 @@ inline void Rasterizer::Integrate(const ShadeReceiver& r, ShadeResult* out) {
     for (size_t i = 0; i < n; ++i) {
       PixelState& px = px_[hp[i]];
       Close<false>(px, /*behind=*/false, free_layer_);
+      if (bound_) CapByTouched<false>(px);
       occ += static_cast<double>(px.closed) * w[i];
       cover += static_cast<double>(std::min(1.0f, px.closed)) * om[i];
     }

@@ -78,11 +78,33 @@ class Rasterizer {
         max_width_(mb->max_width_),
         avx2_(UseAvx2()),
         polygons_(o.footprint == Footprint::kPolygons),
-        free_layer_(!polygons_) {
+        free_layer_(!polygons_),
+        bound_(polygons_ && o.clamp && o.bound_by_footprints) {
     mb->free_layer_ = free_layer_;
   }
 
   absl::Status Run(const Gathered& g, const ShadeReceiver& r, ShadeResult* out);
+
+  // The pixel's coverage is at most the share of its samples that its fragments' footprints
+  // touched (PixelState::touched, RasterOptions::bound_by_footprints), after its last layer
+  // closed: translucent footprints (a
+  // cluster's box, a partly filled plane) count as spread evenly over the pixel, so layers of
+  // them behind each other add up in samples that none of them touches. The far edge of the
+  // city against the void, seen just below a high wall's horizon: every cluster there covers
+  // the lower third of the pixel, rays 0.4, the layers 1.0 (bug: translucent_layers_fill_void).
+  // Only where a translucent polygon contributed: opaque ones compose by their masks already,
+  // and their exact areas need not match their samples' count.
+  template <bool kRad>
+  [[gnu::always_inline]] static void CapByTouched(PixelState& px) {
+    if (px.translucent == 0 || px.touched == ~uint64_t{0}) return;
+    const float cap = static_cast<float>(std::popcount(px.touched)) * (1.0f / 64.0f);
+    if (!(px.closed > cap)) return;
+    if constexpr (kRad) {
+      const float scale = cap / px.closed;
+      for (float& c : px.closed_rgb) c *= scale;
+    }
+    px.closed = cap;
+  }
 
   // `behind`: a fragment wholly behind the layer closes it. The first layer keeps its free sum
   // only when nothing lies behind it (a lone surface whose splats' overlaps and gaps cancel);
@@ -308,7 +330,8 @@ class Rasterizer {
   // hide farther ones (the depth test), see Close(). An open layer's `far` is 0 when it is
   // empty (every depth range ends beyond 0).
   template <bool kClamp, bool kRad>
-  [[gnu::always_inline]] void Emit(uint32_t p, float cov, const Frag& f, uint64_t mask = 0) {
+  [[gnu::always_inline]] void Emit(uint32_t p, float cov, const Frag& f, uint64_t mask = 0,
+                                   uint64_t silhouette = ~uint64_t{0}, bool translucent = false) {
     PixelState& px = px_[p];
     px.depth = std::min(px.depth, f.depth);
     if constexpr (!kClamp) {
@@ -321,7 +344,7 @@ class Rasterizer {
       if (px.closed >= 1.0f) return;
       float lo = f.lo, hi = f.hi;
       if (f.flat) PlaneRange(p, f, &lo, &hi);
-      Layer<kRad>(px, cov, f, lo, hi, mask);
+      Layer<kRad>(px, cov, f, lo, hi, mask, silhouette, translucent);
     }
   }
 
@@ -344,8 +367,13 @@ class Rasterizer {
   // convex edge add up to the pixel, two surfaces that overlap in it count their union, not
   // their sum (bug: overlapping_surfaces_add; the city's walls were +0.01 too dark).
   template <bool kRad>
+  //
+  // `silhouette`: the samples the fragment's footprint touches (an opaque polygon's coverage
+  // mask, the cells a translucent one overlaps; all when unknown), gathered in
+  // PixelState::touched, and whether it is a translucent polygon's: see CapByTouched().
   [[gnu::always_inline]] void Layer(PixelState& px, float cov, const Frag& f, float lo, float hi,
-                                    uint64_t mask = 0) {
+                                    uint64_t mask = 0, uint64_t silhouette = ~uint64_t{0},
+                                    bool translucent = false) {
     // A one-sided fragment seen from behind (hitsides both) behind one seen from the front is
     // the far inside of a closed object showing through its near side's footprints: with them
     // it filled what their opacity left, +0.05 to +0.10 on closed meshes (bug:
@@ -355,6 +383,8 @@ class Rasterizer {
     } else {
       px.front = 1.0f;
     }
+    px.touched |= silhouette;
+    px.translucent |= translucent ? 1u : 0u;
     if (lo > px.far && px.open > 0.0f) {
       Close<kRad>(px, /*behind=*/true, free_layer_);
       ++closes_;
@@ -451,6 +481,7 @@ class Rasterizer {
   uint32_t closes_ = 0;
   const bool polygons_;    // Footprint::kPolygons
   const bool free_layer_;  // !polygons_: the first layer sums freely
+  const bool bound_;       // RasterOptions::bound_by_footprints, with polygons and clamp
 };
 
 }  // namespace pbgi::internal

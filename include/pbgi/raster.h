@@ -117,6 +117,11 @@ struct RasterOptions {
   bool compute_radiance = true;
   ClusterModel cluster_model = ClusterModel::kMoments;
   Footprint footprint = Footprint::kSplats;
+  // With polygon footprints and clamp: a pixel's coverage is at most the share of its 8 x 8
+  // samples that its fragments' footprints touch (PixelState::touched), so that translucent
+  // footprints behind each other cannot fill the part of the pixel that none of them reaches.
+  // Every other fragment (a splat, a near disk) touches all samples.
+  bool bound_by_footprints = true;
   GlossyLobe lobe = GlossyLobe::kNone;
   float phong_exponent = 32.0f;  // >= 0
   float ggx_roughness = 0.2f;    // (0, 1]
@@ -206,8 +211,14 @@ struct alignas(16) PixelState {
   // Rasterizer::Layer()).
   uint64_t open_mask;
   uint64_t closed_mask;
+  // The samples that the fragments' footprints touched (an opaque polygon: its coverage mask;
+  // a translucent one: the samples whose cells it overlaps; every other fragment: all), and
+  // whether a translucent polygon contributed: then the pixel's coverage is at most their
+  // share (RasterOptions::bound_by_footprints, Rasterizer::CapByTouched()).
+  uint64_t touched;
+  uint32_t translucent;
 };
-static_assert(sizeof(PixelState) == 80);  // open_masked fills what was padding before the masks
+static_assert(sizeof(PixelState) == 96);  // translucent fills what was padding
 struct PixelDir {
   float x, y, z;
   float inv_width;   // 1 / (angular width of the pixel)

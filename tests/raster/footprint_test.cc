@@ -917,6 +917,40 @@ TEST(FootprintTest, TwoSidedWallsMeetingAtACornerTileTheSeam) {
   }
 }
 
+// Translucent footprints one behind the other in the same few samples of a pixel: small
+// spheres of one angular radius (2 degrees) on one line of sight, each a curved cluster drawn
+// as its box's silhouette, translucent. Rays meet the nearest sphere's disk only; the solid
+// layers added up behind each other as if each covered another part of the pixel (the city's
+// far edge against the void seen below a high wall's horizon: every cluster there covers the
+// lower third of the pixel, rays 0.4, the layers 1.0; bug: translucent_layers_fill_void). A
+// pixel's coverage is at most the share of its samples that its fragments' footprints touch.
+TEST(FootprintTest, TranslucentLayersStayInTheSamplesTheirFootprintsTouch) {
+  const glm::vec3 d = glm::normalize(glm::vec3(0.31f, 0.17f, 0.9f));
+  const float rho = 2.0f * static_cast<float>(kPi) / 180.0f;
+  Gathered g;
+  for (float dist : {20.0f, 27.0f, 36.0f, 48.0f, 64.0f}) {
+    const float r = dist * std::sin(rho);
+    Cluster c = testing_raster::Aggregate(SphereSurfels(d * dist, r, 400, /*inward=*/false));
+    c.cell.lo = c.bounds.lo - 0.01f * r;
+    c.cell.hi = c.bounds.hi + 0.01f * r;
+    g.clusters.push_back(c);
+  }
+  const double want = CosineShare([&](const glm::dvec3& dir) {
+    return glm::dot(dir, glm::dvec3(d)) >= std::cos(static_cast<double>(rho));
+  });
+  MicroBuffer mb;
+  RasterOptions unbound = Polygons();
+  unbound.bound_by_footprints = false;
+  const double got = MustShade(g, At(glm::vec3(0.0f)), Polygons(), &mb).occlusion;
+  const double without = MustShade(g, At(glm::vec3(0.0f)), unbound, &mb).occlusion;
+  // The spheres' boxes' silhouettes, and the samples they touch, hold more than the disk.
+  EXPECT_GT(got, want);
+  EXPECT_LT(got - want, 0.7 * (without - want));
+  RecordProperty("occlusion", std::to_string(got));
+  RecordProperty("unbound", std::to_string(without));
+  RecordProperty("rays", std::to_string(want));
+}
+
 // A thin pole standing on the ground, both sampled and clustered in cells of 1.2 (the pole's
 // cells hold ground and pole: flat by their mean normal, their boxes 1.2 tall), seen from a
 // receiver on a pole beside it, below the cells' tops, looking along the ground. The flat
