@@ -110,28 +110,18 @@ struct PositionGrid {
     return static_cast<uint32_t>(RoundHalfAway(t));
   }
   // The largest q with Coord(q) <= v (0 when none is): a lower bound rounded down.
-  uint32_t Floor(int axis, float v) const { return FloorFrom(axis, v, Nearest(axis, v)); }
-  // The smallest q with Coord(q) >= v (kGridMax when none is): an upper bound rounded up.
-  uint32_t Ceil(int axis, float v) const { return CeilFrom(axis, v, Nearest(axis, v)); }
-  // Floor and Ceil searched from cell q. The result does not depend on q (Coord is monotone),
-  // only the number of steps does: any q near Nearest(axis, v) will do.
-  uint32_t FloorFrom(int axis, float v, uint32_t q) const {
+  uint32_t Floor(int axis, float v) const {
+    uint32_t q = Nearest(axis, v);
     while (q > 0 && Coord(axis, q) > v) --q;
     while (q < kGridMax && Coord(axis, q + 1) <= v) ++q;
     return q;
   }
-  uint32_t CeilFrom(int axis, float v, uint32_t q) const {
+  // The smallest q with Coord(q) >= v (kGridMax when none is): an upper bound rounded up.
+  uint32_t Ceil(int axis, float v) const {
+    uint32_t q = Nearest(axis, v);
     while (q < kGridMax && Coord(axis, q) < v) ++q;
     while (q > 0 && Coord(axis, q - 1) >= v) --q;
     return q;
-  }
-  // Nearest within a cell or so, multiplied by `inv_step` (1 / step) instead of divided by
-  // step: a start for FloorFrom and CeilFrom without a division per axis.
-  uint32_t Near(int axis, float v, double inv_step) const {
-    const double t = (double{v} - double{origin[axis]}) * inv_step - 0.5;
-    if (!(t > 0.0)) return 0;
-    if (t >= double{kGridMax}) return kGridMax;
-    return static_cast<uint32_t>(RoundHalfAway(t));
   }
 };
 
@@ -314,20 +304,10 @@ inline float EncodeScaled(const float* c, int n, Int* q) {
     for (int k = 0; k < n; ++k) q[k] = 0;
     return std::isfinite(s) ? 0.0f : s;
   }
-  // In double: near kMax a float has too few fraction bits to round to the nearest step. The
-  // stored value is RoundHalfAway(c / s * kMax), two roundings in double. A multiplication by
-  // kMax / s differs from it by a few units in the last place (|c / s| <= 1, so by less than
-  // 1e-11), which changes the rounded result only next to a tie: there the exact expression
-  // is used, and the records stay byte for byte what the division gave (docs/format.md,
-  // "Session 13").
-  const double scale = double{kMax} / double{s};
   for (int k = 0; k < n; ++k) {
-    double t = double{c[k]} * scale;
-    const double a = std::fabs(t);
-    if (std::fabs(a - static_cast<double>(static_cast<int64_t>(a)) - 0.5) < 1e-6) {
-      t = double{c[k]} / double{s} * kMax;
-    }
-    q[k] = static_cast<Int>(std::clamp<int64_t>(RoundHalfAway(t), -kMax, kMax));
+    // In double: near kMax a float has too few fraction bits to round to the nearest step.
+    q[k] = static_cast<Int>(
+        std::clamp<int64_t>(RoundHalfAway(double{c[k]} / double{s} * kMax), -kMax, kMax));
   }
   return s;
 }
@@ -340,15 +320,9 @@ inline void DecodeScaled(float s, const Int* q, int n, float* c) {
 inline void EncodeNodeRecord(const NodeRecordRadiance& r, Channels ch, const PositionGrid& grid,
                              uint8_t* dst) {
   const NodeRecordCommon& c = r.common;
-  // One division for the six bounds (PositionGrid::Near); Floor and Ceil search exactly.
-  const double inv_step = grid.step > 0.0f ? 1.0 / double{grid.step} : 0.0;
-  uint32_t cells[6];
-  for (int a = 0; a < 3; ++a) {
-    cells[a] = grid.FloorFrom(a, c.lo[a], grid.Near(a, c.lo[a], inv_step));
-    cells[3 + a] = grid.CeilFrom(a, c.hi[a], grid.Near(a, c.hi[a], inv_step));
-  }
-  const uint64_t lo = PackCell(cells[0], cells[1], cells[2]);
-  const uint64_t hi = PackCell(cells[3], cells[4], cells[5]);
+  const uint64_t lo =
+      PackCell(grid.Floor(0, c.lo[0]), grid.Floor(1, c.lo[1]), grid.Floor(2, c.lo[2]));
+  const uint64_t hi = PackCell(grid.Ceil(0, c.hi[0]), grid.Ceil(1, c.hi[1]), grid.Ceil(2, c.hi[2]));
   std::memcpy(dst, &lo, 8);
   std::memcpy(dst + 8, &hi, 8);
   const uint64_t first = std::min(c.first_point, kMaxStoredPointIndex);

@@ -68,8 +68,8 @@ TEST(MortonTest, FarFromOriginStillSeparatesPoints) {
 
 TEST(RadixSortTest, MatchesStableSortWithDuplicates) {
   std::mt19937_64 rng(7);
-  // Which bits vary: the MSD pass takes the highest 8 varying bits and the LSD passes the
-  // varying digits below, so include ranges narrower than a digit, gaps, and all 64 bits.
+  // Which bits vary: passes whose digit is the same for every key are skipped, so include
+  // ranges narrower than a digit, gaps, and all 64 bits.
   const std::vector<std::pair<uint64_t, uint64_t>> masks = {
       {0x7fffffffffffffffull, 0x7f000000000000ffull},
       {0xffffffffffffffffull, 0xff00000000000000ull},

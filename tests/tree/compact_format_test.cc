@@ -1,7 +1,6 @@
 // Format version 3's compact records (tree/format.h): every field within its stated bound, node
 // bounds that hold their points after quantization, the two-sided flag, and damaged pages as
 // DataLoss naming the page (tree/decoded_page.h).
-#include <algorithm>
 #include <cmath>
 #include <cstring>
 #include <limits>
@@ -85,78 +84,6 @@ TEST(CompactFormatTest, RoundHalfAwayIsLlround) {
     xs.push_back(std::floor(u(rng)) + 0.5);
   }
   for (double x : xs) EXPECT_EQ(RoundHalfAway(x), std::llround(x)) << std::hexfloat << x;
-}
-
-// EncodeScaled multiplies by kMax / s and falls back to the division next to a tie
-// (docs/format.md, "Session 13"): the codes must be those of RoundHalfAway(c / s * kMax).
-template <typename Int, int kMax>
-void ExpectScaledAsDivided(const float* c, int n) {
-  float s = 0.0f;
-  for (int k = 0; k < n; ++k) s = std::max(s, std::fabs(c[k]));
-  Int q[9];
-  const float scale = EncodeScaled<Int, kMax>(c, n, q);
-  ASSERT_EQ(scale, s);
-  for (int k = 0; k < n; ++k) {
-    const int64_t want = std::clamp<int64_t>(
-        std::llround(static_cast<double>(c[k]) / static_cast<double>(s) * kMax), -kMax, kMax);
-    ASSERT_EQ(q[k], want) << std::hexfloat << c[k] << " / " << s;
-  }
-}
-
-TEST(CompactFormatTest, ScaledCodesAreThoseOfTheDivision) {
-  std::mt19937 rng(13);
-  std::uniform_real_distribution<float> u(-1.0f, 1.0f);
-  std::uniform_int_distribution<int> e(-40, 40);
-  for (int i = 0; i < 200000; ++i) {
-    float c[9];
-    const float m = std::ldexp(1.0f, e(rng));
-    for (float& x : c) x = u(rng) * m;
-    ExpectScaledAsDivided<int16_t, 32767>(c, 9);
-    ExpectScaledAsDivided<int8_t, 127>(c, 9);
-  }
-  // Ties and their neighbours: c / s * kMax at or next to k + 0.5.
-  for (float s : {1.0f, 3.0f, 0.1f, 7.5e-3f, 1e30f}) {
-    for (int k = 0; k < 32767; k += 97) {
-      for (int kmax : {32767, 127}) {
-        const double tie = (k % kmax + 0.5) / kmax * s;
-        for (double x : {tie, std::nextafter(tie, 0.0), std::nextafter(tie, 1e300)}) {
-          const float c[2] = {s, static_cast<float>(x)};
-          const float d[2] = {-s, -static_cast<float>(x)};
-          ExpectScaledAsDivided<int16_t, 32767>(c, 2);
-          ExpectScaledAsDivided<int8_t, 127>(c, 2);
-          ExpectScaledAsDivided<int16_t, 32767>(d, 2);
-          ExpectScaledAsDivided<int8_t, 127>(d, 2);
-        }
-      }
-    }
-  }
-}
-
-TEST(CompactFormatTest, FloorAndCeilFromTheMultipliedGuessAreExact) {
-  std::mt19937 rng(14);
-  std::uniform_real_distribution<float> u(-1.5f, 1.5f);
-  for (float size : {1.0f, 1e-3f, 250.0f, 3e5f}) {
-    // Offsets within the builder's range (build/input_range.h): a grid far from the origin
-    // whose cells are finer than a float step makes every search long, whatever its start.
-    for (float offset : {0.0f, -17.25f * size, 3.0f * size}) {
-      Bounds b;
-      b.Extend(glm::vec3(offset));
-      b.Extend(glm::vec3(offset + size));
-      const PositionGrid g = GridOfCube(MortonCube(b));
-      const double inv = 1.0 / double{g.step};
-      for (int i = 0; i < 20000; ++i) {
-        const int a = i % 3;
-        // Cell centres (what the builder's bounds are), their neighbours, and anything.
-        float v = offset + size * (0.5f + u(rng) * 0.5f);
-        if (i % 4 == 0) v = g.Coord(a, static_cast<uint32_t>(rng() & kGridMax));
-        if (i % 4 == 1)
-          v = std::nextafter(g.Coord(a, static_cast<uint32_t>(rng() & kGridMax)), 0.0f);
-        if (i % 8 == 2) v = offset + size * u(rng) * 4.0f;  // outside the grid too
-        ASSERT_EQ(g.FloorFrom(a, v, g.Near(a, v, inv)), g.Floor(a, v)) << v;
-        ASSERT_EQ(g.CeilFrom(a, v, g.Near(a, v, inv)), g.Ceil(a, v)) << v;
-      }
-    }
-  }
 }
 
 TEST(CompactFormatTest, RecordSizes) {
