@@ -5,6 +5,7 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <array>
 #include <cerrno>
 #include <cstring>
 #include <utility>
@@ -16,8 +17,8 @@
 namespace pbgi::internal {
 namespace {
 
-constexpr int kDigitBits = 13;  // 8192 64-bit counters per pass stay in L2
-constexpr int kPasses = 5;      // 65 bits >= 63
+constexpr int kDigitBits = 8;  // 256 places to scatter to: their cache lines stay in L1
+constexpr int kMaxDigits = 8;  // 64 bits
 constexpr size_t kBuckets = size_t{1} << kDigitBits;
 constexpr uint64_t kMinMergeBufferBytes = 64 << 10;
 constexpr size_t kWriteChunkRecords = 4096;
@@ -72,32 +73,62 @@ absl::Status ReadAll(int fd, void* data, size_t bytes, uint64_t offset, const st
 KeyIndex* RadixSortKeyIndex(absl::Span<KeyIndex> pairs, absl::Span<KeyIndex> scratch) {
   const size_t n = pairs.size();
   if (n < 2) return pairs.data();
-  std::vector<uint64_t> counts(kPasses * kBuckets, 0);
+  uint64_t any = 0, every = ~uint64_t{0};
   for (const KeyIndex& p : pairs) {
-    uint64_t k = p.key;
-    for (int d = 0; d < kPasses; ++d) {
-      ++counts[d * kBuckets + ((k >> (d * kDigitBits)) & (kBuckets - 1))];
+    any |= p.key;
+    every &= p.key;
+  }
+  const uint64_t varying = any ^ every;  // bits that differ between keys: the others never sort
+  if (varying == 0) return pairs.data();
+  // One stable pass on the highest 8 varying bits splits the run into 256 buckets of
+  // consecutive output, from `pairs` into `scratch`. A bucket is small enough to stay in the
+  // cache while the digits below (8 bits each, those with a varying bit only) sort it from the
+  // lowest up, within the bucket's range of both arrays. Passes of 13-bit digits over the whole
+  // run cost as much alone, but more next to the thread that reads the input through the same
+  // caches (docs/format.md, "Session 13").
+  const int top = std::max(64 - __builtin_clzll(varying) - kDigitBits, 0);
+  std::array<size_t, kBuckets + 1> start{};
+  for (const KeyIndex& p : pairs) ++start[((p.key >> top) & (kBuckets - 1)) + 1];
+  for (size_t b = 0; b < kBuckets; ++b) start[b + 1] += start[b];
+  std::array<size_t, kBuckets> next;
+  std::copy(start.begin(), start.begin() + kBuckets, next.begin());
+  for (const KeyIndex& p : pairs) scratch[next[(p.key >> top) & (kBuckets - 1)]++] = p;
+
+  const uint64_t below = varying & ((uint64_t{1} << top) - 1);
+  int shifts[kMaxDigits];
+  int digits = 0;
+  for (int shift = below == 0 ? top : __builtin_ctzll(below); shift < top; shift += kDigitBits) {
+    if ((below >> shift) & (kBuckets - 1)) shifts[digits++] = shift;
+  }
+  std::array<std::array<size_t, kBuckets>, kMaxDigits> counts;
+  for (size_t b = 0; b < kBuckets; ++b) {
+    const size_t lo = start[b], m = start[b + 1] - lo;
+    if (m == 0) continue;
+    KeyIndex* src = scratch.data() + lo;
+    KeyIndex* dst = pairs.data() + lo;
+    for (int d = 0; d < digits; ++d) counts[d].fill(0);
+    for (size_t i = 0; i < m; ++i) {
+      const uint64_t k = src[i].key;
+      for (int d = 0; d < digits; ++d) ++counts[d][(k >> shifts[d]) & (kBuckets - 1)];
+    }
+    for (int d = 0; d < digits; ++d) {
+      size_t* c = counts[d].data();
+      size_t sum = 0;
+      for (size_t x = 0; x < kBuckets; ++x) {
+        const size_t t = c[x];
+        c[x] = sum;
+        sum += t;
+      }
+      const int shift = shifts[d];
+      for (size_t i = 0; i < m; ++i) {
+        const KeyIndex& p = src[i];
+        dst[c[(p.key >> shift) & (kBuckets - 1)]++] = p;
+      }
+      std::swap(src, dst);
     }
   }
-  KeyIndex* src = pairs.data();
-  KeyIndex* dst = scratch.data();
-  for (int d = 0; d < kPasses; ++d) {
-    uint64_t* c = &counts[d * kBuckets];
-    const int shift = d * kDigitBits;
-    if (c[(src[0].key >> shift) & (kBuckets - 1)] == n) continue;  // one bucket: no-op pass
-    uint64_t sum = 0;
-    for (size_t b = 0; b < kBuckets; ++b) {
-      uint64_t t = c[b];
-      c[b] = sum;
-      sum += t;
-    }
-    for (size_t i = 0; i < n; ++i) {
-      const KeyIndex& p = src[i];
-      dst[c[(p.key >> shift) & (kBuckets - 1)]++] = p;
-    }
-    std::swap(src, dst);
-  }
-  return src;
+  // Every bucket took the same number of passes, so all of them end in the same array.
+  return digits % 2 == 0 ? scratch.data() : pairs.data();
 }
 
 // Streams one spilled run through a buffer: raw runs straight into SortRecords; compact runs
