@@ -284,6 +284,7 @@ absl::StatusOr<BuildStats> BuildToSink(SurfelSource& source, PageSink& sink,
   if (CompactSpill(options)) {
     sort_options.compact = SpillCodec{options.channels, GridOfCube(MortonCube(bounds))};
     sort_options.packed_input = true;
+    sort_options.packed_output = true;
   }
   ExternalSorter::RunsWritten runs_written;
   if (!run_dir.empty() && !resume) {
@@ -379,6 +380,7 @@ absl::StatusOr<BuildStats> BuildToSink(SurfelSource& source, PageSink& sink,
   packer.set_upper_limit_bytes(plan.upper_bytes);
   PointPageWriter points(options.channels, &sink, grid);
   points.set_input_quantized(sorter.output_quantized());
+  points.set_input_packed(sorter.output_packed());
   OctreeBuilder octree(options.leaf_size, options.channels, &points, &packer);
   const bool estimate = options.estimate.radius || options.estimate.normals;
   NeighbourEstimator estimator(options.estimate, bounds);

@@ -5,6 +5,7 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <array>
 #include <cerrno>
 #include <cstring>
 #include <utility>
@@ -16,8 +17,8 @@
 namespace pbgi::internal {
 namespace {
 
-constexpr int kDigitBits = 13;  // 8192 64-bit counters per pass stay in L2
-constexpr int kPasses = 5;      // 65 bits >= 63
+constexpr int kDigitBits = 8;  // 256 places to scatter to: their cache lines stay in L1
+constexpr int kMaxDigits = 8;  // 64 bits
 constexpr size_t kBuckets = size_t{1} << kDigitBits;
 constexpr uint64_t kMinMergeBufferBytes = 64 << 10;
 constexpr size_t kWriteChunkRecords = 4096;
@@ -72,41 +73,71 @@ absl::Status ReadAll(int fd, void* data, size_t bytes, uint64_t offset, const st
 KeyIndex* RadixSortKeyIndex(absl::Span<KeyIndex> pairs, absl::Span<KeyIndex> scratch) {
   const size_t n = pairs.size();
   if (n < 2) return pairs.data();
-  std::vector<uint64_t> counts(kPasses * kBuckets, 0);
+  uint64_t any = 0, every = ~uint64_t{0};
   for (const KeyIndex& p : pairs) {
-    uint64_t k = p.key;
-    for (int d = 0; d < kPasses; ++d) {
-      ++counts[d * kBuckets + ((k >> (d * kDigitBits)) & (kBuckets - 1))];
+    any |= p.key;
+    every &= p.key;
+  }
+  const uint64_t varying = any ^ every;  // bits that differ between keys: the others never sort
+  if (varying == 0) return pairs.data();
+  // One stable pass on the highest 8 varying bits splits the run into 256 buckets of
+  // consecutive output, from `pairs` into `scratch`. A bucket is small enough to stay in the
+  // cache while the digits below (8 bits each, those with a varying bit only) sort it from the
+  // lowest up, within the bucket's range of both arrays. Passes of 13-bit digits over the whole
+  // run cost as much alone, but more next to the thread that reads the input through the same
+  // caches (docs/format.md, "Session 13").
+  const int top = std::max(64 - __builtin_clzll(varying) - kDigitBits, 0);
+  std::array<size_t, kBuckets + 1> start{};
+  for (const KeyIndex& p : pairs) ++start[((p.key >> top) & (kBuckets - 1)) + 1];
+  for (size_t b = 0; b < kBuckets; ++b) start[b + 1] += start[b];
+  std::array<size_t, kBuckets> next;
+  std::copy(start.begin(), start.begin() + kBuckets, next.begin());
+  for (const KeyIndex& p : pairs) scratch[next[(p.key >> top) & (kBuckets - 1)]++] = p;
+
+  const uint64_t below = varying & ((uint64_t{1} << top) - 1);
+  int shifts[kMaxDigits];
+  int digits = 0;
+  for (int shift = below == 0 ? top : __builtin_ctzll(below); shift < top; shift += kDigitBits) {
+    if ((below >> shift) & (kBuckets - 1)) shifts[digits++] = shift;
+  }
+  std::array<std::array<size_t, kBuckets>, kMaxDigits> counts;
+  for (size_t b = 0; b < kBuckets; ++b) {
+    const size_t lo = start[b], m = start[b + 1] - lo;
+    if (m == 0) continue;
+    KeyIndex* src = scratch.data() + lo;
+    KeyIndex* dst = pairs.data() + lo;
+    for (int d = 0; d < digits; ++d) counts[d].fill(0);
+    for (size_t i = 0; i < m; ++i) {
+      const uint64_t k = src[i].key;
+      for (int d = 0; d < digits; ++d) ++counts[d][(k >> shifts[d]) & (kBuckets - 1)];
+    }
+    for (int d = 0; d < digits; ++d) {
+      size_t* c = counts[d].data();
+      size_t sum = 0;
+      for (size_t x = 0; x < kBuckets; ++x) {
+        const size_t t = c[x];
+        c[x] = sum;
+        sum += t;
+      }
+      const int shift = shifts[d];
+      for (size_t i = 0; i < m; ++i) {
+        const KeyIndex& p = src[i];
+        dst[c[(p.key >> shift) & (kBuckets - 1)]++] = p;
+      }
+      std::swap(src, dst);
     }
   }
-  KeyIndex* src = pairs.data();
-  KeyIndex* dst = scratch.data();
-  for (int d = 0; d < kPasses; ++d) {
-    uint64_t* c = &counts[d * kBuckets];
-    const int shift = d * kDigitBits;
-    if (c[(src[0].key >> shift) & (kBuckets - 1)] == n) continue;  // one bucket: no-op pass
-    uint64_t sum = 0;
-    for (size_t b = 0; b < kBuckets; ++b) {
-      uint64_t t = c[b];
-      c[b] = sum;
-      sum += t;
-    }
-    for (size_t i = 0; i < n; ++i) {
-      const KeyIndex& p = src[i];
-      dst[c[(p.key >> shift) & (kBuckets - 1)]++] = p;
-    }
-    std::swap(src, dst);
-  }
-  return src;
+  // Every bucket took the same number of passes, so all of them end in the same array.
+  return digits % 2 == 0 ? scratch.data() : pairs.data();
 }
 
 // Streams one spilled run through a buffer: raw runs straight into SortRecords; compact runs
-// (`dec`) through a byte buffer, one block decoded at a time.
+// (`dec`) through a byte buffer, one block decoded at a time (`packed`: into packed records).
 class ExternalSorter::RunReader {
  public:
   RunReader(Run run, size_t buffer_records, const std::string* dir, SpillBlockReader* dec,
-            const SpillCodec* codec)
-      : run_(run), dir_(dir), dec_(dec), codec_(codec) {
+            const SpillCodec* codec, bool packed)
+      : run_(run), dir_(dir), dec_(dec), codec_(codec), packed_(packed) {
     if (dec_ == nullptr) {
       cap_ = std::max<size_t>(buffer_records, 1);
     } else {
@@ -198,7 +229,7 @@ class ExternalSorter::RunReader {
     PBGI_RETURN_IF_ERROR(Want(kSpillBlockHeaderBytes + frame));
     PBGI_RETURN_IF_ERROR(
         dec_->Decode(absl::Span<const uint8_t>(io_.get() + io_pos_ + kSpillBlockHeaderBytes, frame),
-                     n, buf_.get(), what_.c_str()));
+                     n, buf_.get(), what_.c_str(), packed_));
     io_pos_ += kSpillBlockHeaderBytes + frame;
     decoded_ += n;
     len_ = n;
@@ -220,6 +251,7 @@ class ExternalSorter::RunReader {
   uint64_t file_next_ = 0;  // bytes read from the file so far
   uint64_t decoded_ = 0;    // records decoded so far
   std::string what_;
+  bool packed_;
 };
 
 // Writes a run file, raw or compact (blocks of kSpillBlockRecords), with its CRC-32C.
@@ -287,7 +319,8 @@ class ExternalSorter::Merger {
   static absl::StatusOr<std::unique_ptr<Merger>> Create(const std::vector<Run>& runs,
                                                         size_t buffer_records,
                                                         const std::string* dir,
-                                                        const std::optional<SpillCodec>& codec) {
+                                                        const std::optional<SpillCodec>& codec,
+                                                        bool packed) {
     auto m = std::unique_ptr<Merger>(new Merger());
     if (codec) {
       m->codec_ = *codec;
@@ -295,7 +328,8 @@ class ExternalSorter::Merger {
     }
     m->readers_.reserve(runs.size());
     for (const Run& r : runs) {
-      m->readers_.emplace_back(r, buffer_records, dir, m->dec_.get(), &m->codec_);
+      m->readers_.emplace_back(r, buffer_records, dir, m->dec_.get(), &m->codec_,
+                               packed && codec.has_value());
       RunReader& rr = m->readers_.back();
       PBGI_RETURN_IF_ERROR(rr.Refill());
       if (rr.Valid()) m->heap_.push_back({rr.Current().key, m->readers_.size() - 1});
@@ -578,10 +612,12 @@ void ExternalSorter::FreeBuffers() {
 }
 
 absl::Status ExternalSorter::MergeRuns(std::vector<Run> in, size_t buffer_records, Run* out) {
-  PBGI_ASSIGN_OR_RETURN(auto merger,
-                        Merger::Create(in, buffer_records, &options_.tmp_dir, options_.compact));
+  // Compact runs pass through a merge pass as packed records: neither decoded nor encoded again.
+  const bool packed = options_.compact.has_value();
+  PBGI_ASSIGN_OR_RETURN(
+      auto merger, Merger::Create(in, buffer_records, &options_.tmp_dir, options_.compact, packed));
   PBGI_ASSIGN_OR_RETURN(*out, NewRunFile(/*named=*/false));
-  RunWriter writer(out->fd, options_.compact, options_.tmp_dir);
+  RunWriter writer(out->fd, options_.compact, options_.tmp_dir, packed);
   std::vector<SortRecord> chunk(std::max<size_t>(buffer_records, 1));
   uint64_t count = 0;
   for (;;) {
@@ -692,8 +728,8 @@ absl::Status ExternalSorter::MergeSpilled() {
   }
   const size_t buffer_records = std::max<size_t>(
       64, std::min(options_.merge_bytes / runs_.size(), kMaxReaderBytes) / sizeof(SortRecord));
-  PBGI_ASSIGN_OR_RETURN(merger_,
-                        Merger::Create(runs_, buffer_records, &options_.tmp_dir, options_.compact));
+  PBGI_ASSIGN_OR_RETURN(merger_, Merger::Create(runs_, buffer_records, &options_.tmp_dir,
+                                                options_.compact, options_.packed_output));
   if (options_.threads > 1) {
     pipe_ = std::make_unique<BlockPipe>(
         kPipeBlocks, kBlockRecords, [this](absl::Span<SortRecord> out) { return Produce(out); });
@@ -712,8 +748,10 @@ absl::StatusOr<size_t> ExternalSorter::Produce(absl::Span<SortRecord> out) {
     if (emitted_ + i + 16 < size_) __builtin_prefetch(&records_[sorted_[emitted_ + i + 16].index]);
     out[i] = records_[sorted_[emitted_ + i].index];
   }
-  if (options_.packed_input) {
+  if (options_.packed_input && !options_.packed_output) {
     for (size_t i = 0; i < n; ++i) out[i] = options_.compact->Unpack(out[i]);
+  } else if (!options_.packed_input && options_.packed_output) {
+    for (size_t i = 0; i < n; ++i) options_.compact->Pack(SortRecord(out[i]), &out[i]);
   }
   emitted_ += n;
   return n;

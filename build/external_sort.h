@@ -48,9 +48,10 @@ struct KeyIndex {
   uint64_t key;
   uint64_t index;
 };
-// Sorts `pairs` by key with a stable LSD radix sort (13-bit digits, passes whose digit is the
-// same for every key are skipped). `scratch` has the same size. Returns whichever of the two
-// arrays holds the result.
+// Sorts `pairs` by key, stably: one MSD radix pass on the highest 8 bits that differ between
+// the keys, then an LSD radix sort of each of the 256 buckets on the bits below (8-bit digits;
+// digits that are the same for every key are skipped). `scratch` has the same size. Returns
+// whichever of the two arrays holds the result.
 KeyIndex* RadixSortKeyIndex(absl::Span<KeyIndex> pairs, absl::Span<KeyIndex> scratch);
 
 // Memory per record of a run: the record plus two (key, index) arrays.
@@ -115,8 +116,13 @@ class ExternalSorter {
     // With `compact`: the records given to Add and Reserve are packed (SpillCodec::Pack), and
     // the sorter hands them back unpacked. Moves the encoding off the sort thread.
     bool packed_input = false;
+    // With `compact`: Next and NextBlock hand out packed records, spilled or not. A compact run
+    // holds the stored point records, so the merge copies them instead of decoding them, and
+    // the octree pass copies them into its pages instead of encoding them again
+    // (docs/format.md, "Session 13").
+    bool packed_output = false;
   };
-  // REQUIRES: options.compact when options.packed_input.
+  // REQUIRES: options.compact when options.packed_input or options.packed_output.
   explicit ExternalSorter(const Options& options);
   ~ExternalSorter();
   ExternalSorter(const ExternalSorter&) = delete;
@@ -176,6 +182,8 @@ class ExternalSorter {
   bool output_quantized() const {
     return options_.compact.has_value() && (merger_ != nullptr || options_.packed_input);
   }
+  // Next and NextBlock hand out packed records (Options::packed_output).
+  bool output_packed() const { return options_.compact.has_value() && options_.packed_output; }
 
   uint64_t runs_spilled() const { return runs_spilled_; }
   uint64_t merge_passes() const { return merge_passes_; }

@@ -5,6 +5,7 @@
 #include <utility>
 
 #include "absl/strings/str_format.h"
+#include "build/spill_codec.h"
 #include "pbgi/sh.h"
 #include "pbgi/status.h"
 #include "tree/morton.h"
@@ -22,8 +23,14 @@ PointPageWriter::PointPageWriter(Channels channels, PageSink* sink, const Positi
 
 absl::Status PointPageWriter::Add(const SortRecord& r, SortRecord* stored) {
   uint8_t* dst = buf_.data() + size_t{count_} * record_size_;
-  EncodePointRecord(r.position, r.normal, r.radius, r.radiance, channels_, grid_, dst);
-  *stored = input_quantized_ ? r : MakeSortRecord(r.key, DecodePointRecord(dst, channels_, grid_));
+  if (input_packed_) {
+    std::memcpy(dst, SpillCodec::PackedBytes(&r), record_size_);
+    *stored = MakeSortRecord(r.key, DecodePointRecord(dst, channels_, grid_));
+  } else {
+    EncodePointRecord(r.position, r.normal, r.radius, r.radiance, channels_, grid_, dst);
+    *stored =
+        input_quantized_ ? r : MakeSortRecord(r.key, DecodePointRecord(dst, channels_, grid_));
+  }
   ++points_;
   if (++count_ == per_page_) return Flush();
   return absl::OkStatus();

@@ -40,6 +40,10 @@ class PointPageWriter {
   // idempotent, and decoding it again was about 7 % of the octree pass thread's instructions
   // (docs/format.md, "Session 12").
   void set_input_quantized(bool q) { input_quantized_ = q; }
+  // Every record that Add will get is packed (SpillCodec::Pack): its bytes are the point record
+  // already, so Add copies them into the page and decodes them once for *stored, instead of
+  // encoding the record (docs/format.md, "Session 13").
+  void set_input_packed(bool p) { input_packed_ = p; }
   absl::Status Flush();
   uint64_t pages() const { return next_page_; }
   uint64_t points() const { return points_; }
@@ -55,6 +59,7 @@ class PointPageWriter {
   uint64_t next_page_ = 0;
   uint64_t points_ = 0;
   bool input_quantized_ = false;
+  bool input_packed_ = false;
 };
 
 // Sums of a node's points, in double (docs/design.md, "Build" step 4).

@@ -127,7 +127,7 @@ absl::Status SpillBlockReader::ParseHeader(const uint8_t* p, const SpillCodec& c
 }
 
 absl::Status SpillBlockReader::Decode(absl::Span<const uint8_t> frame, uint32_t records,
-                                      SortRecord* out, const char* what) {
+                                      SortRecord* out, const char* what, bool packed) {
   if (dctx_ == nullptr) dctx_ = ZSTD_createDCtx();
   if (dctx_ == nullptr) return absl::ResourceExhaustedError("zstd: no memory for a context");
   const bool radiance = HasRadiance(codec_.channels);
@@ -142,8 +142,14 @@ absl::Status SpillBlockReader::Decode(absl::Span<const uint8_t> frame, uint32_t 
   }
   const uint8_t* raw = raw_.data();
   uint64_t key = 0;
-  uint8_t rec[kPointRecordRadianceBytes];
+  uint8_t plain[kPointRecordRadianceBytes];
   for (uint32_t i = 0; i < records; ++i) {
+    uint8_t* rec = plain;
+    if (packed) {
+      // As SpillCodec::Pack leaves it: the bytes after the record are zero.
+      rec = SpillCodec::PackedBytes(&out[i]);
+      std::memset(rec, 0, sizeof(SortRecord) - sizeof(uint64_t));
+    }
     uint64_t delta;
     std::memcpy(&delta, raw + c.keys + 8 * size_t{i}, 8);
     key += delta;
@@ -154,7 +160,11 @@ absl::Status SpillBlockReader::Decode(absl::Span<const uint8_t> frame, uint32_t 
     std::memcpy(rec + 8, raw + c.normals + 4 * size_t{i}, 4);
     std::memcpy(rec + 12, raw + c.radii + 2 * size_t{i}, 2);
     if (radiance) std::memcpy(rec + 14, raw + c.radiance + 6 * size_t{i}, 6);
-    out[i] = MakeSortRecord(key, DecodePointRecord(rec, codec_.channels, codec_.grid));
+    if (packed) {
+      out[i].key = key;
+    } else {
+      out[i] = MakeSortRecord(key, DecodePointRecord(rec, codec_.channels, codec_.grid));
+    }
   }
   return absl::OkStatus();
 }

@@ -95,9 +95,10 @@ class SpillBlockReader {
   // `what` names the run for the message).
   static absl::Status ParseHeader(const uint8_t* p, const SpillCodec& codec, const char* what,
                                   uint32_t* frame_bytes, uint32_t* records);
-  // Decodes a frame of `records` records into out[0, records).
+  // Decodes a frame of `records` records into out[0, records); `packed`: as packed records
+  // (SpillCodec::Pack: the key and the stored point record, not decoded), else plain.
   absl::Status Decode(absl::Span<const uint8_t> frame, uint32_t records, SortRecord* out,
-                      const char* what);
+                      const char* what, bool packed = false);
 
  private:
   SpillCodec codec_;

@@ -68,20 +68,31 @@ TEST(MortonTest, FarFromOriginStillSeparatesPoints) {
 
 TEST(RadixSortTest, MatchesStableSortWithDuplicates) {
   std::mt19937_64 rng(7);
+  // Which bits vary: passes whose digit is the same for every key are skipped, so include
+  // ranges narrower than a digit, gaps, and all 64 bits.
+  const std::vector<std::pair<uint64_t, uint64_t>> masks = {
+      {0x7fffffffffffffffull, 0x7f000000000000ffull},
+      {0xffffffffffffffffull, 0xff00000000000000ull},
+      {0x1full, 0x3ull},
+      {0xf0000000000000f0ull, 0x0ull},
+      {0x0000ffff00000000ull, 0x0000010000000000ull},
+      {0x0ull, 0x0ull}};
   for (size_t n : {0, 1, 2, 17, 5000, 100000}) {
-    std::vector<KeyIndex> a(n), s(n);
-    for (size_t i = 0; i < n; ++i) {
-      // Few distinct high bits, many duplicates, full 63-bit range.
-      uint64_t k = (rng() >> 1) & (i % 3 == 0 ? 0x7fffffffffffffffull : 0x7f000000000000ffull);
-      a[i] = {k, i};
-    }
-    std::vector<KeyIndex> want = a;
-    std::stable_sort(want.begin(), want.end(),
-                     [](const KeyIndex& x, const KeyIndex& y) { return x.key < y.key; });
-    KeyIndex* got = RadixSortKeyIndex(absl::MakeSpan(a), absl::MakeSpan(s));
-    for (size_t i = 0; i < n; ++i) {
-      ASSERT_EQ(got[i].key, want[i].key) << i;
-      ASSERT_EQ(got[i].index, want[i].index) << i;
+    for (const auto& [mask_a, mask_b] : masks) {
+      std::vector<KeyIndex> a(n), s(n);
+      for (size_t i = 0; i < n; ++i) {
+        // Few distinct high bits, many duplicates.
+        uint64_t k = (rng() >> (mask_a == ~uint64_t{0} ? 0 : 1)) & (i % 3 == 0 ? mask_a : mask_b);
+        a[i] = {k | 0x0101000000000000ull, i};  // constant bits above, between and below
+      }
+      std::vector<KeyIndex> want = a;
+      std::stable_sort(want.begin(), want.end(),
+                       [](const KeyIndex& x, const KeyIndex& y) { return x.key < y.key; });
+      KeyIndex* got = RadixSortKeyIndex(absl::MakeSpan(a), absl::MakeSpan(s));
+      for (size_t i = 0; i < n; ++i) {
+        ASSERT_EQ(got[i].key, want[i].key) << i << " mask " << std::hex << mask_a;
+        ASSERT_EQ(got[i].index, want[i].index) << i << " mask " << std::hex << mask_a;
+      }
     }
   }
 }

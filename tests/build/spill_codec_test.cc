@@ -294,6 +294,81 @@ TEST(SpillCodecTest, ExternalSortOverPackedInput) {
   EXPECT_FALSE(unspilled.output_quantized());
 }
 
+// Packed output (docs/format.md, "Session 13"): the records in the same stable order as the
+// plain sort's, each as SpillCodec::Pack makes it, from packed or plain input, spilled or not,
+// through merge passes too, with 1 and 2 threads.
+TEST(SpillCodecTest, ExternalSortHandsOutPackedRecords) {
+  testing_build::ScratchDir dir("sort_packed_out");
+  for (Channels ch : {Channels::kOcclusion, Channels::kRadiance}) {
+    const SpillCodec codec = Codec(ch);
+    std::vector<SortRecord> in = Records(20000, 19, CloudBounds(), true);
+    for (size_t i = 0; i < in.size(); ++i) in[i].key %= 2039;  // duplicates: stability
+    std::vector<SortRecord> want(in.size());
+    std::transform(in.begin(), in.end(), want.begin(), [&](const SortRecord& r) {
+      SortRecord p;
+      codec.Pack(r, &p);
+      return p;
+    });
+    std::stable_sort(want.begin(), want.end(),
+                     [](const SortRecord& a, const SortRecord& b) { return a.key < b.key; });
+    // 256 KiB of merge buffers: a fan-in of 3, so 7 runs take a merge pass.
+    for (uint64_t merge_bytes : {uint64_t{64} << 20, uint64_t{256} << 10}) {
+      for (uint64_t capacity : {uint64_t{3000}, uint64_t{20000}}) {
+        for (int threads : {1, 2}) {
+          for (bool packed_input : {false, true}) {
+            SCOPED_TRACE(::testing::Message() << "channels " << static_cast<int>(ch) << " merge "
+                                              << merge_bytes << " run " << capacity << " threads "
+                                              << threads << " packed input " << packed_input);
+            ExternalSorter::Options o{dir.path().string(), capacity, merge_bytes, threads};
+            o.compact = codec;
+            o.packed_input = packed_input;
+            o.packed_output = true;
+            ExternalSorter s(o);
+            for (const auto& r : in) {
+              SortRecord p = r;
+              if (packed_input) codec.Pack(r, &p);
+              ASSERT_TRUE(s.Add(p).ok());
+            }
+            ASSERT_TRUE(s.FinishInput().ok());
+            EXPECT_EQ(s.runs_spilled() > 0, capacity < in.size());
+            if (capacity < in.size() && merge_bytes < (1 << 20)) {
+              EXPECT_GT(s.merge_passes(), 0u);
+            }
+            EXPECT_TRUE(s.output_packed());
+            ASSERT_NO_FATAL_FAILURE(ExpectOutput(s, want));
+          }
+        }
+      }
+    }
+  }
+}
+
+// A point page writer given packed records copies their bytes: the same pages and the same
+// records handed back as when it encodes the plain records.
+TEST(SpillCodecTest, PackedInputGivesTheSamePagesAndRecords) {
+  for (Channels ch : {Channels::kOcclusion, Channels::kRadiance}) {
+    const SpillCodec codec = Codec(ch);
+    std::vector<SortRecord> in = Records(5000, 23, CloudBounds(), true);
+    for (SortRecord& r : in) {
+      if (!HasRadiance(ch)) r.radiance[0] = r.radiance[1] = r.radiance[2] = 0.0f;
+    }
+    MemPageStore encoding(4096), copying(4096);
+    PointPageWriter a(ch, &encoding, codec.grid), b(ch, &copying, codec.grid);
+    b.set_input_packed(true);
+    for (size_t i = 0; i < in.size(); ++i) {
+      SortRecord p, sa, sb;
+      codec.Pack(in[i], &p);
+      ASSERT_TRUE(a.Add(in[i], &sa).ok());
+      ASSERT_TRUE(b.Add(p, &sb).ok());
+      ASSERT_EQ(0, std::memcmp(&sa, &sb, sizeof(SortRecord))) << i;
+    }
+    ASSERT_TRUE(a.Flush().ok());
+    ASSERT_TRUE(b.Flush().ok());
+    EXPECT_GT(encoding.page_count(Section::kPoints), 1u);
+    EXPECT_EQ(encoding.pages(Section::kPoints), copying.pages(Section::kPoints));
+  }
+}
+
 // A point page writer told that its input is quantized skips decoding it again: the same pages
 // and the same records handed back as when it decodes, for quantized input.
 TEST(SpillCodecTest, QuantizedInputSkipsTheDecodeWithTheSameResult) {
