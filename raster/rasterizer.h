@@ -83,6 +83,10 @@ class Rasterizer {
   }
 
   absl::Status Run(const Gathered& g, const ShadeReceiver& r, ShadeResult* out);
+  // The next Run() composites `far` behind its elements (ShadeWithFar() in pbgi/raster.h).
+  void set_far(const FarBuffer* far) { far_ = far; }
+  // What the last Run() left in the hemisphere's pixels, as a far buffer (ShadeFar()).
+  void ExportFar(const ShadeReceiver& r, FarBuffer* out) const;
 
   // `behind`: a fragment wholly behind the layer closes it. The first layer keeps its free sum
   // only when nothing lies behind it (a lone surface whose splats' overlaps and gaps cancel);
@@ -191,6 +195,9 @@ class Rasterizer {
   // clipped to its hemisphere, to s's polygons.
   void AddPolygon(const Polygon& world_rel, PreparedSplat* s);
   void Integrate(const ShadeReceiver& r, ShadeResult* out);
+  // The far buffer behind what Draw() left (set_far()).
+  template <bool kClamp, bool kRad>
+  void CompositeFar();
   // Whether a surfel or co-planar group (unit `normal`, centre at `rel` from the receiver) is
   // the receiver's own surface seen from behind, its plane passing within `reach` (a radius, a
   // spacing) of the receiver: a receiver never sees that, so it is culled.
@@ -451,6 +458,7 @@ class Rasterizer {
   uint32_t closes_ = 0;
   const bool polygons_;    // Footprint::kPolygons
   const bool free_layer_;  // !polygons_: the first layer sums freely
+  const FarBuffer* far_ = nullptr;
 };
 
 }  // namespace pbgi::internal
