@@ -202,6 +202,25 @@ inline bool BelowLobeCut(const NodeHot& node, const glm::vec3& p, float max_sa,
 
 namespace {
 
+// An upper bound of a node's projected area (ProjectedAreaToward) over the directions within
+// `angle` radians of the unit direction w: its value at w plus the largest gradient of its SH
+// on the sphere times the angle, per band |c_l| sqrt(l (l + 1) (2l + 1) / (4 pi)) (Cauchy-Schwarz
+// with the sum over m of |grad Y_lm|^2, the derivative of the addition theorem), and never
+// above the node's bound over all directions.
+float FarAreaBound(const NodeHot& node, const glm::vec3& w, float angle) {
+  const float* c = node.sh_area.data();
+  const float band1 = std::sqrt(c[1] * c[1] + c[2] * c[2] + c[3] * c[3]);
+  const float band2 =
+      std::sqrt(c[4] * c[4] + c[5] * c[5] + c[6] * c[6] + c[7] * c[7] + c[8] * c[8]);
+  const float lipschitz = 0.6910f * band1 + 1.5451f * band2;
+  float sum_abs = 0.0f;
+  for (int i = 0; i < 9; ++i) sum_abs += std::fabs(c[i]);
+  // 1e-5 of the coefficients' magnitude covers the float evaluation at w, as ProjectedAreaBound
+  // covers its own.
+  const float at_w = std::max(0.0f, internal::ProjectedAreaToward(c, w)) + 1e-5f * sum_abs;
+  return std::min(node.area_bound, (at_w + lipschitz * angle) * 1.0001f);
+}
+
 // The box whose cube the builder made the Morton keys in: build statistic "key_bounds" (six
 // hexadecimal floats). A database built from a source that declared bounds larger than its
 // points has it; the points' box stood for it before, and then every cluster's and leaf's cell
@@ -632,19 +651,25 @@ absl::Status Reader::Impl::GatherFar(const ReceiverGroup& group, const Cut& cut,
     const float gap = to_near - near_r - r;  // from the group's sphere to the near sphere
     const glm::vec3 corner = internal::NodeCorner(node, far_word);
     if (gap > 0.0f && gap >= k * r && !(glm::dot(n, corner - high) + node.reach < 0.0f)) {
-      // Every member p lies within r of c, so |p - centre| >= |c - centre| - r and the node's
-      // solid angle from p is at most area_bound / (|c - centre| - r)^2. With the cosine
-      // weight, the directions from p into the near sphere lie among those from c into the
-      // sphere grown by r, so their largest cosine bounds p's. 1e-3 covers the rounding of
-      // the members' own tests (checked against them in tests/shade/far_sharing_test.cc).
+      // Every member p lies within r of c, so |p - centre| >= |c - centre| - r, and the
+      // direction from the node to p lies within asin(r / |c - centre|) of the one to c, over
+      // which the projected area changes by at most the SH's Lipschitz bound times that angle
+      // (FarAreaBound); the node's solid angle from p is at most that area over
+      // (|c - centre| - r)^2. With the cosine weight, the directions from p into the near
+      // sphere lie among those from c into the sphere grown by r, so their largest cosine bounds
+      // p's. 1e-3 covers the rounding of the members' own tests (checked against them by brute
+      // force in tests/shade/far_sharing_test.cc).
       const float max_sa = NodeMaxSolidAngle(cut, node.sh_area.data(), node.lo, node.hi);
-      const float dmin = glm::length(node.centre - c) - r;
+      const glm::vec3 to_c = c - node.centre;
+      const float dc = glm::length(to_c);
+      const float dmin = dc - r;
       float weight = 1.0f;
       if (cut.cosine_weighted) {
         const float grown = near_r + r;
         weight = NodeCutCosine(node.near_centre, grown * grown, c, n);
       }
-      if (dmin > 0.0f && node.area_bound * weight < (max_sa * (dmin * dmin)) * (1.0f - 1e-3f)) {
+      if (dmin > 0.0f && FarAreaBound(node, to_c / dc, std::asin(std::min(1.0f, r / dc))) * weight <
+                             (max_sa * (dmin * dmin)) * (1.0f - 1e-3f)) {
         EmitCluster(*page, slot, node, &out->far);
         continue;
       }

@@ -524,8 +524,9 @@ absl::Status RunViewEval(const ViewEvalArgs& a) {
                 st.cpu_seconds * per_shaded);
             if (st.far_groups > 0) {
               std::printf(
-                  "; far field shared by %d groups of %.2f receivers (%.1f%% of shaded)",
-                  st.far_groups, double(st.far_members) / double(st.far_groups),
+                  "; far field shared by %llu groups of %.2f receivers (%.1f%% of shaded)",
+                  static_cast<unsigned long long>(st.far_groups),
+                  double(st.far_members) / double(st.far_groups),
                   100.0 * double(st.far_members) / double(std::max<uint64_t>(1, st.shaded)));
             }
             std::printf("\n");

@@ -62,7 +62,7 @@ TEST_P(FarCutTest, FarPlusNearIsAValidCutForEveryMember) {
   uint64_t near_elements = 0, exact_elements = 0;
   FarCut far;
   Gathered near, exact;
-  for (int g = 0; g < 40; ++g) {
+  for (int g = 0; g < 150; ++g) {
     ReceiverGroup group;
     group.centre = glm::vec3(-0.1f + 1.2f * u(rng), -0.1f + 1.2f * u(rng), -0.1f + 1.2f * u(rng));
     group.radius = 0.002f + 0.03f * u(rng);
