@@ -30,7 +30,9 @@
 //
 // Memory: the batch's receivers and results (the caller's), one order index per receiver, and
 // per thread a Reader (its share of the cache budget), a MicroBuffer and a Gathered; kShared
-// adds about 30 bytes per pixel of the image (image mode) or 70 per receiver (point sets).
+// adds about 30 bytes per pixel of the image (image mode) or 70 per receiver (point sets);
+// far sharing (FarSharingOptions) adds 9 bytes per receiver shaded by one call (the groups) and
+// per thread a FarCut and a FarBuffer (24 bytes per pixel of the cube).
 #ifndef PBGI_SHADE_H_
 #define PBGI_SHADE_H_
 
