@@ -38,6 +38,7 @@ using internal::NodeCutCosine;
 using internal::NodeHot;
 using internal::NodeIsFlat;
 using internal::NodeMarginOf;
+using internal::NodeMaxSolidAngle;
 using internal::NodeNearFieldSphere;
 using internal::NodeRef;
 using internal::NodeSolidAngleFrom;
@@ -203,6 +204,25 @@ inline bool BelowLobeCut(const NodeHot& node, const glm::vec3& p, float max_sa,
 
 namespace {
 
+// An upper bound of a node's projected area (ProjectedAreaToward) over the directions within
+// `angle` radians of the unit direction w: its value at w plus the largest gradient of its SH
+// on the sphere times the angle, per band |c_l| sqrt(l (l + 1) (2l + 1) / (4 pi)) (Cauchy-Schwarz
+// with the sum over m of |grad Y_lm|^2, the derivative of the addition theorem), and never
+// above the node's bound over all directions.
+float FarAreaBound(const NodeHot& node, const glm::vec3& w, float angle) {
+  const float* c = node.sh_area.data();
+  const float band1 = std::sqrt(c[1] * c[1] + c[2] * c[2] + c[3] * c[3]);
+  const float band2 =
+      std::sqrt(c[4] * c[4] + c[5] * c[5] + c[6] * c[6] + c[7] * c[7] + c[8] * c[8]);
+  const float lipschitz = 0.6910f * band1 + 1.5451f * band2;
+  float sum_abs = 0.0f;
+  for (int i = 0; i < 9; ++i) sum_abs += std::fabs(c[i]);
+  // 1e-5 of the coefficients' magnitude covers the float evaluation at w, as ProjectedAreaBound
+  // covers its own.
+  const float at_w = std::max(0.0f, internal::ProjectedAreaToward(c, w)) + 1e-5f * sum_abs;
+  return std::min(node.area_bound, (at_w + lipschitz * angle) * 1.0001f);
+}
+
 // The box whose cube the builder made the Morton keys in: build statistic "key_bounds" (six
 // hexadecimal floats). A database built from a source that declared bounds larger than its
 // points has it; the points' box stood for it before, and then every cluster's and leaf's cell
@@ -280,7 +300,20 @@ struct Reader::Impl {
   // Gather's traversal from the root, with (kLobe) or without a lobe.
   template <bool kLobe>
   [[gnu::noinline]] absl::Status Traverse(const glm::vec3& p, const glm::vec3& n, const Cut& cut,
-                                          const internal::LobeCut& lobe, Gathered* out);
+                                          const internal::LobeCut& lobe,
+                                          absl::Span<const FarCut::Root> roots, Gathered* out);
+  // Checks a receiver and a cut as Gather does ("Gather: ..." errors, `what` names the call).
+  absl::Status CheckQuery(absl::string_view what, const glm::vec3& p, const glm::vec3& normal,
+                          const Cut& cut);
+  absl::Status GatherFar(const ReceiverGroup& group, const Cut& cut, float distance_factor,
+                         FarCut* out);
+  absl::Status GatherNear(const glm::vec3& p, const Cut& cut, const FarCut& far, Gathered* out);
+  // The node of stack entry e, through the page cache (cur_page, page: the traversal's current
+  // page, updated), with the corruption checks of a traversal.
+  absl::Status VisitNode(const StackEntry& e, uint64_t* cur_page, const DecodedPage** page,
+                         uint64_t* front_evictions, const NodeHot** node, uint32_t* slot);
+  // Appends node `slot` of `page` to out->clusters.
+  void EmitCluster(const DecodedPage& page, uint32_t slot, const NodeHot& node, Gathered* out);
   absl::Status EmitLeafPoints(uint64_t first, uint64_t count, const Bounds& cell,
                               const glm::vec3& p, const glm::vec3& n, float max_distance,
                               bool check_distance, Gathered* out);
@@ -382,41 +415,101 @@ absl::Status Reader::Impl::EmitLeafPoints(uint64_t first, uint64_t count, const 
   return absl::OkStatus();
 }
 
+absl::Status Reader::Impl::CheckQuery(absl::string_view what, const glm::vec3& p,
+                                      const glm::vec3& normal, const Cut& cut) {
+  const float nlen = glm::length(normal);
+  if (!(nlen > 0.0f) || !std::isfinite(nlen) || !std::isfinite(p.x) || !std::isfinite(p.y) ||
+      !std::isfinite(p.z)) {
+    return absl::InvalidArgumentError(absl::StrFormat(
+        "%s: receiver at (%g, %g, %g) with normal (%g, %g, %g): the position must be finite "
+        "and the normal finite and not zero",
+        what, p.x, p.y, p.z, normal.x, normal.y, normal.z));
+  }
+  if (!(cut.curved_scale > 0.0f && cut.curved_scale <= 1.0f)) {
+    return absl::InvalidArgumentError(
+        absl::StrFormat("%s: Cut.curved_scale = %g: must be in (0, 1]", what, cut.curved_scale));
+  }
+  if (!(cut.curved_box_scale >= 0.0f && std::isfinite(cut.curved_box_scale))) {
+    return absl::InvalidArgumentError(absl::StrFormat(
+        "%s: Cut.curved_box_scale = %g: must be finite and >= 0", what, cut.curved_box_scale));
+  }
+  if (absl::Status s = ValidateCutLobe(cut.lobe); !s.ok()) {
+    return absl::InvalidArgumentError(absl::StrCat(what, ": ", s.message()));
+  }
+  return absl::OkStatus();
+}
+
 absl::Status Reader::Impl::Gather(const Receiver& receiver, const Cut& cut, Gathered* out) {
   out->Clear();
   ++q.queries;
   ClearMemo();
   if (meta.point_count == 0 || meta.root == internal::kNoNodeRef) return absl::OkStatus();
   const glm::vec3 p = receiver.position;
-  const float nlen = glm::length(receiver.normal);
-  if (!(nlen > 0.0f) || !std::isfinite(nlen) || !std::isfinite(p.x) || !std::isfinite(p.y) ||
-      !std::isfinite(p.z)) {
-    return absl::InvalidArgumentError(absl::StrFormat(
-        "Gather: receiver at (%g, %g, %g) with normal (%g, %g, %g): the position must be finite "
-        "and the normal finite and not zero",
-        p.x, p.y, p.z, receiver.normal.x, receiver.normal.y, receiver.normal.z));
-  }
-  if (!(cut.curved_scale > 0.0f && cut.curved_scale <= 1.0f)) {
-    return absl::InvalidArgumentError(
-        absl::StrFormat("Gather: Cut.curved_scale = %g: must be in (0, 1]", cut.curved_scale));
-  }
-  if (!(cut.curved_box_scale >= 0.0f && std::isfinite(cut.curved_box_scale))) {
-    return absl::InvalidArgumentError(absl::StrFormat(
-        "Gather: Cut.curved_box_scale = %g: must be finite and >= 0", cut.curved_box_scale));
-  }
-  if (absl::Status s = ValidateCutLobe(cut.lobe); !s.ok()) {
-    return absl::InvalidArgumentError(absl::StrCat("Gather: ", s.message()));
-  }
+  PBGI_RETURN_IF_ERROR(CheckQuery("Gather", p, receiver.normal, cut));
   // The lobe-aware cut's per-query constants (inactive without a lobe), and a traversal of its
   // own for each kind of cut, so that a gather without a lobe runs the loop it ran before.
   const internal::LobeCut lobe = internal::MakeLobeCut(cut.lobe);
-  return lobe.active ? Traverse<true>(p, glm::normalize(receiver.normal), cut, lobe, out)
-                     : Traverse<false>(p, glm::normalize(receiver.normal), cut, lobe, out);
+  const FarCut::Root root[1] = {{meta.root, 0}};
+  return lobe.active ? Traverse<true>(p, glm::normalize(receiver.normal), cut, lobe, root, out)
+                     : Traverse<false>(p, glm::normalize(receiver.normal), cut, lobe, root, out);
+}
+
+inline absl::Status Reader::Impl::VisitNode(const StackEntry& e, uint64_t* cur_page,
+                                            const DecodedPage** page, uint64_t* front_evictions,
+                                            const NodeHot** node, uint32_t* slot_out) {
+  const uint64_t page_no = internal::RefPage(e.ref);
+  const uint32_t slot = internal::RefSlot(e.ref);
+  const int level = static_cast<int>(e.depth);
+  if (page_no != *cur_page || front.evictions() != *front_evictions) {
+    if (absl::Status s = Fetch(Section::kNodes, page_no, level, page); !s.ok()) return s;
+    *cur_page = page_no;
+    *front_evictions = front.evictions();
+  }
+  if (slot >= (*page)->count) {
+    return absl::DataLossError(
+        absl::StrFormat("%s: nodes page %d is corrupt: a link points at slot %d of %d", db->path(),
+                        page_no, slot, (*page)->count));
+  }
+  const NodeHot& n = (*page)->nodes[slot];
+  if (n.depth != e.depth) {
+    return absl::DataLossError(
+        absl::StrFormat("%s: nodes page %d is corrupt: node %d has depth %d, its parent says %d",
+                        db->path(), page_no, slot, static_cast<int>(n.depth), e.depth));
+  }
+  ++q.nodes_visited;
+  ++q.nodes[level];
+  *node = &n;
+  *slot_out = slot;
+  return absl::OkStatus();
+}
+
+inline void Reader::Impl::EmitCluster(const DecodedPage& page, uint32_t slot, const NodeHot& node,
+                                      Gathered* out) {
+  // Built in place (C++20 aggregate initialization): no zeroing of ~200 bytes first.
+  const float area = page.areas[slot];
+#if defined(__cpp_aggregate_paren_init)
+  if (page.power) {
+    out->clusters.emplace_back(Bounds{node.lo, node.hi}, area, node.sh_area, page.power[slot],
+                               uint32_t{node.depth}, node.first_point, node.point_count,
+                               cube.CellOf(node.lo, node.depth));
+  } else {
+    out->clusters.emplace_back(Bounds{node.lo, node.hi}, area, node.sh_area, std::array<Sh9, 3>{},
+                               uint32_t{node.depth}, node.first_point, node.point_count,
+                               cube.CellOf(node.lo, node.depth));
+  }
+#else  // clang 14: no parenthesized aggregate initialization, the same Cluster by braces
+  out->clusters.push_back(Cluster{Bounds{node.lo, node.hi}, area, node.sh_area,
+                                  page.power ? page.power[slot] : std::array<Sh9, 3>{},
+                                  uint32_t{node.depth}, node.first_point, node.point_count,
+                                  cube.CellOf(node.lo, node.depth)});
+#endif
+  ++q.clusters;
 }
 
 template <bool kLobe>
 absl::Status Reader::Impl::Traverse(const glm::vec3& p, const glm::vec3& n, const Cut& cut,
-                                    const internal::LobeCut& lobe, Gathered* out) {
+                                    const internal::LobeCut& lobe,
+                                    absl::Span<const FarCut::Root> roots, Gathered* out) {
   const bool cosine_weighted = cut.cosine_weighted;
   const float max_d = cut.max_distance;
   const bool check_distance = std::isfinite(max_d);
@@ -427,102 +520,222 @@ absl::Status Reader::Impl::Traverse(const glm::vec3& p, const glm::vec3& n, cons
   // The corner of every node farthest along n (NodeWhollyBehindMargin's choice, as indices).
   const uint32_t far_word[3] = {n.x > 0 ? 4u : 0u, n.y > 0 ? 5u : 1u, n.z > 0 ? 6u : 2u};
 
+  uint64_t cur_page = ~uint64_t{0};
+  const DecodedPage* page = nullptr;
+  uint64_t front_evictions = front.evictions();
+
+  // One root at a time (a far field's near roots may outnumber the stack), each depth-first.
+  for (const FarCut::Root& root : roots) {
+    int sp = 0;
+    stack[sp++] = {root.node, root.depth};
+    while (sp > 0) {
+      const StackEntry e = stack[--sp];
+      const uint64_t page_no = internal::RefPage(e.ref);
+      const uint32_t slot = internal::RefSlot(e.ref);
+      const int level = static_cast<int>(e.depth);
+      if (page_no != cur_page || front.evictions() != front_evictions) {
+        if (absl::Status s = Fetch(Section::kNodes, page_no, level, &page); !s.ok()) return s;
+        cur_page = page_no;
+        front_evictions = front.evictions();
+      }
+      if (slot >= page->count) {
+        return absl::DataLossError(
+            absl::StrFormat("%s: nodes page %d is corrupt: a link points at slot %d of %d",
+                            db->path(), page_no, slot, page->count));
+      }
+      const NodeHot& node = page->nodes[slot];
+      if (node.depth != e.depth) {
+        return absl::DataLossError(absl::StrFormat(
+            "%s: nodes page %d is corrupt: node %d has depth %d, its parent says %d", db->path(),
+            page_no, slot, static_cast<int>(node.depth), e.depth));
+      }
+      ++q.nodes_visited;
+      ++q.nodes[level];
+
+      // The tests of tree/cut.h with the node's terms precomputed in its decoded page.
+      const float margin = NodeMarginOf(node.abs_max, p_abs_max);
+      if (NodeWhollyBehindFar(internal::NodeCorner(node, far_word), node.reach, p, n, margin) ||
+          (check_distance && NodeBeyondMargin(node.lo, node.hi, node.reach, p, max_d, margin))) {
+        ++q.nodes_culled;
+        continue;
+      }
+      // NodeMaxSolidAngle, with the flatness that the curved-box test needs too.
+      const bool flat = !need_flat || NodeIsFlat(node.sh_area.data(), node.lo, node.hi);
+      const float max_sa = flat ? cut.max_solid_angle : curved_max_sa;
+      const auto cosine = [&] { return NodeCutCosine(node.near_centre, node.near_radius2, p, n); };
+      if (!NodeNearFieldSphere(node.near_centre, node.near_radius2, p) &&
+          (kLobe ? BelowLobeCut(node, p, max_sa, lobe)
+                 : ClearlyBelowCut(node, p, max_sa) ||
+                       BelowPlainCut(NodeSolidAngleFrom(node.centre, node.sh_area.data(), p),
+                                     max_sa, cosine_weighted, cosine)) &&
+          BelowCurvedBoxCut(cut, flat, node.centre, node.lo, node.hi, p, [&] {
+            if constexpr (kLobe) {
+              return internal::NodeLobeWeight(lobe, node.near_centre, node.near_radius2, p);
+            } else {
+              return cosine_weighted ? cosine() : 1.0f;
+            }
+          })) {
+        EmitCluster(*page, slot, node, out);
+        continue;
+      }
+      if (node.child_count == 0) {
+        // The point pages may evict this node page from the front cache (a small budget): the
+        // eviction counter makes the next node look its page up again.
+        const uint64_t first = node.first_point, count = node.point_count;
+        if (absl::Status s = EmitLeafPoints(first, count, cube.CellOf(node.lo, node.depth), p, n,
+                                            max_d, check_distance, out);
+            !s.ok()) {
+          return s;
+        }
+        continue;
+      }
+      if (e.depth + 1 >= static_cast<uint32_t>(kMaxTreeDepth) ||
+          sp + static_cast<int>(node.child_count) > kStackSize) {
+        return absl::DataLossError(
+            absl::StrFormat("%s: nodes page %d is corrupt: node %d is deeper than %d levels",
+                            db->path(), page_no, slot, kMaxTreeDepth));
+      }
+      // Push in reverse so that children are visited in stored (depth-first) order.
+      for (uint32_t k = node.child_count; k-- > 0;) stack[sp++] = {node.children + k, e.depth + 1};
+    }
+  }
+  q.surfels += out->surfels.size();
+  return absl::OkStatus();
+}
+
+absl::Status Reader::Impl::GatherFar(const ReceiverGroup& group, const Cut& cut, float k,
+                                     FarCut* out) {
+  out->Clear();
+  ++q.queries;
+  ClearMemo();
+  const glm::vec3 c = group.centre;
+  const float r = group.radius;
+  PBGI_RETURN_IF_ERROR(CheckQuery("GatherFar", c, group.normal, cut));
+  if (!(r >= 0.0f) || !std::isfinite(r)) {
+    return absl::InvalidArgumentError(
+        absl::StrFormat("GatherFar: ReceiverGroup.radius = %g: must be finite and >= 0", r));
+  }
+  const float th = group.thickness;
+  if (!(th >= 0.0f && th <= r)) {
+    return absl::InvalidArgumentError(absl::StrFormat(
+        "GatherFar: ReceiverGroup.thickness = %g: must be in [0, radius = %g]", th, r));
+  }
+  if (!(k >= 1.0f) || !std::isfinite(k)) {
+    return absl::InvalidArgumentError(
+        absl::StrFormat("GatherFar: distance_factor = %g: must be finite and >= 1", k));
+  }
+  if (cut.lobe.kind != CutLobeKind::kNone) {
+    return absl::InvalidArgumentError(
+        "GatherFar: a cut with a lobe (Cut::lobe) belongs to one receiver; far sharing needs a "
+        "cut without one");
+  }
+  if (std::isfinite(cut.max_distance)) {
+    return absl::InvalidArgumentError(absl::StrFormat(
+        "GatherFar: Cut.max_distance = %g: far sharing needs an infinite one", cut.max_distance));
+  }
+  const glm::vec3 n = glm::normalize(group.normal);
+  out->group = ReceiverGroup{c, r, n, th};
+  out->distance_factor = k;
+  if (meta.point_count == 0 || meta.root == internal::kNoNodeRef) return absl::OkStatus();
+  // Every member's tangent plane (the group's normal) lies between the ones through `low` and
+  // `high`: a node wholly behind the low plane is behind every member's, and only a node with
+  // something in front of the high one is in front of every member's (margin 0: a member's own
+  // test has a margin >= 0).
+  const glm::vec3 low = c - th * n, high = c + th * n;
+  const float low_abs_max = AbsMax(low);
+  const uint32_t far_word[3] = {n.x > 0 ? 4u : 0u, n.y > 0 ? 5u : 1u, n.z > 0 ? 6u : 2u};
+  const float near_reach = r + k * r;  // a node wholly within this of c is near for everyone
+
   int sp = 0;
   stack[sp++] = {meta.root, 0};
   uint64_t cur_page = ~uint64_t{0};
   const DecodedPage* page = nullptr;
   uint64_t front_evictions = front.evictions();
-
   while (sp > 0) {
     const StackEntry e = stack[--sp];
-    const uint64_t page_no = internal::RefPage(e.ref);
-    const uint32_t slot = internal::RefSlot(e.ref);
-    const int level = static_cast<int>(e.depth);
-    if (page_no != cur_page || front.evictions() != front_evictions) {
-      if (absl::Status s = Fetch(Section::kNodes, page_no, level, &page); !s.ok()) return s;
-      cur_page = page_no;
-      front_evictions = front.evictions();
-    }
-    if (slot >= page->count) {
-      return absl::DataLossError(
-          absl::StrFormat("%s: nodes page %d is corrupt: a link points at slot %d of %d",
-                          db->path(), page_no, slot, page->count));
-    }
-    const NodeHot& node = page->nodes[slot];
-    if (node.depth != e.depth) {
-      return absl::DataLossError(
-          absl::StrFormat("%s: nodes page %d is corrupt: node %d has depth %d, its parent says %d",
-                          db->path(), page_no, slot, static_cast<int>(node.depth), e.depth));
-    }
-    ++q.nodes_visited;
-    ++q.nodes[level];
-
-    // The tests of tree/cut.h with the node's terms precomputed in its decoded page.
-    const float margin = NodeMarginOf(node.abs_max, p_abs_max);
-    if (NodeWhollyBehindFar(internal::NodeCorner(node, far_word), node.reach, p, n, margin) ||
-        (check_distance && NodeBeyondMargin(node.lo, node.hi, node.reach, p, max_d, margin))) {
+    const NodeHot* np = nullptr;
+    uint32_t slot = 0;
+    PBGI_RETURN_IF_ERROR(VisitNode(e, &cur_page, &page, &front_evictions, &np, &slot));
+    const NodeHot& node = *np;
+    const float margin = NodeMarginOf(node.abs_max, low_abs_max);
+    if (NodeWhollyBehindFar(internal::NodeCorner(node, far_word), node.reach, low, n, margin)) {
       ++q.nodes_culled;
       continue;
     }
-    // NodeMaxSolidAngle, with the flatness that the curved-box test needs too.
-    const bool flat = !need_flat || NodeIsFlat(node.sh_area.data(), node.lo, node.hi);
-    const float max_sa = flat ? cut.max_solid_angle : curved_max_sa;
-    const auto cosine = [&] { return NodeCutCosine(node.near_centre, node.near_radius2, p, n); };
-    if (!NodeNearFieldSphere(node.near_centre, node.near_radius2, p) &&
-        (kLobe ? BelowLobeCut(node, p, max_sa, lobe)
-               : ClearlyBelowCut(node, p, max_sa) ||
-                     BelowPlainCut(NodeSolidAngleFrom(node.centre, node.sh_area.data(), p), max_sa,
-                                   cosine_weighted, cosine)) &&
-        BelowCurvedBoxCut(cut, flat, node.centre, node.lo, node.hi, p, [&] {
-          if constexpr (kLobe) {
-            return internal::NodeLobeWeight(lobe, node.near_centre, node.near_radius2, p);
-          } else {
-            return cosine_weighted ? cosine() : 1.0f;
-          }
-        })) {
-      // Built in place (C++20 aggregate initialization): no zeroing of ~200 bytes first.
-      const float area = page->areas[slot];
-#if defined(__cpp_aggregate_paren_init)
-      if (page->power) {
-        out->clusters.emplace_back(Bounds{node.lo, node.hi}, area, node.sh_area, page->power[slot],
-                                   uint32_t{node.depth}, node.first_point, node.point_count,
-                                   cube.CellOf(node.lo, node.depth));
-      } else {
-        out->clusters.emplace_back(Bounds{node.lo, node.hi}, area, node.sh_area,
-                                   std::array<Sh9, 3>{}, uint32_t{node.depth}, node.first_point,
-                                   node.point_count, cube.CellOf(node.lo, node.depth));
+    const float near_r = std::sqrt(node.near_radius2);
+    const float to_near = glm::length(node.near_centre - c);
+    const float gap = to_near - near_r - r;  // from the group's sphere to the near sphere
+    const glm::vec3 corner = internal::NodeCorner(node, far_word);
+    if (gap > 0.0f && gap >= k * r && !(glm::dot(n, corner - high) + node.reach < 0.0f)) {
+      // Every member p lies within r of c, so |p - centre| >= |c - centre| - r, and the
+      // direction from the node to p lies within asin(r / |c - centre|) of the one to c, over
+      // which the projected area changes by at most the SH's Lipschitz bound times that angle
+      // (FarAreaBound); the node's solid angle from p is at most that area over
+      // (|c - centre| - r)^2. With the cosine weight, the directions from p into the near
+      // sphere lie among those from c into the sphere grown by r, so their largest cosine bounds
+      // p's. 1e-3 covers the rounding of the members' own tests (checked against them by brute
+      // force in tests/shade/far_sharing_test.cc).
+      const float max_sa = NodeMaxSolidAngle(cut, node.sh_area.data(), node.lo, node.hi);
+      const glm::vec3 to_c = c - node.centre;
+      const float dc = glm::length(to_c);
+      const float dmin = dc - r;
+      float weight = 1.0f;
+      if (cut.cosine_weighted) {
+        const float grown = near_r + r;
+        weight = NodeCutCosine(node.near_centre, grown * grown, c, n);
       }
-#else  // clang 14: no parenthesized aggregate initialization, the same Cluster by braces
-      out->clusters.push_back(Cluster{Bounds{node.lo, node.hi}, area, node.sh_area,
-                                      page->power ? page->power[slot] : std::array<Sh9, 3>{},
-                                      uint32_t{node.depth}, node.first_point, node.point_count,
-                                      cube.CellOf(node.lo, node.depth)});
-#endif
-      ++q.clusters;
-      continue;
+      // The curved-box test (Cut::curved_box_scale) from every member: the box's silhouette
+      // from any direction is at most the length of its three faces' area vector.
+      bool box_ok = true;
+      if (cut.curved_box_scale > 0.0f && !NodeIsFlat(node.sh_area.data(), node.lo, node.hi)) {
+        const glm::vec3 e = node.hi - node.lo;
+        const float box = glm::length(glm::vec3(e.y * e.z, e.x * e.z, e.x * e.y));
+        box_ok = box * weight <
+                 (cut.curved_box_scale * cut.max_solid_angle * (dmin * dmin)) * (1.0f - 1e-3f);
+      }
+      if (dmin > 0.0f && box_ok &&
+          FarAreaBound(node, to_c / dc, std::asin(std::min(1.0f, r / dc))) * weight <
+              (max_sa * (dmin * dmin)) * (1.0f - 1e-3f)) {
+        EmitCluster(*page, slot, node, &out->far);
+        continue;
+      }
     }
-    if (node.child_count == 0) {
-      // The point pages may evict this node page from the front cache (a small budget): the
-      // eviction counter makes the next node look its page up again.
-      const uint64_t first = node.first_point, count = node.point_count;
-      if (absl::Status s = EmitLeafPoints(first, count, cube.CellOf(node.lo, node.depth), p, n,
-                                          max_d, check_distance, out);
-          !s.ok()) {
-        return s;
-      }
+    if (node.child_count == 0 || to_near + near_r <= near_reach) {
+      out->near_roots.push_back({e.ref, e.depth});
       continue;
     }
     if (e.depth + 1 >= static_cast<uint32_t>(kMaxTreeDepth) ||
         sp + static_cast<int>(node.child_count) > kStackSize) {
       return absl::DataLossError(
           absl::StrFormat("%s: nodes page %d is corrupt: node %d is deeper than %d levels",
-                          db->path(), page_no, slot, kMaxTreeDepth));
+                          db->path(), internal::RefPage(e.ref), slot, kMaxTreeDepth));
     }
-    // Push in reverse so that children are visited in stored (depth-first) order.
-    for (uint32_t k = node.child_count; k-- > 0;) stack[sp++] = {node.children + k, e.depth + 1};
+    for (uint32_t j = node.child_count; j-- > 0;) stack[sp++] = {node.children + j, e.depth + 1};
   }
-  q.surfels += out->surfels.size();
   return absl::OkStatus();
+}
+
+absl::Status Reader::Impl::GatherNear(const glm::vec3& p, const Cut& cut, const FarCut& far,
+                                      Gathered* out) {
+  out->Clear();
+  ++q.queries;
+  ClearMemo();
+  const ReceiverGroup& g = far.group;
+  PBGI_RETURN_IF_ERROR(CheckQuery("GatherNear", p, g.normal, cut));
+  if (cut.lobe.kind != CutLobeKind::kNone || std::isfinite(cut.max_distance)) {
+    return absl::InvalidArgumentError(
+        "GatherNear: far sharing needs a cut without a lobe and with an infinite max_distance");
+  }
+  const float d = glm::length(p - g.centre);
+  if (!(d <= g.radius * (1.0f + 1e-5f) + 1e-6f * (1.0f + AbsMax(g.centre)))) {
+    return absl::InvalidArgumentError(absl::StrFormat(
+        "GatherNear: receiver at (%g, %g, %g) lies %g from the group's centre, outside its "
+        "radius %g",
+        p.x, p.y, p.z, d, g.radius));
+  }
+  if (far.near_roots.empty()) return absl::OkStatus();
+  const internal::LobeCut lobe;  // inactive
+  return Traverse<false>(p, g.normal, cut, lobe, far.near_roots, out);
 }
 
 Reader::Reader(Database* db, std::unique_ptr<Impl> impl) : db_(db), impl_(std::move(impl)) {}
@@ -563,10 +776,24 @@ absl::StatusOr<std::unique_ptr<Reader>> Database::NewReader() {
 
 absl::Status Reader::Gather(const Receiver& receiver, const Cut& cut, Gathered* out,
                             QueryStats* stats) {
+  return Account([&] { return impl_->Gather(receiver, cut, out); }, stats);
+}
+
+absl::Status Reader::GatherFar(const ReceiverGroup& group, const Cut& cut, float distance_factor,
+                               FarCut* out, QueryStats* stats) {
+  return Account([&] { return impl_->GatherFar(group, cut, distance_factor, out); }, stats);
+}
+
+absl::Status Reader::GatherNear(const glm::vec3& position, const Cut& cut, const FarCut& far,
+                                Gathered* out, QueryStats* stats) {
+  return Account([&] { return impl_->GatherNear(position, cut, far, out); }, stats);
+}
+
+absl::Status Reader::Account(absl::FunctionRef<absl::Status()> query, QueryStats* stats) {
   Impl& im = *impl_;
   const uint64_t evictions_before = im.front.evictions();
   im.q.Clear();
-  absl::Status status = im.Gather(receiver, cut, out);
+  absl::Status status = query();
   const QueryStats& q = im.q;
   const uint64_t rh = q.TotalReaderHits();
   const uint64_t rm = q.TotalPagesTouched() - rh;

@@ -556,7 +556,68 @@ void Rasterizer::Finish(const Gathered& g, const ShadeReceiver& r, ShadeResult* 
     for (const Surfel& s : g.surfels) PrepareSurfel(s, out);
   }
   Draw<kClamp, kRad>(g, count_);
+  if (far_ != nullptr) CompositeFar<kClamp, kRad>();
   Integrate(r, out);
+}
+
+template <bool kClamp, bool kRad>
+void Rasterizer::CompositeFar() {
+  const float* state = far_->state_.data();
+  const float* depth = far_->depth_.data();
+  for (const uint32_t p : mb_.hemisphere_) {
+    const float* f = state + 4 * size_t(p);
+    const float cov = f[0];
+    if (!(cov > 0.0f)) continue;
+    PixelState& px = px_[p];
+    px.depth = std::min(px.depth, depth[p]);
+    const V4 far = Load4(f);
+    if constexpr (!kClamp) {
+      if constexpr (kRad) {
+        Store4(&px.closed, Load4(&px.closed) + far);
+      } else {
+        px.closed += cov;
+      }
+      continue;
+    } else {
+      // The near layers lie in front: close the open one as a layer with something behind it
+      // (clamped, as Shade() clamps a first layer once a fragment lies behind it). The far
+      // field then fills what is left as a solid layer behind does in Close(): only its
+      // samples that the near layers leave uncovered, where both have masks.
+      Close<kRad>(px, /*behind=*/true, free_layer_);
+      float c = std::min(cov, 1.0f);
+      const uint64_t mask = far_->mask_[p];
+      if (mask != 0 && px.closed_mask != 0) {
+        c *= static_cast<float>(std::popcount(mask & ~px.closed_mask)) /
+             static_cast<float>(std::popcount(mask));
+      }
+      const float e = std::min(c, std::max(0.0f, 1.0f - px.closed));
+      if (!(e > 0.0f)) continue;
+      // Where the far field's samples lie was bounded in its own buffer; here they are unknown
+      // (RasterOptions::bound_by_footprints).
+      px.touched = ~uint64_t{0};
+      const float closed = px.closed + e;
+      if constexpr (kRad) Store4(&px.closed, Load4(&px.closed) + (e / cov) * far);
+      px.closed = closed;  // exactly closed + e, as Close() keeps it
+    }
+  }
+}
+
+void Rasterizer::ExportFar(const ShadeReceiver& r, FarBuffer* out) const {
+  const size_t n = mb_.pixels_.size();
+  out->res_ = res_;
+  out->normal_ = glm::normalize(r.normal);
+  out->state_.assign(4 * n, 0.0f);
+  out->depth_.assign(n, std::numeric_limits<float>::infinity());
+  out->mask_.assign(n, 0);
+  // Integrate() closed the hemisphere's pixels; the others count for nothing.
+  for (const uint32_t p : mb_.hemisphere_) {
+    const PixelState& px = px_[p];
+    float* f = &out->state_[4 * size_t(p)];
+    f[0] = px.closed;
+    if (radiance_) f[1] = px.closed_rgb[0], f[2] = px.closed_rgb[1], f[3] = px.closed_rgb[2];
+    out->depth_[p] = px.depth;
+    out->mask_[p] = px.closed_mask;
+  }
 }
 
 template <bool kClamp, bool kRad>

@@ -84,6 +84,10 @@ class Rasterizer {
   }
 
   absl::Status Run(const Gathered& g, const ShadeReceiver& r, ShadeResult* out);
+  // The next Run() composites `far` behind its elements (ShadeWithFar() in pbgi/raster.h).
+  void set_far(const FarBuffer* far) { far_ = far; }
+  // What the last Run() left in the hemisphere's pixels, as a far buffer (ShadeFar()).
+  void ExportFar(const ShadeReceiver& r, FarBuffer* out) const;
 
   // The pixel's coverage is at most the share of its samples that its fragments' footprints
   // touched (PixelState::touched, RasterOptions::bound_by_footprints), after its last layer
@@ -213,6 +217,9 @@ class Rasterizer {
   // clipped to its hemisphere, to s's polygons.
   void AddPolygon(const Polygon& world_rel, PreparedSplat* s);
   void Integrate(const ShadeReceiver& r, ShadeResult* out);
+  // The far buffer behind what Draw() left (set_far()).
+  template <bool kClamp, bool kRad>
+  void CompositeFar();
   // Whether a surfel or co-planar group (unit `normal`, centre at `rel` from the receiver) is
   // the receiver's own surface seen from behind, its plane passing within `reach` (a radius, a
   // spacing) of the receiver: a receiver never sees that, so it is culled.
@@ -482,6 +489,7 @@ class Rasterizer {
   const bool polygons_;    // Footprint::kPolygons
   const bool free_layer_;  // !polygons_: the first layer sums freely
   const bool bound_;       // RasterOptions::bound_by_footprints, with polygons and clamp
+  const FarBuffer* far_ = nullptr;
 };
 
 }  // namespace pbgi::internal

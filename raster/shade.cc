@@ -4,6 +4,7 @@
 #include "absl/strings/str_cat.h"
 #include "glm/geometric.hpp"
 #include "pbgi/raster.h"
+#include "pbgi/status.h"
 #include "raster/rasterizer.h"
 
 namespace pbgi {
@@ -38,10 +39,12 @@ absl::Status ValidateRasterOptions(const RasterOptions& o) {
   return absl::OkStatus();
 }
 
-absl::Status Shade(const Gathered& gathered, const ShadeReceiver& receiver,
-                   const RasterOptions& options, MicroBuffer* scratch, ShadeResult* out) {
+namespace {
+// The checks of Shade(), ShadeFar() and ShadeWithFar(), whose name `what` is.
+absl::Status CheckShade(absl::string_view what, const ShadeReceiver& receiver,
+                        const RasterOptions& options, const MicroBuffer* scratch, const void* out) {
   if (scratch == nullptr || out == nullptr) {
-    return absl::InvalidArgumentError("Shade: scratch and out must not be null");
+    return absl::InvalidArgumentError(absl::StrCat(what, ": scratch and out must not be null"));
   }
   absl::Status valid = ValidateRasterOptions(options);
   if (!valid.ok()) return valid;
@@ -49,13 +52,47 @@ absl::Status Shade(const Gathered& gathered, const ShadeReceiver& receiver,
   if (!(nn > 0.0f) || !std::isfinite(nn) || !std::isfinite(receiver.position.x) ||
       !std::isfinite(receiver.position.y) || !std::isfinite(receiver.position.z)) {
     return absl::InvalidArgumentError(
-        absl::StrCat("Shade: receiver at (", receiver.position.x, ", ", receiver.position.y, ", ",
+        absl::StrCat(what, ": receiver at (", receiver.position.x, ", ", receiver.position.y, ", ",
                      receiver.position.z, ") has a zero or non-finite normal or position"));
   }
+  return absl::OkStatus();
+}
+}  // namespace
+
+absl::Status Shade(const Gathered& gathered, const ShadeReceiver& receiver,
+                   const RasterOptions& options, MicroBuffer* scratch, ShadeResult* out) {
+  PBGI_RETURN_IF_ERROR(CheckShade("Shade", receiver, options, scratch, out));
   absl::Status s = scratch->Prepare(options.resolution);
   if (!s.ok()) return s;
   internal::Rasterizer raster(scratch, options);
   return raster.Run(gathered, receiver, out);
+}
+
+absl::Status ShadeFar(const Gathered& far, const ShadeReceiver& centre,
+                      const RasterOptions& options, MicroBuffer* scratch, FarBuffer* out) {
+  PBGI_RETURN_IF_ERROR(CheckShade("ShadeFar", centre, options, scratch, out));
+  PBGI_RETURN_IF_ERROR(scratch->Prepare(options.resolution));
+  internal::Rasterizer raster(scratch, options);
+  ShadeResult result;
+  PBGI_RETURN_IF_ERROR(raster.Run(far, centre, &result));
+  raster.ExportFar(centre, out);
+  return absl::OkStatus();
+}
+
+absl::Status ShadeWithFar(const Gathered& near, const ShadeReceiver& receiver, const FarBuffer& far,
+                          const RasterOptions& options, MicroBuffer* scratch, ShadeResult* out) {
+  PBGI_RETURN_IF_ERROR(CheckShade("ShadeWithFar", receiver, options, scratch, out));
+  if (far.resolution() != options.resolution) {
+    return absl::InvalidArgumentError(
+        absl::StrCat("ShadeWithFar: the far buffer's resolution is ", far.resolution(),
+                     ", the options' ", options.resolution, " (ShadeFar with the same options)"));
+  }
+  PBGI_RETURN_IF_ERROR(scratch->Prepare(options.resolution));
+  internal::Rasterizer raster(scratch, options);
+  raster.set_far(&far);
+  ShadeReceiver r = receiver;
+  r.normal = far.normal();  // the far buffer's frame
+  return raster.Run(near, r, out);
 }
 
 }  // namespace pbgi

@@ -60,6 +60,12 @@ class ShadeEngine {
  private:
   struct Worker;
   void MaybeReportProgress(uint64_t done);
+  // This thread's Worker, made on first use; null (and the batch failed) when that failed.
+  Worker* LocalWorker();
+  // Shades receiver i on its own into out_[i] (and distance[i]). False when it failed.
+  bool ShadeOne(Worker& w, uint32_t i, float* distance);
+  // Shade() with far-field sharing (ShadeOptions::far_sharing), over receivers in Z-order.
+  absl::Status ShadeGroups(const std::vector<uint32_t>& order, float* distance);
 
   Database& db_;
   absl::Span<const ShadeReceiver> receivers_;
@@ -79,6 +85,8 @@ class ShadeEngine {
   absl::Status first_error_;
   std::atomic<uint64_t> done_{0};
   std::atomic<uint64_t> shaded_{0};
+  std::atomic<uint64_t> far_groups_{0};
+  std::atomic<uint64_t> far_members_{0};
   std::mutex progress_mu_;
   Stopwatch since_progress_;
 };

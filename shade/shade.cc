@@ -54,6 +54,7 @@ absl::Status Validate(absl::Span<const ShadeReceiver> receivers, const ShadeOpti
           "receiver %d has a %s", i, finite ? "zero normal" : "NaN or infinite coordinate"));
     }
   }
+  PBGI_RETURN_IF_ERROR(ValidateFarSharingOptions(options));
   if (options.mode == ShadeMode::kShared) {
     PBGI_RETURN_IF_ERROR(ValidateSharingOptions(options.sharing, receivers.size()));
   } else if (options.mode != ShadeMode::kExact) {
@@ -76,6 +77,43 @@ void ShadeStats::Add(const ShadeStats& o) {
   shaded += o.shaded;
   interpolated += o.interpolated;
   sharing_seconds += o.sharing_seconds;
+  far_groups += o.far_groups;
+  far_members += o.far_members;
+}
+
+absl::Status ValidateFarSharingOptions(const ShadeOptions& options) {
+  const FarSharingOptions& f = options.far_sharing;
+  if (!f.enabled) return absl::OkStatus();
+  if (f.max_members < 2 || f.max_members > 4096) {
+    return absl::InvalidArgumentError(
+        absl::StrFormat("FarSharingOptions::max_members %d: must be in [2, 4096]", f.max_members));
+  }
+  if (!(f.max_radius > 0.0f) || !std::isfinite(f.max_radius)) {
+    return absl::InvalidArgumentError(absl::StrFormat(
+        "FarSharingOptions::max_radius %g: must be finite and > 0 (world units)", f.max_radius));
+  }
+  if (!(f.distance_factor >= 1.0f) || !std::isfinite(f.distance_factor)) {
+    return absl::InvalidArgumentError(absl::StrFormat(
+        "FarSharingOptions::distance_factor %g: must be finite and >= 1", f.distance_factor));
+  }
+  if (!(f.max_normal_angle_degrees >= 0.0f && f.max_normal_angle_degrees < 90.0f)) {
+    return absl::InvalidArgumentError(
+        absl::StrFormat("FarSharingOptions::max_normal_angle_degrees %g: must be in [0, 90)",
+                        f.max_normal_angle_degrees));
+  }
+  if (options.cut.lobe.kind != CutLobeKind::kNone ||
+      (options.lobe_cut && options.raster.lobe != GlossyLobe::kNone)) {
+    return absl::InvalidArgumentError(
+        "FarSharingOptions::enabled with a lobe cut (Cut::lobe, or ShadeOptions::lobe_cut with "
+        "a glossy lobe): a lobe belongs to one receiver; set lobe_cut = false");
+  }
+  if (std::isfinite(options.cut.max_distance)) {
+    return absl::InvalidArgumentError(
+        absl::StrFormat("FarSharingOptions::enabled with Cut::max_distance %g: far sharing "
+                        "needs an infinite max_distance",
+                        options.cut.max_distance));
+  }
+  return absl::OkStatus();
 }
 
 int DefaultShadeThreads() { return std::max(1u, std::thread::hardware_concurrency()); }

@@ -150,6 +150,7 @@ absl::Status ShadeDemoView(const DemoArgs& a, uint64_t cache, DemoRun* run) {
   so.raster.compute_radiance = scene.has_radiance;
   so.threads = ResolveThreads(a.threads);
   ApplySharingFlags(a.sharing, &so);
+  ApplyFarSharingFlags(a.sharing.far, db->meta().bounds, &so);
   Progress progress("demo: shade", "receivers");  // the total: the pixels whose rays hit
   so.progress = [&](const ShadeProgress& p) { progress.Update(p.done, int64_t(p.total)); };
   const Camera camera = DefaultCamera(scene, a.width, a.height);

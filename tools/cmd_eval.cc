@@ -35,6 +35,7 @@
 #include "tools/progress.h"
 #include "tools/report.h"
 #include "tools/scene_views.h"
+#include "tools/sharing_flags.h"
 #include "tools/view_eval.h"
 
 namespace pbgi::tools {
@@ -84,6 +85,10 @@ struct EvalArgs {
   std::vector<float> tolerances = {0.05f};
   float radius_factor = 0.5f;
   std::string sharing_layout = "image";
+  // --view: far-field sharing rows (ShadeOptions::far_sharing), one per factor.
+  FarSharingFlags far;
+  std::vector<float> far_factors = {8.0f};
+  bool far_only = false;
   // --mode glossy: the lobes to sweep, each with each of its parameters (one eval per setting).
   std::vector<std::string> lobes = {"phong", "ggx"};
   std::vector<float> phong_exponents = {32.0f};
@@ -991,6 +996,11 @@ CommandSetup Setup() {
     app->add_option("--radius-factor", a->radius_factor,
                     "--view: SharingOptions::radius_factor of the shared rows")
         ->capture_default_str();
+    AddFarSharingFlags(app, &a->far);
+    app->add_option("--far-factors", a->far_factors,
+                    "--view --far-sharing: the distance factors of the far-sharing rows")
+        ->capture_default_str();
+    app->add_flag("--far-only", a->far_only, "--view --far-sharing: only the far-sharing rows");
     app->add_option("--sharing-layout", a->sharing_layout,
                     "--view: the shared rows see the receivers as an image or as a point set")
         ->check(CLI::IsMember({"image", "points"}))
@@ -1057,6 +1067,9 @@ CommandSetup Setup() {
       v.tolerances = a->tolerances;
       v.radius_factor = a->radius_factor;
       v.layout = a->sharing_layout;
+      v.far = a->far;
+      if (a->far.options.enabled) v.far_factors = a->far_factors;
+      v.far_only = a->far_only;
       if (app->count("--ray-sweep")) v.ray_sweep = a->ray_sweep;
       v.repeat = a->repeat;
       return RunViewEval(v);

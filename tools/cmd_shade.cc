@@ -395,6 +395,7 @@ absl::Status RunShade(const ShadeArgs& a) {
     so.raster.phong_exponent = a.phong_exponent;
   }
   ApplySharingFlags(a.sharing, &so);
+  ApplyFarSharingFlags(a.sharing.far, db->meta().bounds, &so);
   return a.scene.empty() ? ShadePoints(a, *db, so, mode, cache, chunk_receivers)
                          : ShadeCamera(a, *db, so, mode, cache);
 }

@@ -388,12 +388,22 @@ absl::Status RunViewEval(const ViewEvalArgs& a) {
     bool shared = false;
     int spacing = 0;
     float tolerance = 0;
+    float far_factor = 0;  // > 0: far-field sharing at this distance factor
   };
-  std::vector<ModeRow> modes;
-  if (!a.shared_only) modes.push_back({});
+  std::vector<ModeRow> plain_modes;
+  if (!a.shared_only) plain_modes.push_back({});
   if (!a.exact_only) {
     for (int sp : a.spacings) {
-      for (float tol : a.tolerances) modes.push_back({true, sp, tol});
+      for (float tol : a.tolerances) plain_modes.push_back({true, sp, tol});
+    }
+  }
+  std::vector<ModeRow> modes;
+  for (const ModeRow& m : plain_modes) {
+    if (!a.far_only || a.far_factors.empty()) modes.push_back(m);
+    for (float k : a.far_factors) {
+      ModeRow f = m;
+      f.far_factor = k;
+      modes.push_back(f);
     }
   }
   for (const std::string& footprint : a.footprints) {
@@ -423,6 +433,12 @@ absl::Status RunViewEval(const ViewEvalArgs& a) {
               so.sharing.spacing = m.spacing;
               so.sharing.tolerance = m.tolerance;
               so.sharing.radius_factor = a.radius_factor;
+            }
+            if (m.far_factor > 0) {
+              ApplyFarSharingFlags(a.far, db->meta().bounds, &so);
+              so.far_sharing.enabled = true;
+              so.far_sharing.distance_factor = m.far_factor;
+              so.lobe_cut = false;
             }
             std::vector<ShadeResult> results(cr.shade.size());
             std::vector<uint8_t> shaded(cr.shade.size());
@@ -485,6 +501,10 @@ absl::Status RunViewEval(const ViewEvalArgs& a) {
             } else {
               label += " exact";  // the tag of the reference mode stays the setting alone
             }
+            if (m.far_factor > 0) {
+              tag += absl::StrFormat("_far%g", m.far_factor);
+              label += absl::StrFormat(" far k%g", m.far_factor);
+            }
             const double n = double(std::max<size_t>(1, results.size()));
             const double us = st.seconds / n * 1e6;
             const double thread_us =
@@ -500,6 +520,19 @@ absl::Status RunViewEval(const ViewEvalArgs& a) {
                 double(st.query.clusters) / double(std::max<uint64_t>(1, st.shaded)),
                 double(st.query.surfels) / double(std::max<uint64_t>(1, st.shaded)));
             if (ref_us > 0) std::printf(", %.3gx the reference at equal MAE", ref_us / us);
+            std::printf("\n");
+            const double per_shaded = 1e6 / double(std::max<uint64_t>(1, st.shaded));
+            std::printf(
+                "%-26s per shaded receiver: gather %.1f + raster %.1f thread-us, %.1f CPU us", "",
+                st.gather_seconds * per_shaded, st.raster_seconds * per_shaded,
+                st.cpu_seconds * per_shaded);
+            if (st.far_groups > 0) {
+              std::printf(
+                  "; far field shared by %llu groups of %.2f receivers (%.1f%% of shaded)",
+                  static_cast<unsigned long long>(st.far_groups),
+                  double(st.far_members) / double(st.far_groups),
+                  100.0 * double(st.far_members) / double(std::max<uint64_t>(1, st.shaded)));
+            }
             std::printf("\n");
             PBGI_RETURN_IF_ERROR(
                 WritePng(a.out_dir + "/pbgi_" + tag + ".png", picture(got), 1.0f, false));
@@ -528,11 +561,13 @@ absl::Status RunViewEval(const ViewEvalArgs& a) {
                 "\"footprint\": \"%s\", \"curved_scale\": %g, \"curved_box_scale\": %g, "
                 "\"spacing\": %d, \"tolerance\": %g, \"us_per_receiver\": %.4g, "
                 "\"thread_us_per_receiver\": %.4g, \"cpu_us_per_receiver\": %.4g, \"shaded\": %d, "
-                "\"interpolated\": %d, "
+                "\"interpolated\": %d, \"far_factor\": %g, \"far_groups\": %d, "
+                "\"far_members\": %d, \"gather_seconds\": %.4g, \"raster_seconds\": %.4g, "
                 "\"clusters\": %.4g, \"surfels\": %.4g, \"speed_ratio\": %.4g, \"errors\": %s}",
                 tag, m.shared ? (a.layout == "image" ? "shared" : "shared_points") : "exact", msa,
                 res, cut, footprint, a.curved_scale, a.curved_box_scale, m.spacing, m.tolerance, us,
-                thread_us, cpu_us, st.shaded, st.interpolated, double(st.query.clusters) / n,
+                thread_us, cpu_us, st.shaded, st.interpolated, m.far_factor, st.far_groups,
+                st.far_members, st.gather_seconds, st.raster_seconds, double(st.query.clusters) / n,
                 double(st.query.surfels) / n, ref_us > 0 ? ref_us / us : 0.0, ErrorsJson(e)));
           }
         }

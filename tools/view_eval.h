@@ -14,6 +14,7 @@
 #include "glm/vec3.hpp"
 #include "pbgi/scene.h"
 #include "tools/image_io.h"
+#include "tools/sharing_flags.h"
 
 namespace pbgi::tools {
 
@@ -77,6 +78,11 @@ struct ViewEvalArgs {
   std::vector<float> tolerances = {0.05f};
   float radius_factor = 0.5f;
   std::string layout = "image";
+  // Far-field sharing rows: every mode row again with ShadeOptions::far_sharing at each of
+  // these distance factors (none: no such rows); far_only drops the rows without it.
+  FarSharingFlags far;
+  std::vector<float> far_factors;
+  bool far_only = false;
   // The reference at these rays per pixel, timed and compared like PBGI, for the speed ratio at
   // equal image MAE (none: no ratio).
   std::vector<int> ray_sweep;

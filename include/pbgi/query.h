@@ -182,6 +182,49 @@ bool SurfelBeyond(const Surfel& s, const Receiver& r, float max_distance);
 // the squared distance to the centre.
 float ClusterSolidAngle(const Cluster& c, const Receiver& r);
 
+// Far-field sharing (Wang et al., "Factorized Point Based Global Illumination", EGSR 2013;
+// docs/shade.md, "Session 13"): a group of nearby receivers with one normal gathers its far
+// field once (Reader::GatherFar) and each member gathers only its near field
+// (Reader::GatherNear). Every member lies within `radius` of `centre` and is gathered with the
+// group's `normal` (its own normal is not used: members are chosen with normals close to it).
+struct ReceiverGroup {
+  glm::vec3 centre{0.0f};
+  float radius = 0.0f;                 // >= 0
+  glm::vec3 normal{0.0f, 0.0f, 1.0f};  // need not be unit length, must not be zero
+  // in [0, radius]: every member lies within this of the plane through centre with this normal
+  // (0 for members on one plane).
+  float thickness = 0.0f;
+};
+
+// What GatherFar gives a group, for its members' GatherNear. The octree is split three ways:
+// - `far.clusters`: nodes that every member may take whole: each lies at least
+//   distance_factor * radius from the group's sphere (beyond its near-field sphere for every
+//   member), is not wholly behind any member's tangent plane, and passes the cut's test (Cut:
+//   plain, or cosine-weighted with the largest cosine any member sees) from every point of the
+//   sphere. Each is a valid element of every member's cut (pbgi/testing.h CheckValidCut), though
+//   a member's own Gather may take one of its ancestors instead. Only clusters: no surfels.
+// - `near_roots`: subtrees that each member gathers on its own (GatherNear), with the usual cut
+//   from its position: the nodes that lie wholly within that distance of the sphere, and leaves
+//   that are neither far nor wholly near.
+// - the nodes wholly behind every member's tangent plane (culled).
+// Every surfel in front of a member is represented exactly once by the far clusters and the
+// member's near gather together, as by one Gather.
+struct FarCut {
+  ReceiverGroup group;  // the group it was gathered for (unit normal)
+  float distance_factor = 0.0f;
+  Gathered far;
+  // Where each member's near gather starts: an octree node and its depth (opaque to callers).
+  struct Root {
+    uint64_t node;
+    uint32_t depth;
+  };
+  std::vector<Root> near_roots;
+  void Clear() {
+    far.Clear();
+    near_roots.clear();
+  }
+};
+
 // Counters of one cache level.
 struct LevelCounters {
   uint64_t hits = 0;
@@ -324,6 +367,19 @@ class Reader {
   absl::Status Gather(const Receiver& receiver, const Cut& cut, Gathered* out,
                       QueryStats* stats = nullptr);
 
+  // Far-field sharing (FarCut): gathers the far field of `group` into `out` (cleared first),
+  // with the cut `cut`; distance_factor (>= 1) sets how far a shared node lies from the group's
+  // sphere, relative to its radius. InvalidArgument for a bad group or factor, for a cut with a
+  // lobe (a lobe belongs to one receiver) or a finite max_distance (not supported).
+  absl::Status GatherFar(const ReceiverGroup& group, const Cut& cut, float distance_factor,
+                         FarCut* out, QueryStats* stats = nullptr);
+  // The near field of one member of far.group at `position`, with the group's normal: what
+  // Gather() gives minus the far clusters. REQUIRES: `far` came from GatherFar on this
+  // Database, with the same `cut`. InvalidArgument when `position` lies outside the group's
+  // sphere (the far set was not chosen for it).
+  absl::Status GatherNear(const glm::vec3& position, const Cut& cut, const FarCut& far,
+                          Gathered* out, QueryStats* stats = nullptr);
+
   // Gathers for receivers[order[0]], receivers[order[1]], ... (every receiver in index order
   // when `order` is empty), reusing one Gathered, and calls fn(index, gathered) after each.
   // Stops at the first error, from the gather or from fn.
@@ -342,6 +398,8 @@ class Reader {
   friend class Database;
   struct Impl;
   Reader(Database* db, std::unique_ptr<Impl> impl);
+  // Runs one query and adds its counters to this Reader's and to `stats`.
+  absl::Status Account(absl::FunctionRef<absl::Status()> query, QueryStats* stats);
 
   Database* db_;
   std::unique_ptr<Impl> impl_;

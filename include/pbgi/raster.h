@@ -285,6 +285,50 @@ class MicroBuffer {
   bool free_layer_ = true;  // the last Shade()'s first layer summed freely (kSplats)
 };
 
+// The far field of a group of receivers that share it (pbgi/query.h, FarCut; docs/shade.md,
+// "Session 13"), rasterized once from the group's centre in the frame of the group's normal:
+// per pixel of the cube, the coverage, the coverage-weighted radiance and the nearest depth that
+// the far clusters left. ShadeWithFar() composites it behind each member's near field. Like a
+// MicroBuffer, it belongs to one thread.
+class FarBuffer {
+ public:
+  int resolution() const { return res_; }
+  const glm::vec3& normal() const { return normal_; }  // unit
+  float PixelCoverage(int p) const { return state_[4 * size_t(p)]; }
+  glm::vec3 PixelRadiance(int p) const {  // coverage-weighted
+    const float* s = &state_[4 * size_t(p)];
+    return glm::vec3(s[1], s[2], s[3]);
+  }
+  float PixelDepth(int p) const { return depth_[size_t(p)]; }  // +inf where nothing drew
+
+ private:
+  friend class internal::Rasterizer;
+  int res_ = 0;
+  glm::vec3 normal_{0.0f, 0.0f, 1.0f};
+  std::vector<float> state_;  // per pixel: coverage, then radiance
+  std::vector<float> depth_;
+  std::vector<uint64_t> mask_;  // per pixel: the samples that the far field's layers covered
+};
+
+// Rasterizes a group's far clusters (FarCut::far) from `centre` (the group's centre and normal)
+// into `out`, with the options that its members will be shaded with. `scratch` is used and left
+// holding the far field alone.
+absl::Status ShadeFar(const Gathered& far, const ShadeReceiver& centre,
+                      const RasterOptions& options, MicroBuffer* scratch, FarBuffer* out);
+
+// Shades one member of a group: its near field (Reader::GatherNear) is rasterized as Shade()
+// does, at the receiver's position but in the frame of the far buffer's normal (the receiver's
+// own normal is not used), then the far buffer is composited behind it, pixel by pixel, as a
+// layer behind the near ones: it fills what they leave below 1, and where both came with
+// coverage masks (polygon footprints) only with the share of its samples that they leave
+// uncovered, so that a surface that crosses from the near field into the far one tiles the
+// pixel as it does in one buffer (without clamp, both add). The far buffer was drawn from the
+// group's centre: a far element's direction is off by at most the angle the group's radius
+// subtends at its distance (1 / distance_factor radians). REQUIRES: far comes from ShadeFar
+// with the same options.
+absl::Status ShadeWithFar(const Gathered& near, const ShadeReceiver& receiver, const FarBuffer& far,
+                          const RasterOptions& options, MicroBuffer* scratch, ShadeResult* out);
+
 // Shades one receiver from the gathered elements. `scratch` is reused across receivers.
 // Returns InvalidArgument for invalid options or a zero / non-finite receiver normal; never
 // produces NaN or Inf from finite inputs.

@@ -30,7 +30,9 @@
 //
 // Memory: the batch's receivers and results (the caller's), one order index per receiver, and
 // per thread a Reader (its share of the cache budget), a MicroBuffer and a Gathered; kShared
-// adds about 30 bytes per pixel of the image (image mode) or 70 per receiver (point sets).
+// adds about 30 bytes per pixel of the image (image mode) or 70 per receiver (point sets);
+// far sharing (FarSharingOptions) adds 9 bytes per receiver shaded by one call (the groups) and
+// per thread a FarCut and a FarBuffer (24 bytes per pixel of the cube).
 #ifndef PBGI_SHADE_H_
 #define PBGI_SHADE_H_
 
@@ -95,6 +97,27 @@ struct SharingOptions {
   float max_plane_distance = 0.05f;
 };
 
+// Far-field sharing (Wang et al., "Factorized Point Based Global Illumination", EGSR 2013;
+// docs/shade.md, "Session 13"), in either mode: the receivers that are shaded are cut into
+// groups of up to max_members consecutive ones in Z-order, within max_radius of the group's
+// first member and with normals within max_normal_angle_degrees of its normal. A group gathers
+// and rasterizes its far field once (Reader::GatherFar, ShadeFar) and each member only its near
+// field (Reader::GatherNear, ShadeWithFar), in the frame of the group's normal (the first
+// member's). A group of one is shaded as kExact shades it. Needs a cut without a lobe (no
+// glossy lobe cut) and an infinite Cut::max_distance. The groups depend on the batch's
+// receivers (and, in kShared, on which are shaded) but not on the thread count.
+struct FarSharingOptions {
+  bool enabled = false;
+  int max_members = 16;  // 2..4096
+  // World units, > 0 when enabled: the largest distance of a member from the group's first.
+  float max_radius = 0.0f;
+  // A node is shared when it lies at least this times the group's radius from the group's
+  // sphere (and passes the cut from all of it): a far element's direction is then off by at
+  // most 1 / distance_factor radians for a member. >= 1.
+  float distance_factor = 8.0f;
+  float max_normal_angle_degrees = 1.0f;  // [0, 90)
+};
+
 // How to shade a batch. New ways of shading come as new fields whose defaults keep the
 // behaviour of the fields before them.
 struct ShadeOptions {
@@ -120,6 +143,7 @@ struct ShadeOptions {
   // they are those of a cut made for the lobe, not for the cosine. The lobe's min_weight is
   // cut.lobe.min_weight.
   bool lobe_cut = true;
+  FarSharingOptions far_sharing;
 };
 
 // What a batch cost.
@@ -135,6 +159,9 @@ struct ShadeStats {
   uint64_t shaded = 0;         // receivers gathered and rasterized (all of them in kExact)
   uint64_t interpolated = 0;   // kShared: receivers interpolated from shaded ones
   double sharing_seconds = 0;  // kShared: thread time deciding cells and interpolating
+  // Far-field sharing: groups of two or more that shared a far field, and their members.
+  uint64_t far_groups = 0;
+  uint64_t far_members = 0;
   // Sums another batch's figures into these.
   void Add(const ShadeStats& o);
 };
@@ -155,6 +182,10 @@ absl::Status ShadeBatch(Database& db, absl::Span<const ShadeReceiver> receivers,
 // OK, or InvalidArgument naming the field of SharingOptions (or of its layout) that is wrong for
 // a batch of `receivers` receivers.
 absl::Status ValidateSharingOptions(const SharingOptions& sharing, size_t receivers);
+
+// OK, or InvalidArgument naming the field of FarSharingOptions that is wrong, or the option of
+// ShadeOptions that far sharing cannot work with (a lobe cut, a finite max_distance).
+absl::Status ValidateFarSharingOptions(const ShadeOptions& options);
 
 // The default thread count: the number of cores.
 int DefaultShadeThreads();
