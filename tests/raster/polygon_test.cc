@@ -203,6 +203,60 @@ TEST(PolygonTest, CoverageMasksSampleThePolygon) {
   EXPECT_LT(err / pixels, 0.03);
 }
 
+// The samples a polygon touches (RasterOptions::bound_by_footprints): against brute force, every
+// point of random triangles lies in a sample cell marked touched in its pixel (the set is
+// conservative, so the bound never cuts coverage), and the set is not much more than the
+// coverage (the bound is tight: the cells along the edges).
+TEST(PolygonTest, TouchedSamplesHoldEveryPointOfThePolygon) {
+  using polygon_coverage::kMaskSide;
+  using polygon_coverage::TouchedSamples;
+  const int res = 12;
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<float> u(-0.95f, 0.95f), w(0.0f, 1.0f);
+  double excess = 0.0;
+  int pixels = 0;
+  for (int trial = 0; trial < 200; ++trial) {
+    Polygon p;
+    p.n = 3;
+    // Small and slim triangles too: within a few pixels, some thinner than a sample.
+    const glm::vec3 c(u(rng), u(rng), 1.0f);
+    const float size = trial % 2 ? 0.05f : 0.4f;
+    for (int i = 0; i < 3; ++i) {
+      p.v[i] =
+          c + glm::vec3(size * (w(rng) - 0.5f), (trial % 3 ? size : 0.01f) * (w(rng) - 0.5f), 0.0f);
+    }
+    std::map<uint32_t, uint64_t> touched;
+    std::map<uint32_t, float> cover;
+    std::vector<float> acc;
+    RasterizePolygonTo(p, res, &acc, [&](uint32_t pixel, float cov, TouchedSamples t) {
+      touched[pixel] |= t.bits;
+      cover[pixel] += cov;
+    });
+    for (int k = 0; k < 4000; ++k) {
+      float a = w(rng), b = w(rng);
+      if (a + b > 1.0f) a = 1.0f - a, b = 1.0f - b;
+      const glm::vec3 q = p.v[0] + a * (p.v[1] - p.v[0]) + b * (p.v[2] - p.v[0]);
+      if (!(std::fabs(q.x) < 1.0f && std::fabs(q.y) < 1.0f)) continue;  // off the face
+      const float fx = (q.x + 1.0f) * 0.5f * res, fy = (q.y + 1.0f) * 0.5f * res;
+      const int col = std::min(res - 1, static_cast<int>(fx)),
+                row = std::min(res - 1, static_cast<int>(fy));
+      const int i = std::min(kMaskSide - 1, static_cast<int>((fx - col) * kMaskSide)),
+                j = std::min(kMaskSide - 1, static_cast<int>((fy - row) * kMaskSide));
+      const uint32_t pixel = 4u * res * res + static_cast<uint32_t>(row * res + col);
+      if (!cover.count(pixel)) continue;  // coverage below the sink's 1e-6 floor
+      ASSERT_TRUE(touched.count(pixel)) << trial << " " << pixel;
+      EXPECT_TRUE((touched[pixel] >> (j * kMaskSide + i)) & 1u)
+          << "trial " << trial << " pixel " << pixel << " sample " << i << "," << j;
+    }
+    for (const auto& [pixel, bits] : touched) {
+      excess += std::popcount(bits) / 64.0 - std::min(1.0f, cover[pixel]);
+      ++pixels;
+    }
+  }
+  EXPECT_GT(pixels, 200);
+  EXPECT_LT(excess / pixels, 0.2);
+}
+
 TEST(PolygonTest, APolygonAcrossFacesKeepsItsSolidAngle) {
   // A large square at distance 1 below the receiver's zenith, tilted, spanning five faces:
   // sum over pixels of coverage * pixel solid angle approaches the polygon's solid angle (the
