@@ -222,17 +222,38 @@ struct TouchedSamples {
   uint64_t bits;
 };
 inline uint64_t Touched(const MaskSpans& s, int col, int row) {
-  uint64_t m = 0;
-  for (int j = 0; j < kMaskSide; ++j) {
-    const int r = row * kMaskSide + j - s.row0;
-    if (r < 0 || r >= s.rows || s.xl[r] > s.xr[r]) continue;
-    const float a = (s.xl[r] - static_cast<float>(col)) * kMaskSide;
-    const float b = (s.xr[r] - static_cast<float>(col)) * kMaskSide;
-    const int c0 = std::max(0, static_cast<int>(std::floor(a)));
-    const int c1 = std::min(kMaskSide - 1, static_cast<int>(std::ceil(b)) - 1);
-    if (c0 > c1) continue;
-    m |= (((uint64_t{2} << c1) - 1) & ~((uint64_t{1} << c0) - 1)) << (kMaskSide * j);
-  }
+  // Mask()'s eight lanes, one per sample row's band; the columns whose cells [i, i + 1) / 8
+  // the band's extent [xl, xr] overlaps: l = floor(a), h = ceil(b) - 1 in sample units.
+  typedef float V8f __attribute__((vector_size(32)));
+  typedef int32_t V8i __attribute__((vector_size(32)));
+  typedef uint8_t V32b __attribute__((vector_size(32)));
+  typedef uint8_t V8b __attribute__((vector_size(8)));
+  static_assert(kMaskSide == 8);
+  V8f xl, xr;
+  std::memcpy(&xl, s.xl + (row * kMaskSide - s.row0), sizeof xl);
+  std::memcpy(&xr, s.xr + (row * kMaskSide - s.row0), sizeof xr);
+  const float c0 = static_cast<float>(col);
+  V8f a = (xl - c0) * 8.0f, b = (xr - c0) * 8.0f;
+  a = a < -1.0f ? -1.0f : a;
+  a = a > 9.0f ? 9.0f : a;
+  b = b < -1.0f ? -1.0f : b;
+  b = b > 9.0f ? 9.0f : b;
+  // Truncation is floor for x >= 0 (shifted by 2 as in Mask()).
+  const V8f a2 = a + 2.0f, b2 = b + 2.0f;
+  const V8i ai = __builtin_convertvector(a2, V8i), bi = __builtin_convertvector(b2, V8i);
+  V8i l = ai - 2;
+  V8i h = (__builtin_convertvector(bi, V8f) < b2 ? bi + 1 : bi) - 3;
+  l = l < 0 ? 0 : l;
+  l = l > 8 ? 8 : l;
+  h = h < -1 ? -1 : h;
+  h = h > 7 ? 7 : h;
+  const V8i ff = {0xff, 0xff, 0xff, 0xff, 0xff, 0xff, 0xff, 0xff};
+  const V8i bits = (ff << l) & (ff >> (7 - h)) & ff;
+  const V8b bytes =
+      __builtin_shufflevector(reinterpret_cast<const V32b&>(bits),
+                              reinterpret_cast<const V32b&>(bits), 0, 4, 8, 12, 16, 20, 24, 28);
+  uint64_t m;
+  std::memcpy(&m, &bytes, sizeof m);
   return m == 0 ? ~uint64_t{0} : m;
 }
 
