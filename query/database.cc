@@ -38,7 +38,6 @@ using internal::NodeCutCosine;
 using internal::NodeHot;
 using internal::NodeIsFlat;
 using internal::NodeMarginOf;
-using internal::NodeMaxSolidAngle;
 using internal::NodeNearFieldSphere;
 using internal::NodeRef;
 using internal::NodeSolidAngleFrom;
@@ -643,6 +642,9 @@ absl::Status Reader::Impl::GatherFar(const ReceiverGroup& group, const Cut& cut,
   // test has a margin >= 0).
   const glm::vec3 low = c - th * n, high = c + th * n;
   const float low_abs_max = AbsMax(low);
+  // Whether a node's flatness matters (Cut::curved_scale, Cut::curved_box_scale).
+  const bool need_flat = cut.curved_scale != 1.0f || cut.curved_box_scale > 0.0f;
+  const float curved_max_sa = cut.max_solid_angle * cut.curved_scale;
   const uint32_t far_word[3] = {n.x > 0 ? 4u : 0u, n.y > 0 ? 5u : 1u, n.z > 0 ? 6u : 2u};
   const float near_reach = r + k * r;  // a node wholly within this of c is near for everyone
 
@@ -675,7 +677,9 @@ absl::Status Reader::Impl::GatherFar(const ReceiverGroup& group, const Cut& cut,
       // sphere lie among those from c into the sphere grown by r, so their largest cosine bounds
       // p's. 1e-3 covers the rounding of the members' own tests (checked against them by brute
       // force in tests/shade/far_sharing_test.cc).
-      const float max_sa = NodeMaxSolidAngle(cut, node.sh_area.data(), node.lo, node.hi);
+      // NodeMaxSolidAngle, with the flatness that the curved-box test below needs too.
+      const bool flat = !need_flat || NodeIsFlat(node.sh_area.data(), node.lo, node.hi);
+      const float max_sa = flat ? cut.max_solid_angle : curved_max_sa;
       const glm::vec3 to_c = c - node.centre;
       const float dc = glm::length(to_c);
       const float dmin = dc - r;
@@ -687,7 +691,7 @@ absl::Status Reader::Impl::GatherFar(const ReceiverGroup& group, const Cut& cut,
       // The curved-box test (Cut::curved_box_scale) from every member: the box's silhouette
       // from any direction is at most the length of its three faces' area vector.
       bool box_ok = true;
-      if (cut.curved_box_scale > 0.0f && !NodeIsFlat(node.sh_area.data(), node.lo, node.hi)) {
+      if (cut.curved_box_scale > 0.0f && !flat) {
         const glm::vec3 e = node.hi - node.lo;
         const float box = glm::length(glm::vec3(e.y * e.z, e.x * e.z, e.x * e.y));
         box_ok = box * weight <

@@ -221,46 +221,13 @@ inline void BandSpans(const Poly2& p, int y0, int y1, MaskSpans* s) {
 struct TouchedSamples {
   uint64_t bits;
 };
-inline uint64_t Touched(const MaskSpans& s, int col, int row) {
-  // Mask()'s eight lanes, one per sample row's band; the columns whose cells [i, i + 1) / 8
-  // the band's extent [xl, xr] overlaps: l = floor(a), h = ceil(b) - 1 in sample units.
-  typedef float V8f __attribute__((vector_size(32)));
-  typedef int32_t V8i __attribute__((vector_size(32)));
-  typedef uint8_t V32b __attribute__((vector_size(32)));
-  typedef uint8_t V8b __attribute__((vector_size(8)));
-  static_assert(kMaskSide == 8);
-  V8f xl, xr;
-  std::memcpy(&xl, s.xl + (row * kMaskSide - s.row0), sizeof xl);
-  std::memcpy(&xr, s.xr + (row * kMaskSide - s.row0), sizeof xr);
-  const float c0 = static_cast<float>(col);
-  V8f a = (xl - c0) * 8.0f, b = (xr - c0) * 8.0f;
-  a = a < -1.0f ? -1.0f : a;
-  a = a > 9.0f ? 9.0f : a;
-  b = b < -1.0f ? -1.0f : b;
-  b = b > 9.0f ? 9.0f : b;
-  // Truncation is floor for x >= 0 (shifted by 2 as in Mask()).
-  const V8f a2 = a + 2.0f, b2 = b + 2.0f;
-  const V8i ai = __builtin_convertvector(a2, V8i), bi = __builtin_convertvector(b2, V8i);
-  V8i l = ai - 2;
-  V8i h = (__builtin_convertvector(bi, V8f) < b2 ? bi + 1 : bi) - 3;
-  l = l < 0 ? 0 : l;
-  l = l > 8 ? 8 : l;
-  h = h < -1 ? -1 : h;
-  h = h > 7 ? 7 : h;
-  const V8i ff = {0xff, 0xff, 0xff, 0xff, 0xff, 0xff, 0xff, 0xff};
-  const V8i bits = (ff << l) & (ff >> (7 - h)) & ff;
-  const V8b bytes =
-      __builtin_shufflevector(reinterpret_cast<const V32b&>(bits),
-                              reinterpret_cast<const V32b&>(bits), 0, 4, 8, 12, 16, 20, 24, 28);
-  uint64_t m;
-  std::memcpy(&m, &bytes, sizeof m);
-  return m == 0 ? ~uint64_t{0} : m;
-}
 
-// The coverage mask of pixel (col, row), which must lie in the spans' rows: its eight sample
-// rows in eight lanes. Sample column i of the pixel lies at x = col + (i + 0.5) / kMaskSide;
-// a row holds the columns with xl <= x <= xr.
-inline uint64_t Mask(const MaskSpans& s, int col, int row) {
+// The columns of pixel (col, row) that each of its eight sample rows holds, in eight lanes (the
+// row must lie in the spans'). kCells false: the sample points, columns i with
+// xl <= col + (i + 0.5) / kMaskSide <= xr (Mask). kCells true: the sample cells
+// [i, i + 1) / kMaskSide that [xl, xr] overlaps (Touched).
+template <bool kCells>
+inline uint64_t RowColumns(const MaskSpans& s, int col, int row) {
   typedef float V8f __attribute__((vector_size(32)));
   typedef int32_t V8i __attribute__((vector_size(32)));
   typedef uint8_t V32b __attribute__((vector_size(32)));
@@ -270,9 +237,11 @@ inline uint64_t Mask(const MaskSpans& s, int col, int row) {
   std::memcpy(&xl, s.xl + (row * kMaskSide - s.row0), sizeof xl);
   std::memcpy(&xr, s.xr + (row * kMaskSide - s.row0), sizeof xr);
   const float c0 = static_cast<float>(col);
-  // In the pixel's sample units, clamped to [-1, 9] so that the conversions stay exact:
-  // the first column l = ceil(a), the last h = floor(b); l = 8 or h = -1: none.
-  V8f a = (xl - c0) * 8.0f - 0.5f, b = (xr - c0) * 8.0f - 0.5f;
+  // In the pixel's sample units, clamped to [-1, 9] so that the conversions stay exact. Points:
+  // the first column l = ceil(a), the last h = floor(b), a and b taken at the samples' centres.
+  // Cells: l = floor(a), h = ceil(b) - 1. l = 8 or h = -1: none.
+  constexpr float kShift = kCells ? 0.0f : 0.5f;
+  V8f a = (xl - c0) * 8.0f - kShift, b = (xr - c0) * 8.0f - kShift;
   a = a < -1.0f ? -1.0f : a;
   a = a > 9.0f ? 9.0f : a;
   b = b < -1.0f ? -1.0f : b;
@@ -281,8 +250,14 @@ inline uint64_t Mask(const MaskSpans& s, int col, int row) {
   // x + 2, minus 2).
   const V8f a2 = a + 2.0f, b2 = b + 2.0f;
   const V8i ai = __builtin_convertvector(a2, V8i), bi = __builtin_convertvector(b2, V8i);
-  V8i l = (__builtin_convertvector(ai, V8f) < a2 ? ai + 1 : ai) - 2;
-  V8i h = bi - 2;
+  V8i l, h;
+  if constexpr (kCells) {
+    l = ai - 2;
+    h = (__builtin_convertvector(bi, V8f) < b2 ? bi + 1 : bi) - 3;
+  } else {
+    l = (__builtin_convertvector(ai, V8f) < a2 ? ai + 1 : ai) - 2;
+    h = bi - 2;
+  }
   l = l < 0 ? 0 : l;
   l = l > 8 ? 8 : l;
   h = h < -1 ? -1 : h;
@@ -295,6 +270,20 @@ inline uint64_t Mask(const MaskSpans& s, int col, int row) {
   uint64_t m;
   std::memcpy(&m, &bytes, sizeof m);
   return m;
+}
+
+// The coverage mask of pixel (col, row), which must lie in the spans' rows: sample column i of
+// the pixel lies at x = col + (i + 0.5) / kMaskSide; a row holds the columns with
+// xl <= x <= xr.
+inline uint64_t Mask(const MaskSpans& s, int col, int row) {
+  return RowColumns<false>(s, col, row);
+}
+
+// The samples whose cells the polygon of BandSpans() overlaps in pixel (col, row); all when none
+// (a polygon whose coverage passed the sink's floor without reaching a cell: not placed).
+inline uint64_t Touched(const MaskSpans& s, int col, int row) {
+  const uint64_t m = RowColumns<true>(s, col, row);
+  return m == 0 ? ~uint64_t{0} : m;
 }
 
 }  // namespace polygon_coverage

@@ -133,6 +133,29 @@ TEST_P(GatherFakeTest, CutIsValidAgainstBruteForce) {
   EXPECT_GT(clusters, 800u);  // the cut does cluster
 }
 
+// The flat clusters of `plain` (NodeIsFlat), and how many of them `refined` holds whole (the
+// same point range).
+size_t FlatClusters(const Gathered& plain) {
+  size_t n = 0;
+  for (const Cluster& c : plain.clusters) {
+    n += internal::NodeIsFlat(c.sh_area.data(), c.bounds.lo, c.bounds.hi) ? 1 : 0;
+  }
+  return n;
+}
+size_t FlatClustersKept(const Gathered& plain, const Gathered& refined) {
+  size_t kept = 0;
+  for (const Cluster& c : plain.clusters) {
+    if (!internal::NodeIsFlat(c.sh_area.data(), c.bounds.lo, c.bounds.hi)) continue;
+    for (const Cluster& d : refined.clusters) {
+      if (d.first_point == c.first_point && d.point_count == c.point_count) {
+        ++kept;
+        break;
+      }
+    }
+  }
+  return kept;
+}
+
 // Cut::curved_scale: the curved nodes' cut is finer, the flat ones' the same; the harness checks
 // the gather against the scaled criterion (a gather that ignored it fails the check).
 TEST_P(GatherFakeTest, CurvedScaleRefinesTheCurvedNodesOnly) {
@@ -151,18 +174,7 @@ TEST_P(GatherFakeTest, CurvedScaleRefinesTheCurvedNodesOnly) {
     more += curved.size() > plain.size();
     caught += !testing::CheckValidCut(plain, surfels, r, curved_cut).ok();
     // Flat clusters of the plain cut (with nothing standing on them) stay whole in the curved one.
-    size_t flat_plain = 0, flat_kept = 0;
-    for (const Cluster& c : plain.clusters) {
-      if (!internal::NodeIsFlat(c.sh_area.data(), c.bounds.lo, c.bounds.hi)) continue;
-      ++flat_plain;
-      for (const Cluster& d : curved.clusters) {
-        if (d.first_point == c.first_point && d.point_count == c.point_count) {
-          ++flat_kept;
-          break;
-        }
-      }
-    }
-    EXPECT_EQ(flat_kept, flat_plain);
+    EXPECT_EQ(FlatClustersKept(plain, curved), FlatClusters(plain));
   }
   EXPECT_GT(more, 100u);
   EXPECT_GT(caught, 10u);
@@ -200,18 +212,7 @@ TEST_P(GatherFakeTest, CurvedBoxScaleRefinesTheCurvedNodesOnly) {
                 box_cut.max_solid_angle);
     }
     // Flat clusters of the plain cut (with nothing standing on them) stay whole.
-    size_t flat_plain = 0, flat_kept = 0;
-    for (const Cluster& c : plain.clusters) {
-      if (!internal::NodeIsFlat(c.sh_area.data(), c.bounds.lo, c.bounds.hi)) continue;
-      ++flat_plain;
-      for (const Cluster& d : boxed.clusters) {
-        if (d.first_point == c.first_point && d.point_count == c.point_count) {
-          ++flat_kept;
-          break;
-        }
-      }
-    }
-    EXPECT_EQ(flat_kept, flat_plain);
+    EXPECT_EQ(FlatClustersKept(plain, boxed), FlatClusters(plain));
   }
   EXPECT_GT(more, 20u);
   EXPECT_GT(caught, 10u);

@@ -21,6 +21,7 @@ using testing_raster::ClustersInCells;
 using testing_raster::DiskSurfels;
 using testing_raster::kPi;
 using testing_raster::RectangleFormFactor;
+using testing_raster::RoomSurfels;
 using testing_raster::Rotation;
 using testing_raster::SphereSurfels;
 using testing_raster::SquareSurfels;
@@ -673,30 +674,6 @@ TEST(FootprintTest, UnmaskedCoverageIsNotScaledByHiddenSamples) {
   q.far = 1.0f;
   internal::Rasterizer::Close<false>(q, /*behind=*/true, /*free_layer=*/false);
   EXPECT_FLOAT_EQ(q.closed, 0.75f + 0.25f / 16.0f);
-}
-
-// The six walls of the room [-half, half]^3 facing inward, on a square grid of pitch `pitch`.
-std::vector<Surfel> RoomSurfels(float half, float pitch) {
-  std::vector<Surfel> out;
-  const int n = static_cast<int>(std::lround(2.0f * half / pitch));
-  const float r = pitch / std::sqrt(static_cast<float>(kPi));
-  for (int axis = 0; axis < 3; ++axis) {
-    for (float side : {-1.0f, 1.0f}) {
-      for (int j = 0; j < n; ++j) {
-        for (int i = 0; i < n; ++i) {
-          Surfel s;
-          s.position[axis] = side * half;
-          s.position[(axis + 1) % 3] = -half + (i + 0.5f) * pitch;
-          s.position[(axis + 2) % 3] = -half + (j + 0.5f) * pitch;
-          s.normal = glm::vec3(0.0f);
-          s.normal[axis] = -side;
-          s.radius = r;
-          out.push_back(s);
-        }
-      }
-    }
-  }
-  return out;
 }
 
 // A closed room of one-sided walls with a sphere inside, clustered in cells: every receiver

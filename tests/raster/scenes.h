@@ -214,6 +214,30 @@ inline glm::mat3 Rotation(const glm::vec3& axis_in, float angle) {
   return m;
 }
 
+// The six walls of the room [-half, half]^3 facing inward, on a square grid of pitch `pitch`.
+inline std::vector<Surfel> RoomSurfels(float half, float pitch) {
+  std::vector<Surfel> out;
+  const int n = static_cast<int>(std::lround(2.0f * half / pitch));
+  const float r = pitch / std::sqrt(static_cast<float>(kPi));
+  for (int axis = 0; axis < 3; ++axis) {
+    for (float side : {-1.0f, 1.0f}) {
+      for (int j = 0; j < n; ++j) {
+        for (int i = 0; i < n; ++i) {
+          Surfel s;
+          s.position[axis] = side * half;
+          s.position[(axis + 1) % 3] = -half + (static_cast<float>(i) + 0.5f) * pitch;
+          s.position[(axis + 2) % 3] = -half + (static_cast<float>(j) + 0.5f) * pitch;
+          s.normal = glm::vec3(0.0f);
+          s.normal[axis] = -side;
+          s.radius = r;
+          out.push_back(s);
+        }
+      }
+    }
+  }
+  return out;
+}
+
 }  // namespace pbgi::testing_raster
 
 #endif  // PBGI_TESTS_RASTER_SCENES_H_

@@ -8,44 +8,20 @@
 #include "gtest/gtest.h"
 #include "pbgi/shade.h"
 #include "pbgi/testing.h"
+#include "tests/raster/scenes.h"
 
 namespace pbgi {
 namespace {
 
-constexpr double kPi = 3.14159265358979323846;
-
-// The six walls of the room [-half, half]^3 facing inward, on a square grid of pitch `pitch`.
-std::vector<Surfel> RoomSurfels(float half, float pitch) {
-  std::vector<Surfel> out;
-  const int n = static_cast<int>(std::lround(2.0f * half / pitch));
-  const float r = pitch / std::sqrt(static_cast<float>(kPi));
-  for (int axis = 0; axis < 3; ++axis) {
-    for (float side : {-1.0f, 1.0f}) {
-      for (int j = 0; j < n; ++j) {
-        for (int i = 0; i < n; ++i) {
-          Surfel s;
-          s.position[axis] = side * half;
-          s.position[(axis + 1) % 3] = -half + (static_cast<float>(i) + 0.5f) * pitch;
-          s.position[(axis + 2) % 3] = -half + (static_cast<float>(j) + 0.5f) * pitch;
-          s.normal = glm::vec3(0.0f);
-          s.normal[axis] = -side;
-          s.radius = r;
-          out.push_back(s);
-        }
-      }
-    }
-  }
-  return out;
-}
-
-ShadeOptions ToolDefaults(float curved_box_scale, bool radiance) {
+// The tools' defaults (polygon footprints, curved_scale 0.3), occlusion only.
+ShadeOptions ToolDefaults(float curved_box_scale) {
   ShadeOptions o;
   o.cut.max_solid_angle = 0.03f;
   o.cut.cosine_weighted = true;
   o.cut.curved_scale = 0.3f;
   o.cut.curved_box_scale = curved_box_scale;
   o.raster.footprint = Footprint::kPolygons;
-  o.raster.compute_radiance = radiance;
+  o.raster.compute_radiance = false;
   return o;
 }
 
@@ -57,7 +33,7 @@ ShadeOptions ToolDefaults(float curved_box_scale, bool radiance) {
 // those cells are split and the walls close.
 TEST(CurvedBoxTest, ReceiversBesideARoomsEdgeAreFullyOccluded) {
   const float half = 2.0f;
-  const std::vector<Surfel> surfels = RoomSurfels(half, 0.02f);
+  const std::vector<Surfel> surfels = testing_raster::RoomSurfels(half, 0.02f);
   auto db = testing::TempDatabase::Create(surfels);
   ASSERT_TRUE(db.ok()) << db.status();
   std::vector<ShadeReceiver> receivers;
@@ -75,7 +51,7 @@ TEST(CurvedBoxTest, ReceiversBesideARoomsEdgeAreFullyOccluded) {
   double worst[2] = {1.0, 1.0};
   for (int with_box = 0; with_box < 2; ++with_box) {
     std::vector<ShadeResult> got(receivers.size());
-    ASSERT_TRUE(ShadeBatch((*db)->db(), receivers, ToolDefaults(with_box ? 1.0f : 0.0f, false),
+    ASSERT_TRUE(ShadeBatch((*db)->db(), receivers, ToolDefaults(with_box ? 1.0f : 0.0f),
                            absl::MakeSpan(got))
                     .ok());
     for (size_t i = 0; i < receivers.size(); ++i) {

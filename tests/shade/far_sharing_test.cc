@@ -18,9 +18,12 @@
 #include "gtest/gtest.h"
 #include "pbgi/shade.h"
 #include "pbgi/testing.h"
+#include "tests/shade/scenes.h"
 
 namespace pbgi {
 namespace {
+
+using testing_shade::FloorAndWall;
 
 // The far clusters and one member's near gather as one result.
 Gathered Combined(const FarCut& far, const Gathered& near) {
@@ -105,30 +108,6 @@ TEST_P(FarCutTest, FarPlusNearIsAValidCutForEveryMember) {
 }
 
 INSTANTIATE_TEST_SUITE_P(PlainAndCosine, FarCutTest, ::testing::Bool());
-
-// A floor [0, 1]^2 (z = 0, facing up, radiance 1) and a two-sided wall across it at x = 0.5,
-// 0.3 high (radiance 0.5 on its -x face, 2 on its +x face).
-std::vector<Surfel> FloorAndWall() {
-  std::vector<Surfel> s;
-  const int n = 120;
-  const float step = 1.0f / float(n), radius = 0.6f * step;
-  for (int j = 0; j < n; ++j) {
-    for (int i = 0; i < n; ++i) {
-      s.push_back({{(float(i) + 0.5f) * step, (float(j) + 0.5f) * step, 0.0f},
-                   {0, 0, 1},
-                   radius,
-                   glm::vec3(1.0f)});
-    }
-  }
-  for (int k = 0; k < 36; ++k) {
-    for (int j = 0; j < n; ++j) {
-      const float y = (float(j) + 0.5f) * step, z = (float(k) + 0.5f) * step;
-      s.push_back({{0.4995f, y, z}, {-1, 0, 0}, radius, glm::vec3(0.5f)});
-      s.push_back({{0.5005f, y, z}, {1, 0, 0}, radius, glm::vec3(2.0f)});
-    }
-  }
-  return s;
-}
 
 constexpr int kSide = 48;
 

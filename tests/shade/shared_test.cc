@@ -11,36 +11,14 @@
 #include "gtest/gtest.h"
 #include "pbgi/shade.h"
 #include "pbgi/testing.h"
+#include "tests/shade/scenes.h"
 
 namespace pbgi {
 namespace {
 
-constexpr int kSide = 64;  // the image: kSide x kSide receivers on the floor
+using testing_shade::FloorAndWall;
 
-// A floor [0, 1]^2 (z = 0, facing up, radiance 1) and a wall across it at x = 0.5, 0.3 high,
-// both faces (facing -x and +x, radiance 2 on the +x face): the floor's occlusion and irradiance
-// change smoothly away from the wall and jump across it.
-std::vector<Surfel> FloorAndWall() {
-  std::vector<Surfel> s;
-  const int n = 120;
-  const float step = 1.0f / float(n), radius = 0.6f * step;
-  for (int j = 0; j < n; ++j) {
-    for (int i = 0; i < n; ++i) {
-      s.push_back({{(float(i) + 0.5f) * step, (float(j) + 0.5f) * step, 0.0f},
-                   {0, 0, 1},
-                   radius,
-                   glm::vec3(1.0f)});
-    }
-  }
-  for (int k = 0; k < 36; ++k) {
-    for (int j = 0; j < n; ++j) {
-      const float y = (float(j) + 0.5f) * step, z = (float(k) + 0.5f) * step;
-      s.push_back({{0.4995f, y, z}, {-1, 0, 0}, radius, glm::vec3(0.5f)});
-      s.push_back({{0.5005f, y, z}, {1, 0, 0}, radius, glm::vec3(2.0f)});
-    }
-  }
-  return s;
-}
+constexpr int kSide = 64;  // the image: kSide x kSide receivers on the floor
 
 class SharedShadeTest : public ::testing::Test {
  protected:
