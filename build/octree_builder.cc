@@ -46,6 +46,34 @@ absl::Status PointPageWriter::Flush() {
   return s;
 }
 
+namespace {
+
+// Two doubles, one SSE2 register (GCC / Clang vector extensions, as raster/simd.h). Each lane
+// is summed in the same order as the scalar loop it replaces, so the sums are bit-identical.
+typedef double V2d __attribute__((vector_size(16)));
+
+inline V2d Load2(const double* p) {
+  V2d v;
+  std::memcpy(&v, p, sizeof v);
+  return v;
+}
+inline void Store2(double* p, V2d v) { std::memcpy(p, &v, sizeof v); }
+
+// sum[k] += c[k] * l for k < 9.
+inline void AddScaled9(const double* c, double l, double* sum) {
+  const V2d ll = {l, l};
+  for (int k = 0; k < 8; k += 2) Store2(sum + k, Load2(sum + k) + Load2(c + k) * ll);
+  sum[8] += c[8] * l;
+}
+
+// sum[k] += c[k] for k < 9.
+inline void Add9(const double* c, double* sum) {
+  for (int k = 0; k < 8; k += 2) Store2(sum + k, Load2(sum + k) + Load2(c + k));
+  sum[8] += c[8];
+}
+
+}  // namespace
+
 void NodeAggregate::AddPoint(const SortRecord& r, bool radiance) {
   bounds.Extend(glm::vec3(r.position[0], r.position[1], r.position[2]));
   const double a = sh::kPi * double(r.radius) * double(r.radius);
@@ -55,22 +83,17 @@ void NodeAggregate::AddPoint(const SortRecord& r, bool radiance) {
   if (RadiusTwoSided(r.radius)) {
     for (int k = 0; k < 9; ++k) c[k] = (k >= 1 && k <= 3) ? 0.0 : 2.0 * c[k];
   }
-  for (int k = 0; k < 9; ++k) sh_area[k] += c[k];
+  Add9(c.data(), sh_area.data());
   if (radiance) {
-    for (int ch = 0; ch < 3; ++ch) {
-      const double l = r.radiance[ch];
-      for (int k = 0; k < 9; ++k) sh_power[ch][k] += c[k] * l;
-    }
+    for (int ch = 0; ch < 3; ++ch) AddScaled9(c.data(), r.radiance[ch], sh_power[ch].data());
   }
 }
 
 void NodeAggregate::Add(const NodeAggregate& o) {
   bounds.Extend(o.bounds);
   area += o.area;
-  for (int k = 0; k < 9; ++k) sh_area[k] += o.sh_area[k];
-  for (int ch = 0; ch < 3; ++ch) {
-    for (int k = 0; k < 9; ++k) sh_power[ch][k] += o.sh_power[ch][k];
-  }
+  Add9(o.sh_area.data(), sh_area.data());
+  for (int ch = 0; ch < 3; ++ch) Add9(o.sh_power[ch].data(), sh_power[ch].data());
 }
 
 OctreeBuilder::OctreeBuilder(uint32_t leaf_size, Channels channels, PointPageWriter* points,
