@@ -46,25 +46,28 @@ std::unique_ptr<Group> NodePacker::MakeGroup(absl::Span<ClosedNode> nodes) {
 }
 
 absl::Status NodePacker::WritePage(uint64_t page_no, const std::vector<Group*>& groups) {
-  page_buf_.clear();
-  uint32_t count = 0;
+  uint64_t count = 0;
+  for (const Group* g : groups) count += g->nodes.size();
+  if (count > capacity_) {
+    return absl::InternalError(
+        absl::StrFormat("node page %d: %d records exceed capacity %d", page_no, count, capacity_));
+  }
+  // Sized once a page: a resize per record zero-filled each record before it was encoded.
+  page_buf_.resize(count * record_size_);
+  uint8_t* dst = page_buf_.data();
   for (const Group* g : groups) {
     for (const PendingNode& n : g->nodes) {
       if (n.child_group != nullptr) {
         return absl::InternalError(absl::StrFormat(
             "node page %d: a node's child group was not placed before its parent", page_no));
       }
-      page_buf_.resize(page_buf_.size() + record_size_);
-      EncodeNodeRecord(n.rec, channels_, grid_, page_buf_.data() + page_buf_.size() - record_size_);
-      ++count;
+      EncodeNodeRecord(n.rec, channels_, grid_, dst);
+      dst += record_size_;
     }
   }
-  if (count > capacity_) {
-    return absl::InternalError(
-        absl::StrFormat("node page %d: %d records exceed capacity %d", page_no, count, capacity_));
-  }
   records_written_ += count;
-  return sink_->Append(Section::kNodes, page_no, PageKind::kNode, count, page_buf_);
+  return sink_->Append(Section::kNodes, page_no, PageKind::kNode, static_cast<uint32_t>(count),
+                       page_buf_);
 }
 
 void NodePacker::PlaceInPage(uint64_t page_no, const std::vector<Group*>& groups) {

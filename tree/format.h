@@ -18,6 +18,10 @@
 #include <cstdint>
 #include <cstring>
 
+#if defined(__SSE2__)
+#include <emmintrin.h>
+#endif
+
 #include "pbgi/store.h"
 #include "pbgi/surfel.h"
 
@@ -295,7 +299,19 @@ inline uint32_t NodeRecordSize(Channels c) {
   return HasRadiance(c) ? kNodeRecordRadianceBytes : kNodeRecordOcclusionBytes;
 }
 
+// The scalar formula of EncodeScaled's code for c / s (|c| <= s, or NaN), in double: near kMax
+// a float has too few fraction bits to round to the nearest step.
+template <typename Int, int kMax>
+inline Int ScaledCode(float c, float s) {
+  return static_cast<Int>(
+      std::clamp<int64_t>(RoundHalfAway(double{c} / double{s} * kMax), -kMax, kMax));
+}
+
 // Fixed point, scaled by the largest magnitude: |error| <= scale / (2 * kMax) per coefficient.
+// Two codes at a time where SSE2 is (the x86-64 baseline), the same codes as ScaledCode: a
+// finite c has |c / s| <= 1, so |c / s * kMax| <= kMax < 2^31 needs no clamp and truncates
+// exactly to int32, and the remainder and the half-away step are those of RoundHalfAway. A pair
+// with a NaN (std::max skipped it, so s is finite) goes to the scalar formula.
 template <typename Int, int kMax>
 inline float EncodeScaled(const float* c, int n, Int* q) {
   float s = 0.0f;
@@ -304,11 +320,27 @@ inline float EncodeScaled(const float* c, int n, Int* q) {
     for (int k = 0; k < n; ++k) q[k] = 0;
     return std::isfinite(s) ? 0.0f : s;
   }
-  for (int k = 0; k < n; ++k) {
-    // In double: near kMax a float has too few fraction bits to round to the nearest step.
-    q[k] = static_cast<Int>(
-        std::clamp<int64_t>(RoundHalfAway(double{c[k]} / double{s} * kMax), -kMax, kMax));
+  int k = 0;
+#if defined(__SSE2__)
+  const __m128d sd = _mm_set1_pd(s), scale = _mm_set1_pd(kMax);
+  const __m128d half = _mm_set1_pd(0.5), minus_half = _mm_set1_pd(-0.5), one = _mm_set1_pd(1.0);
+  for (; k + 2 <= n; k += 2) {
+    const __m128d x = _mm_mul_pd(_mm_div_pd(_mm_set_pd(c[k + 1], c[k]), sd), scale);
+    if (_mm_movemask_pd(_mm_cmpunord_pd(x, x)) != 0) {
+      q[k] = ScaledCode<Int, kMax>(c[k], s);
+      q[k + 1] = ScaledCode<Int, kMax>(c[k + 1], s);
+      continue;
+    }
+    const __m128d t = _mm_cvtepi32_pd(_mm_cvttpd_epi32(x));
+    const __m128d f = _mm_sub_pd(x, t);
+    const __m128d r = _mm_sub_pd(_mm_add_pd(t, _mm_and_pd(_mm_cmpge_pd(f, half), one)),
+                                 _mm_and_pd(_mm_cmple_pd(f, minus_half), one));
+    const __m128i qi = _mm_cvttpd_epi32(r);
+    q[k] = static_cast<Int>(_mm_cvtsi128_si32(qi));
+    q[k + 1] = static_cast<Int>(_mm_cvtsi128_si32(_mm_srli_si128(qi, 4)));
   }
+#endif
+  for (; k < n; ++k) q[k] = ScaledCode<Int, kMax>(c[k], s);
   return s;
 }
 template <typename Int, int kMax>

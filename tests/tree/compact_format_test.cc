@@ -1,6 +1,7 @@
 // Format version 3's compact records (tree/format.h): every field within its stated bound, node
 // bounds that hold their points after quantization, the two-sided flag, and damaged pages as
 // DataLoss naming the page (tree/decoded_page.h).
+#include <algorithm>
 #include <cmath>
 #include <cstring>
 #include <limits>
@@ -8,6 +9,7 @@
 #include <string>
 #include <vector>
 
+#include "absl/strings/str_format.h"
 #include "gmock/gmock.h"
 #include "gtest/gtest.h"
 #include "tree/decoded_page.h"
@@ -84,6 +86,88 @@ TEST(CompactFormatTest, RoundHalfAwayIsLlround) {
     xs.push_back(std::floor(u(rng)) + 0.5);
   }
   for (double x : xs) EXPECT_EQ(RoundHalfAway(x), std::llround(x)) << std::hexfloat << x;
+}
+
+// EncodeScaled as it was written before it computed two codes at a time: the largest magnitude,
+// then each code by std::llround and a clamp, one coefficient at a time.
+template <typename Int, int kMax>
+float ScalarEncodeScaled(const float* c, int n, Int* q) {
+  float s = 0.0f;
+  for (int k = 0; k < n; ++k) s = std::max(s, std::fabs(c[k]));
+  if (!(s > 0.0f) || !std::isfinite(s)) {
+    for (int k = 0; k < n; ++k) q[k] = 0;
+    return std::isfinite(s) ? 0.0f : s;
+  }
+  for (int k = 0; k < n; ++k) {
+    q[k] = static_cast<Int>(
+        std::clamp<int64_t>(std::llround(double{c[k]} / double{s} * kMax), -kMax, kMax));
+  }
+  return s;
+}
+
+template <typename Int, int kMax>
+void ExpectEncodeScaledIsScalar(const std::vector<float>& c) {
+  const int n = static_cast<int>(c.size());
+  std::vector<Int> got(n, Int{99}), want(n, Int{-99});
+  const float s_got = EncodeScaled<Int, kMax>(c.data(), n, got.data());
+  const float s_want = ScalarEncodeScaled<Int, kMax>(c.data(), n, want.data());
+  std::string in;
+  for (float x : c) in += absl::StrFormat(" %a", x);
+  ASSERT_EQ(std::memcmp(&s_got, &s_want, sizeof s_got), 0) << kMax << in;
+  for (int k = 0; k < n; ++k) ASSERT_EQ(int{got[k]}, int{want[k]}) << kMax << " k " << k << in;
+}
+
+TEST(CompactFormatTest, EncodeScaledIsTheScalarFormula) {
+  std::mt19937 rng(15);
+  std::uniform_real_distribution<float> u(-1.0f, 1.0f);
+  const float kNaN = std::numeric_limits<float>::quiet_NaN();
+  const float kInf = std::numeric_limits<float>::infinity();
+  const float kMaxF = std::numeric_limits<float>::max();
+  const float kDenorm = std::numeric_limits<float>::denorm_min();
+  std::vector<std::vector<float>> inputs = {
+      {0, 0, 0, 0, 0, 0, 0, 0, 0},
+      {-0.0f, 0, -0.0f, 0, 0, 0, 0, 0, -0.0f},
+      {1, -1, 1, -1, 0.5f, -0.5f, 0.25f, -0.25f, 1},
+      {kMaxF, -kMaxF, 1, -1, kDenorm, -kDenorm, 0, 3e38f, -3e38f},
+      {kDenorm, -kDenorm, kDenorm, 0, 0, 0, 0, 0, 0},
+      {kNaN, 1, 0.5f, -0.25f, 0.3f, 0.7f, -0.9f, 0.1f, 0.2f},
+      {1, 0.5f, kNaN, kNaN, 0.3f, 0.7f, -0.9f, 0.1f, kNaN},
+      {1, 0.5f, kInf, -0.25f, 0.3f, 0.7f, -0.9f, 0.1f, 0.2f},
+      {1, 0.5f, -kInf, -0.25f, 0.3f, 0.7f, -0.9f, 0.1f, 0.2f},
+      {0.5f},
+      {-0.5f, 0.25f},
+      {0.5f, 0.25f, -0.125f},
+      {0.5f, 0.25f, -0.125f, 0.1f, 0.2f, 0.3f, 0.4f, -0.5f},
+  };
+  // Codes next to rounding ties, for both code widths: s * (j + 1/2) / kMax and its neighbours.
+  for (float s : {1.0f, 0.001f, 3.7f, 1e20f, 1e-30f}) {
+    for (int kmax : {127, 32767}) {
+      for (int rep = 0; rep < 50; ++rep) {
+        std::vector<float> c = {s};
+        for (int k = 1; k < 9; ++k) {
+          const int j = std::uniform_int_distribution<int>(-kmax, kmax - 1)(rng);
+          float x = static_cast<float>(double{s} * (j + 0.5) / kmax);
+          const int step = std::uniform_int_distribution<int>(-2, 2)(rng);
+          for (int i = 0; i < std::abs(step); ++i) x = std::nextafter(x, step < 0 ? -kInf : kInf);
+          c.push_back(std::clamp(x, -s, s));
+        }
+        std::shuffle(c.begin(), c.end(), rng);
+        inputs.push_back(c);
+      }
+    }
+  }
+  // Random coefficient vectors over many magnitudes, of every length up to 9.
+  for (int rep = 0; rep < 100000; ++rep) {
+    const int n = rep % 10 == 0 ? std::uniform_int_distribution<int>(1, 9)(rng) : 9;
+    const float scale = std::exp2(std::uniform_real_distribution<float>(-40.0f, 40.0f)(rng));
+    std::vector<float> c(n);
+    for (float& x : c) x = u(rng) * scale;
+    inputs.push_back(c);
+  }
+  for (const std::vector<float>& c : inputs) {
+    ExpectEncodeScaledIsScalar<int16_t, 32767>(c);
+    ExpectEncodeScaledIsScalar<int8_t, 127>(c);
+  }
 }
 
 TEST(CompactFormatTest, RecordSizes) {
