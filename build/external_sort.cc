@@ -18,7 +18,6 @@ namespace pbgi::internal {
 namespace {
 
 constexpr int kDigitBits = 8;  // 256 places to scatter to: their cache lines stay in L1
-constexpr int kMaxDigits = 8;  // 64 bits
 constexpr size_t kBuckets = size_t{1} << kDigitBits;
 constexpr uint64_t kMinMergeBufferBytes = 64 << 10;
 constexpr size_t kWriteChunkRecords = 4096;
@@ -68,6 +67,42 @@ absl::Status ReadAll(int fd, void* data, size_t bytes, uint64_t offset, const st
   return absl::OkStatus();
 }
 
+// Buckets this small are sorted by insertion: a radix pass's 256 counters cost more.
+constexpr size_t kInsertionSortMax = 48;
+
+void InsertionSortByKey(KeyIndex* a, size_t m) {
+  for (size_t i = 1; i < m; ++i) {
+    const KeyIndex x = a[i];
+    size_t j = i;
+    for (; j > 0 && a[j - 1].key > x.key; --j) a[j] = a[j - 1];
+    a[j] = x;
+  }
+}
+
+// Sorts the m pairs at `src`, whose keys agree on every varying bit above `rest`, stably into
+// `out` (`src` or `other`, the same range of the other array): MSD passes on the highest 8 bits
+// of `rest`, from one array to the other, until a bucket is small or its keys are equal.
+void SortBucket(KeyIndex* src, KeyIndex* other, KeyIndex* out, size_t m, uint64_t rest) {
+  if (m <= kInsertionSortMax || rest == 0) {
+    if (src != out) std::copy(src, src + m, out);
+    if (rest != 0) InsertionSortByKey(out, m);
+    return;
+  }
+  const int shift = std::max(64 - __builtin_clzll(rest) - kDigitBits, 0);
+  std::array<size_t, kBuckets + 1> start{};
+  for (size_t i = 0; i < m; ++i) ++start[((src[i].key >> shift) & (kBuckets - 1)) + 1];
+  for (size_t b = 0; b < kBuckets; ++b) start[b + 1] += start[b];
+  std::array<size_t, kBuckets> next;
+  std::copy(start.begin(), start.begin() + kBuckets, next.begin());
+  for (size_t i = 0; i < m; ++i) other[next[(src[i].key >> shift) & (kBuckets - 1)]++] = src[i];
+  const uint64_t below = rest & ((uint64_t{1} << shift) - 1);
+  for (size_t b = 0; b < kBuckets; ++b) {
+    const size_t lo = start[b], mb = start[b + 1] - lo;
+    if (mb == 0) continue;
+    SortBucket(other + lo, src + lo, (out == src ? src : other) + lo, mb, below);
+  }
+}
+
 }  // namespace
 
 KeyIndex* RadixSortKeyIndex(absl::Span<KeyIndex> pairs, absl::Span<KeyIndex> scratch) {
@@ -81,54 +116,28 @@ KeyIndex* RadixSortKeyIndex(absl::Span<KeyIndex> pairs, absl::Span<KeyIndex> scr
   const uint64_t varying = any ^ every;  // bits that differ between keys: the others never sort
   if (varying == 0) return pairs.data();
   // One stable pass on the highest 8 varying bits splits the run into 256 buckets of
-  // consecutive output, from `pairs` into `scratch`. A bucket is small enough to stay in the
-  // cache while the digits below (8 bits each, those with a varying bit only) sort it from the
-  // lowest up, within the bucket's range of both arrays. Passes of 13-bit digits over the whole
-  // run cost as much alone, but more next to the thread that reads the input through the same
-  // caches (docs/format.md, "Session 13").
+  // consecutive output, from `pairs` into `scratch`. Each bucket, small enough to stay in the
+  // cache, is then split again on the next 8 varying bits (back into `pairs`), and so on until a
+  // bucket holds at most kInsertionSortMax pairs, which an insertion sort finishes in place.
+  // Whole-run LSD passes cost more next to the thread that reads the input through the same
+  // caches, and an LSD sort of each bucket took a pass for every varying digit of the bucket
+  // (docs/format.md, "Session 13" and "Session 15").
   const int top = std::max(64 - __builtin_clzll(varying) - kDigitBits, 0);
+  const uint64_t below = varying & ((uint64_t{1} << top) - 1);
   std::array<size_t, kBuckets + 1> start{};
   for (const KeyIndex& p : pairs) ++start[((p.key >> top) & (kBuckets - 1)) + 1];
   for (size_t b = 0; b < kBuckets; ++b) start[b + 1] += start[b];
   std::array<size_t, kBuckets> next;
   std::copy(start.begin(), start.begin() + kBuckets, next.begin());
   for (const KeyIndex& p : pairs) scratch[next[(p.key >> top) & (kBuckets - 1)]++] = p;
-
-  const uint64_t below = varying & ((uint64_t{1} << top) - 1);
-  int shifts[kMaxDigits];
-  int digits = 0;
-  for (int shift = below == 0 ? top : __builtin_ctzll(below); shift < top; shift += kDigitBits) {
-    if ((below >> shift) & (kBuckets - 1)) shifts[digits++] = shift;
-  }
-  std::array<std::array<size_t, kBuckets>, kMaxDigits> counts;
+  // The top digit held every varying bit: the pass sorted the run.
+  if (below == 0) return scratch.data();
   for (size_t b = 0; b < kBuckets; ++b) {
     const size_t lo = start[b], m = start[b + 1] - lo;
     if (m == 0) continue;
-    KeyIndex* src = scratch.data() + lo;
-    KeyIndex* dst = pairs.data() + lo;
-    for (int d = 0; d < digits; ++d) counts[d].fill(0);
-    for (size_t i = 0; i < m; ++i) {
-      const uint64_t k = src[i].key;
-      for (int d = 0; d < digits; ++d) ++counts[d][(k >> shifts[d]) & (kBuckets - 1)];
-    }
-    for (int d = 0; d < digits; ++d) {
-      size_t* c = counts[d].data();
-      size_t sum = 0;
-      for (size_t x = 0; x < kBuckets; ++x) {
-        const size_t t = c[x];
-        c[x] = sum;
-        sum += t;
-      }
-      const int shift = shifts[d];
-      for (size_t i = 0; i < m; ++i) {
-        const KeyIndex& p = src[i];
-        dst[c[(p.key >> shift) & (kBuckets - 1)]++] = p;
-      }
-      std::swap(src, dst);
-    }
+    SortBucket(scratch.data() + lo, pairs.data() + lo, pairs.data() + lo, m, below);
   }
-  // Every bucket took the same number of passes, so all of them end in the same array.
-  return digits % 2 == 0 ? scratch.data() : pairs.data();
+  return pairs.data();
 }
 
 // Streams one spilled run through a buffer: raw runs straight into SortRecords; compact runs

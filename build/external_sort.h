@@ -48,10 +48,9 @@ struct KeyIndex {
   uint64_t key;
   uint64_t index;
 };
-// Sorts `pairs` by key, stably: one MSD radix pass on the highest 8 bits that differ between
-// the keys, then an LSD radix sort of each of the 256 buckets on the bits below (8-bit digits;
-// digits that are the same for every key are skipped). `scratch` has the same size. Returns
-// whichever of the two arrays holds the result.
+// Sorts `pairs` by key, stably: MSD radix passes on 8-bit digits of the bits that differ between
+// the keys, the highest first, each bucket split again until it is small enough for an insertion
+// sort. `scratch` has the same size. Returns whichever of the two arrays holds the result.
 KeyIndex* RadixSortKeyIndex(absl::Span<KeyIndex> pairs, absl::Span<KeyIndex> scratch);
 
 // Memory per record of a run: the record plus two (key, index) arrays.

@@ -76,6 +76,7 @@ TEST(RadixSortTest, MatchesStableSortWithDuplicates) {
       {0x1full, 0x3ull},
       {0xf0000000000000f0ull, 0x0ull},
       {0x0000ffff00000000ull, 0x0000010000000000ull},
+      {0xffffffffffffffffull, 0xffull},  // a bucket of most keys, split down to the last digit
       {0x0ull, 0x0ull}};
   for (size_t n : {0, 1, 2, 17, 5000, 100000}) {
     for (const auto& [mask_a, mask_b] : masks) {
