@@ -1,4 +1,5 @@
 // BuildDatabase and VerifyTree over the LMDB store.
+#include <algorithm>
 #include <condition_variable>
 #include <cstring>
 #include <filesystem>
@@ -24,17 +25,27 @@
 namespace pbgi {
 namespace {
 
-constexpr size_t kWriterSlots = 16;  // pages queued for the LMDB thread (1 MiB at 64 KiB pages)
+// The LMDB thread's page queue: 2 MiB (64 pages of the default 32 KiB), which PlanFor's 4 MiB
+// for threads covers beside the merge's block pipe (build/builder.cc). The writer thread sleeps
+// until kWriterWakePages are queued, rather than waking for every page (docs/format.md,
+// "Session 15").
+constexpr size_t kWriterQueueBytes = size_t{2} << 20;
+constexpr size_t kWriterMinSlots = 16;
+constexpr size_t kWriterWakePages = 8;
 
 // Runs a PageWriter on a thread of its own, so that LMDB's copies and writes overlap the octree
 // pass. Append copies the page into one of a few slots and returns; the writer thread appends
-// the slots in order. An LMDB write transaction belongs to the thread that began it, so every
-// call that may touch one (Append, Finish, the destructor's abort) runs on the writer thread.
-// A writer error is returned by the next Append or by Finish.
+// the slots in order, once at least `wake` pages are queued (or the build finishes). An LMDB
+// write transaction belongs to the thread that began it, so every call that may touch one
+// (Append, Finish, the destructor's abort) runs on the writer thread. A writer error is
+// returned by the next Append or by Finish.
 class AsyncWriterSink final : public internal::PageSink {
  public:
-  AsyncWriterSink(std::unique_ptr<PageWriter> writer, size_t slots)
-      : writer_(std::move(writer)), page_size_(writer_->page_size()), slots_(slots) {
+  AsyncWriterSink(std::unique_ptr<PageWriter> writer, size_t slots, size_t wake)
+      : writer_(std::move(writer)),
+        page_size_(writer_->page_size()),
+        slots_(slots),
+        wake_(std::clamp<size_t>(wake, 1, slots)) {
     for (Slot& s : slots_) s.payload.reserve(page_size_);
     thread_ = std::thread([this] { Run(); });
   }
@@ -43,7 +54,7 @@ class AsyncWriterSink final : public internal::PageSink {
       std::lock_guard<std::mutex> l(mu_);
       quit_ = true;
     }
-    cv_.notify_all();
+    work_cv_.notify_one();
     thread_.join();
   }
   uint32_t page_size() const override { return page_size_; }
@@ -51,7 +62,7 @@ class AsyncWriterSink final : public internal::PageSink {
   absl::Status Append(Section section, uint64_t page_no, PageKind kind, uint32_t record_count,
                       absl::Span<const uint8_t> payload) override {
     std::unique_lock<std::mutex> l(mu_);
-    cv_.wait(l, [&] { return count_ < slots_.size() || !status_.ok(); });
+    done_cv_.wait(l, [&] { return count_ < slots_.size() || !status_.ok(); });
     if (!status_.ok()) return status_;
     Slot& s = slots_[(head_ + count_) % slots_.size()];
     l.unlock();  // the slot is ours until count_ covers it
@@ -62,7 +73,7 @@ class AsyncWriterSink final : public internal::PageSink {
     s.payload.assign(payload.begin(), payload.end());
     l.lock();
     ++count_;
-    cv_.notify_all();
+    if (writer_idle_ && count_ >= wake_) work_cv_.notify_one();
     return absl::OkStatus();
   }
 
@@ -70,8 +81,8 @@ class AsyncWriterSink final : public internal::PageSink {
   absl::Status Finish(const StoreMeta& meta) {
     std::unique_lock<std::mutex> l(mu_);
     meta_ = &meta;
-    cv_.notify_all();
-    cv_.wait(l, [&] { return finished_ || !status_.ok(); });
+    work_cv_.notify_one();
+    done_cv_.wait(l, [&] { return finished_ || !status_.ok(); });
     return status_;
   }
 
@@ -87,8 +98,12 @@ class AsyncWriterSink final : public internal::PageSink {
   void Run() {
     std::unique_lock<std::mutex> l(mu_);
     for (;;) {
-      cv_.wait(l, [&] { return quit_ || count_ > 0 || (meta_ != nullptr && !finished_); });
-      if (count_ > 0 && status_.ok() && !quit_) {
+      writer_idle_ = true;
+      work_cv_.wait(l,
+                    [&] { return quit_ || count_ >= wake_ || (meta_ != nullptr && !finished_); });
+      writer_idle_ = false;
+      // Drains the queue, also the pages that arrive meanwhile.
+      while (count_ > 0 && status_.ok() && !quit_) {
         Slot& s = slots_[head_];
         l.unlock();
         absl::Status st = writer_->Append(s.section, s.page_no, s.kind, s.record_count,
@@ -97,8 +112,8 @@ class AsyncWriterSink final : public internal::PageSink {
         head_ = (head_ + 1) % slots_.size();
         --count_;
         if (!st.ok() && status_.ok()) status_ = st;
-        cv_.notify_all();
-        continue;
+        // Only a full queue (or an error) blocks Append.
+        if (count_ + 1 == slots_.size() || !status_.ok()) done_cv_.notify_all();
       }
       if (!status_.ok() || quit_) count_ = 0;  // the build failed or gave up: drop the rest
       if (meta_ != nullptr && !finished_ && status_.ok() && count_ == 0) {
@@ -108,9 +123,8 @@ class AsyncWriterSink final : public internal::PageSink {
         l.lock();
         if (!st.ok()) status_ = st;
         finished_ = true;
-        cv_.notify_all();
-        continue;
       }
+      if (finished_ || !status_.ok()) done_cv_.notify_all();
       if (quit_) break;
     }
     l.unlock();
@@ -120,10 +134,13 @@ class AsyncWriterSink final : public internal::PageSink {
   std::unique_ptr<PageWriter> writer_;
   const uint32_t page_size_;
   std::vector<Slot> slots_;
+  const size_t wake_;
   std::mutex mu_;
-  std::condition_variable cv_;
-  size_t head_ = 0;   // guarded by mu_
-  size_t count_ = 0;  // guarded by mu_
+  std::condition_variable work_cv_;  // the writer thread waits for pages, Finish or quit
+  std::condition_variable done_cv_;  // Append waits for a free slot, Finish for the end
+  size_t head_ = 0;                  // guarded by mu_
+  size_t count_ = 0;                 // guarded by mu_
+  bool writer_idle_ = false;         // guarded by mu_: the writer thread waits on work_cv_
   bool quit_ = false;
   bool finished_ = false;
   const StoreMeta* meta_ = nullptr;
@@ -186,7 +203,8 @@ absl::StatusOr<BuildStats> BuildDatabase(SurfelSource& source, const std::string
   BuildStats stats;
   internal::Stopwatch finish;
   if (plan.threads > 1) {
-    AsyncWriterSink sink(std::move(writer), kWriterSlots);
+    const size_t slots = std::max(kWriterQueueBytes / so.page_size, kWriterMinSlots);
+    AsyncWriterSink sink(std::move(writer), slots, kWriterWakePages);
     PBGI_ASSIGN_OR_RETURN(stats,
                           internal::BuildToSink(source, sink, options, tmp_dir, &meta, run_dir));
     finish.Restart();
