@@ -5,14 +5,17 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
+#include <cmath>
 #include <cstring>
 #include <filesystem>
+#include <limits>
 #include <map>
 #include <tuple>
 #include <vector>
 
 #include "build/builder.h"
 #include "build/external_sort.h"
+#include "build/input_range.h"
 #include "gtest/gtest.h"
 #include "pbgi/build.h"
 #include "pbgi/store.h"
@@ -236,6 +239,36 @@ TEST(BuildDatabaseTest, PagesAreStreamedOutOfThePageCache) {
 // The plan's shares never exceed the budget, threads only come with a budget that leaves their
 // runs large (1 M points at 32 MiB once made 4,096 runs of 256 points), and a known input that
 // fits one run is planned as one run.
+// The radius bound is 64 float steps of the largest coordinate, the step being what
+// std::nextafter gives (InputRangeCheck computes it from the bits): at and next to powers of two,
+// where the step doubles, for either sign and on each axis.
+TEST(InputRangeCheckTest, RadiusBoundIsSixtyFourStepsOfTheLargestCoordinate) {
+  std::vector<float> coords = {0.75f, 1.0f, 1.5f, 1000.0f, 1048576.0f, 3e11f, 1099511627776.0f};
+  for (float c : {1.0f, 1048576.0f, 1099511627776.0f}) coords.push_back(std::nextafter(c, 0.0f));
+  for (float c : coords) {
+    const float step = std::nextafter(c, std::numeric_limits<float>::infinity()) - c;
+    const float bound = internal::kMinRadiusInSteps * step;
+    ASSERT_GE(double(bound), internal::kMinRadius) << c;
+    for (int axis = 0; axis < 3; ++axis) {
+      for (float sign : {1.0f, -1.0f}) {
+        Surfel s;
+        s.position = glm::vec3(0.5f);
+        s.position[axis] = sign * c;
+        s.normal = glm::vec3(0.0f, 0.0f, 1.0f);
+        s.radiance = glm::vec3(1.0f);
+        s.radius = bound;
+        internal::InputRangeCheck ok;
+        EXPECT_TRUE(ok.Add(s, 0, true).ok()) << c << " axis " << axis;
+        s.radius = std::nextafter(bound, 0.0f);
+        internal::InputRangeCheck refused;
+        const absl::Status st = refused.Add(s, 0, true);
+        EXPECT_EQ(st.code(), absl::StatusCode::kInvalidArgument) << c << " axis " << axis;
+        EXPECT_NE(st.message().find("floats are"), absl::string_view::npos) << st.message();
+      }
+    }
+  }
+}
+
 TEST(PlanMemoryTest, SharesFitTheBudgetAndSmallBudgetsDropThreads) {
   for (uint64_t mib : {32, 64, 256, 1024, 4096}) {
     SCOPED_TRACE(mib);
