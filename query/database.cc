@@ -36,7 +36,6 @@ using internal::DecodedPage;
 using internal::NodeBeyondMargin;
 using internal::NodeCutCosine;
 using internal::NodeHot;
-using internal::NodeIsFlat;
 using internal::NodeMarginOf;
 using internal::NodeNearFieldSphere;
 using internal::NodeRef;
@@ -559,7 +558,7 @@ absl::Status Reader::Impl::Traverse(const glm::vec3& p, const glm::vec3& n, cons
         continue;
       }
       // NodeMaxSolidAngle, with the flatness that the curved-box test needs too.
-      const bool flat = !need_flat || NodeIsFlat(node.sh_area.data(), node.lo, node.hi);
+      const bool flat = !need_flat || node.flat != 0;
       const float max_sa = flat ? cut.max_solid_angle : curved_max_sa;
       const auto cosine = [&] { return NodeCutCosine(node.near_centre, node.near_radius2, p, n); };
       if (!NodeNearFieldSphere(node.near_centre, node.near_radius2, p) &&
@@ -678,7 +677,7 @@ absl::Status Reader::Impl::GatherFar(const ReceiverGroup& group, const Cut& cut,
       // p's. 1e-3 covers the rounding of the members' own tests (checked against them by brute
       // force in tests/shade/far_sharing_test.cc).
       // NodeMaxSolidAngle, with the flatness that the curved-box test below needs too.
-      const bool flat = !need_flat || NodeIsFlat(node.sh_area.data(), node.lo, node.hi);
+      const bool flat = !need_flat || node.flat != 0;
       const float max_sa = flat ? cut.max_solid_angle : curved_max_sa;
       const glm::vec3 to_c = c - node.centre;
       const float dc = glm::length(to_c);

@@ -98,22 +98,31 @@ inline float Area2(const Poly2& p) {
   return a;
 }
 
-// Splits p by the line {coord = at} (coord 0: x, 1: y) into its parts below and above.
+// Splits p by the line {coord = at} (coord 0: x, 1: y) into its parts below and above (neither
+// may be p). Each vertex is loaded once and carried to the next edge, the counts kept in
+// locals: through the pointers, every store to a part reloaded p's vertices.
 inline void Split(const Poly2& p, int coord, float at, Poly2* below, Poly2* above) {
-  below->n = above->n = 0;
-  const float* c = coord == 0 ? p.x : p.y;
-  for (int i = 0; i < p.n; ++i) {
-    const int j = i + 1 == p.n ? 0 : i + 1;
-    const float si = c[i] - at, sj = c[j] - at;
-    if (si <= 0.0f) below->x[below->n] = p.x[i], below->y[below->n++] = p.y[i];
-    if (si >= 0.0f) above->x[above->n] = p.x[i], above->y[above->n++] = p.y[i];
-    if ((si < 0.0f && sj > 0.0f) || (si > 0.0f && sj < 0.0f)) {
-      const float t = si / (si - sj);
-      const float x = p.x[i] + t * (p.x[j] - p.x[i]), y = p.y[i] + t * (p.y[j] - p.y[i]);
-      below->x[below->n] = x, below->y[below->n++] = y;
-      above->x[above->n] = x, above->y[above->n++] = y;
+  const int n = p.n;
+  int nb = 0, na = 0;
+  if (n > 0) {
+    const float* c = coord == 0 ? p.x : p.y;
+    float xi = p.x[0], yi = p.y[0], si = c[0] - at;
+    for (int i = 0; i < n; ++i) {
+      const int j = i + 1 == n ? 0 : i + 1;
+      const float xj = p.x[j], yj = p.y[j], sj = c[j] - at;
+      if (si <= 0.0f) below->x[nb] = xi, below->y[nb++] = yi;
+      if (si >= 0.0f) above->x[na] = xi, above->y[na++] = yi;
+      if ((si < 0.0f && sj > 0.0f) || (si > 0.0f && sj < 0.0f)) {
+        const float t = si / (si - sj);
+        const float x = xi + t * (xj - xi), y = yi + t * (yj - yi);
+        below->x[nb] = x, below->y[nb++] = y;
+        above->x[na] = x, above->y[na++] = y;
+      }
+      xi = xj, yi = yj, si = sj;
     }
   }
+  below->n = nb;
+  above->n = na;
 }
 
 // Clips the homogeneous polygon (a, b, w) of a face to |a| <= w, |b| <= w (its pyramid),
@@ -161,15 +170,34 @@ struct MaskSpans {
   float xl[kMaxMaskRows], xr[kMaxMaskRows];
 };
 
+// Eight sample rows at a time (the spans' rows are a multiple of kMaskSide, from row0).
+typedef float SpanV8f __attribute__((vector_size(32)));
+typedef int32_t SpanV8i __attribute__((vector_size(32)));
+inline constexpr SpanV8i kSpanLane = {0, 1, 2, 3, 4, 5, 6, 7};
+
+// Sets every row's crossings to none.
+inline void ClearSpans(int y0, int y1, MaskSpans* s) {
+  const int rows = std::min((y1 - y0 + 1) * kMaskSide, kMaxMaskRows);
+  s->row0 = y0 * kMaskSide;
+  s->rows = rows;
+  const SpanV8f none_l = {1e30f, 1e30f, 1e30f, 1e30f, 1e30f, 1e30f, 1e30f, 1e30f};
+  const SpanV8f none_r = -none_l;
+  for (int j = 0; j < rows; j += kMaskSide) {
+    std::memcpy(s->xl + j, &none_l, sizeof none_l);
+    std::memcpy(s->xr + j, &none_r, sizeof none_r);
+  }
+}
+
 // The crossings of a convex polygon in face-pixel coordinates with the sample rows of pixel
 // rows [y0, y1]: each edge is walked over the sample rows it crosses (two edges per row), one
-// division per edge.
+// division per edge, eight rows at a time.
 inline void Spans(const Poly2& p, int y0, int y1, MaskSpans* s) {
-  s->row0 = y0 * kMaskSide;
-  s->rows = std::min((y1 - y0 + 1) * kMaskSide, kMaxMaskRows);
+  static_assert(kMaskSide == 8);
+  ClearSpans(y0, y1, s);
+  // In locals: the stores to the spans would reload them through s.
+  const int row0 = s->row0, rows = s->rows;
   float* xl = s->xl;
   float* xr = s->xr;
-  for (int j = 0; j < s->rows; ++j) xl[j] = 1e30f, xr[j] = -1e30f;
   constexpr float kSide = kMaskSide;
   for (int i = 0; i < p.n; ++i) {
     const int k = i + 1 == p.n ? 0 : i + 1;
@@ -178,50 +206,79 @@ inline void Spans(const Poly2& p, int y0, int y1, MaskSpans* s) {
     if (ay > by) std::swap(ax, bx), std::swap(ay, by);
     // Sample row j (face-sample coordinates) lies at y = (j + 0.5) / kMaskSide; the edge
     // crosses the rows with ay <= y < by.
-    const int j0 = std::max(s->row0, CeilPos(std::max(0.0f, ay * kSide - 0.5f)));
-    const int j1 = std::min(s->row0 + s->rows, CeilPos(std::max(0.0f, by * kSide - 0.5f)));
+    const int j0 = std::max(row0, CeilPos(std::max(0.0f, ay * kSide - 0.5f)));
+    const int j1 = std::min(row0 + rows, CeilPos(std::max(0.0f, by * kSide - 0.5f)));
+    if (j0 >= j1) continue;
     const float slope = (bx - ax) / (by - ay);
-    for (int j = j0; j < j1; ++j) {
-      const float y = (static_cast<float>(j) + 0.5f) / kSide;
-      const float x = ax + (y - ay) * slope;
-      xl[j - s->row0] = std::min(xl[j - s->row0], x);
-      xr[j - s->row0] = std::max(xr[j - s->row0], x);
+    // Rows [jb, jb + 8) from the block that holds j0; the lanes outside [j0, j1) keep theirs.
+    for (int jb = j0 - (j0 - row0) % kMaskSide; jb < j1; jb += kMaskSide) {
+      const SpanV8i j = jb + kSpanLane;
+      const SpanV8i in = (j >= j0) & (j < j1);
+      const SpanV8f y = (__builtin_convertvector(j, SpanV8f) + 0.5f) / kSide;
+      const SpanV8f x = ax + (y - ay) * slope;
+      SpanV8f l, r;
+      std::memcpy(&l, xl + (jb - row0), sizeof l);
+      std::memcpy(&r, xr + (jb - row0), sizeof r);
+      // std::min(l, x) and std::max(r, x), lane by lane.
+      l = in & (x < l) ? x : l;
+      r = in & (r < x) ? x : r;
+      std::memcpy(xl + (jb - row0), &l, sizeof l);
+      std::memcpy(xr + (jb - row0), &r, sizeof r);
     }
   }
 }
 
 // The samples whose cells a convex polygon overlaps, for an upper bound of what it covers
 // (PixelState::touched): per sample row's band [j, j + 1) / kMaskSide of face-pixel rows
-// [y0, y1], the polygon's x-extent within the band (BandSpans), then per pixel the columns whose
-// cells that extent overlaps (Touched).
+// [y0, y1], the polygon's x-extent within the band (BandSpans, eight bands at a time), then per
+// pixel the columns whose cells that extent overlaps (Touched).
 inline void BandSpans(const Poly2& p, int y0, int y1, MaskSpans* s) {
-  s->row0 = y0 * kMaskSide;
-  s->rows = std::min((y1 - y0 + 1) * kMaskSide, kMaxMaskRows);
+  static_assert(kMaskSide == 8);
+  ClearSpans(y0, y1, s);
+  // In locals: the stores to the spans would reload them through s.
+  const int row0 = s->row0, rows = s->rows;
   float* xl = s->xl;
   float* xr = s->xr;
-  for (int j = 0; j < s->rows; ++j) xl[j] = 1e30f, xr[j] = -1e30f;
   constexpr float kSide = kMaskSide;
   for (int i = 0; i < p.n; ++i) {
     const int k = i + 1 == p.n ? 0 : i + 1;
     float ax = p.x[i], ay = p.y[i], bx = p.x[k], by = p.y[k];
     if (ay > by) std::swap(ax, bx), std::swap(ay, by);
-    const int j0 = std::max(s->row0, static_cast<int>(std::floor(ay * kSide)));
-    const int j1 = std::min(s->row0 + s->rows - 1, static_cast<int>(std::floor(by * kSide)));
-    const float slope = by > ay ? (bx - ax) / (by - ay) : 0.0f;
-    for (int j = j0; j <= j1; ++j) {
-      const float lo = std::max(ay, static_cast<float>(j) / kSide);
-      const float hi = std::min(by, static_cast<float>(j + 1) / kSide);
-      const float xa = by > ay ? ax + (lo - ay) * slope : std::min(ax, bx);
-      const float xb = by > ay ? ax + (hi - ay) * slope : std::max(ax, bx);
-      xl[j - s->row0] = std::min({xl[j - s->row0], xa, xb});
-      xr[j - s->row0] = std::max({xr[j - s->row0], xa, xb});
+    const int j0 = std::max(row0, FloorPos(ay * kSide));
+    const int j1 = std::min(row0 + rows - 1, FloorPos(by * kSide));
+    if (j0 > j1) continue;
+    const bool slanted = by > ay;
+    const float slope = slanted ? (bx - ax) / (by - ay) : 0.0f;
+    const float flat_a = std::min(ax, bx), flat_b = std::max(ax, bx);
+    for (int jb = j0 - (j0 - row0) % kMaskSide; jb <= j1; jb += kMaskSide) {
+      const SpanV8i j = jb + kSpanLane;
+      const SpanV8i in = (j >= j0) & (j <= j1);
+      const SpanV8f fj = __builtin_convertvector(j, SpanV8f);
+      SpanV8f lo = fj / kSide, hi = (fj + 1.0f) / kSide;
+      lo = ay < lo ? lo : ay;  // std::max(ay, lo)
+      hi = hi < by ? hi : by;  // std::min(by, hi)
+      SpanV8f xa, xb;
+      if (slanted) {
+        xa = ax + (lo - ay) * slope;
+        xb = ax + (hi - ay) * slope;
+      } else {
+        xa = SpanV8f{flat_a, flat_a, flat_a, flat_a, flat_a, flat_a, flat_a, flat_a};
+        xb = SpanV8f{flat_b, flat_b, flat_b, flat_b, flat_b, flat_b, flat_b, flat_b};
+      }
+      SpanV8f l, r;
+      std::memcpy(&l, xl + (jb - row0), sizeof l);
+      std::memcpy(&r, xr + (jb - row0), sizeof r);
+      // std::min({l, xa, xb}) and std::max({r, xa, xb}): the first extreme, lane by lane.
+      SpanV8f nl = xa < l ? xa : l, nr = r < xa ? xa : r;
+      nl = xb < nl ? xb : nl;
+      nr = nr < xb ? xb : nr;
+      l = in ? nl : l;
+      r = in ? nr : r;
+      std::memcpy(xl + (jb - row0), &l, sizeof l);
+      std::memcpy(xr + (jb - row0), &r, sizeof r);
     }
   }
 }
-struct TouchedSamples {
-  uint64_t bits;
-};
-
 // The columns of pixel (col, row) that each of its eight sample rows holds, in eight lanes (the
 // row must lie in the spans'). kCells false: the sample points, columns i with
 // xl <= col + (i + 0.5) / kMaskSide <= xr (Mask). kCells true: the sample cells
@@ -286,10 +343,64 @@ inline uint64_t Touched(const MaskSpans& s, int col, int row) {
   return m == 0 ? ~uint64_t{0} : m;
 }
 
+struct TouchedSamples {
+  uint64_t bits;
+};
+
+// A polygon's coverage masks and touched samples on one face, their spans found on first use:
+// the rasterizer asks only in pixels that are still open (Rasterizer::Layer()), so a polygon
+// whose partly covered pixels are all closed finds none.
+class FaceSamples {
+ public:
+  FaceSamples(const Poly2& p, int y0, int y1) : p_(p), y0_(y0), y1_(y1) {}
+  FaceSamples(const FaceSamples&) = delete;
+  FaceSamples& operator=(const FaceSamples&) = delete;
+
+  uint64_t Mask(int col, int row) {
+    if (!have_spans_) {
+      Spans(p_, y0_, y1_, &spans_);
+      have_spans_ = true;
+    }
+    return polygon_coverage::Mask(spans_, col, row);
+  }
+  uint64_t Touched(int col, int row) {
+    if (!have_bands_) {
+      BandSpans(p_, y0_, y1_, &bands_);
+      have_bands_ = true;
+    }
+    return polygon_coverage::Touched(bands_, col, row);
+  }
+
+ private:
+  const Poly2& p_;
+  const int y0_, y1_;
+  bool have_spans_ = false, have_bands_ = false;
+  MaskSpans spans_;  // Spans()
+  MaskSpans bands_;  // BandSpans()
+};
+
+// One covered pixel's coverage mask and touched samples, computed when asked; a pixel that the
+// polygon covers whole holds every sample (most of a large polygon's pixels).
+class PixelSamples {
+ public:
+  PixelSamples(FaceSamples* face, int col, int row, bool full)
+      : face_(face), col_(col), row_(row), full_(full) {}
+  uint64_t mask() const { return full_ ? ~uint64_t{0} : face_->Mask(col_, row_); }
+  uint64_t touched() const { return full_ ? ~uint64_t{0} : face_->Touched(col_, row_); }
+
+ private:
+  FaceSamples* face_;
+  int col_, row_;
+  bool full_;
+};
+
 }  // namespace polygon_coverage
 
 // RasterizePolygon() (raster/polygon.h) with each covered pixel passed to sink(pixel, coverage)
-// in the same order as RasterizePolygon() appends them, except on a face where
+// in the same order as RasterizePolygon() appends them. A sink may take a third argument: the
+// pixel's coverage mask (uint64_t), the samples whose cells the polygon overlaps
+// (TouchedSamples), both (uint64_t, TouchedSamples), or a PixelSamples that computes either
+// when asked. Except on a face where
 // skip(first, col0, col1, row0, row1) says that the pixels first + row * res + col of the
 // polygon's bounding rectangle there need none (the caller's pixels that a fragment cannot
 // change): its coverage is not computed.
@@ -299,12 +410,14 @@ inline void RasterizePolygonTo(const Polygon& p, int res, std::vector<float>* ac
   using namespace polygon_coverage;  // NOLINT(build/namespaces): this file's own helpers
 
   if (p.n < 3) return;
-  // Whether the sink takes a pixel's coverage mask as a third argument, or instead the samples
-  // whose cells the polygon overlaps (Touched).
-  constexpr bool kBoth = std::is_invocable_v<Sink, uint32_t, float, uint64_t, TouchedSamples>;
-  constexpr bool kTouched = std::is_invocable_v<Sink, uint32_t, float, TouchedSamples>;
+  // Whether the sink takes a pixel's samples lazily, its coverage mask as a third argument, or
+  // instead the samples whose cells the polygon overlaps (Touched).
+  constexpr bool kLazy = std::is_invocable_v<Sink, uint32_t, float, const PixelSamples&>;
+  constexpr bool kBoth =
+      !kLazy && std::is_invocable_v<Sink, uint32_t, float, uint64_t, TouchedSamples>;
+  constexpr bool kTouched = !kLazy && std::is_invocable_v<Sink, uint32_t, float, TouchedSamples>;
   constexpr bool kMasks =
-      kBoth || (!kTouched && std::is_invocable_v<Sink, uint32_t, float, uint64_t>);
+      kBoth || (!kLazy && !kTouched && std::is_invocable_v<Sink, uint32_t, float, uint64_t>);
   // The face of each vertex; a polygon whose vertices all lie in one face's pyramid lies in it
   // (the pyramid is convex) and needs no clipping.
   int home = -1;
@@ -379,49 +492,24 @@ inline void RasterizePolygonTo(const Polygon& p, int res, std::vector<float>* ac
     const int y1 = std::min(res - 1, std::max(y0, CeilPos(maxy) - 1));
     const uint32_t base = static_cast<uint32_t>(f * res * res);
     if (skip(base, x0, x1, y0, y1)) continue;
-    // A sink that takes a third argument gets each pixel's coverage mask (the face's sample
-    // spans are found for its first partly covered pixel; a pixel that the polygon covers whole
-    // holds every sample, most of a large polygon's pixels).
-    MaskSpans spans;  // Spans(), or BandSpans() for a sink of TouchedSamples alone
-    bool have_spans = false;
-    [[maybe_unused]] MaskSpans bands;  // BandSpans() for a sink of both
-    [[maybe_unused]] bool have_bands = false;
+    // A sink that takes a third argument gets each pixel's samples, their spans on the face
+    // found when first needed.
+    FaceSamples samples(whole, y0, y1);
     auto emit = [&](int col, int row, float area2) {
       const float cov = std::min(1.0f, 0.5f * std::fabs(area2));
       if (!(cov > 1e-6f)) return;
       const uint32_t pixel = base + static_cast<uint32_t>(row * res + col);
-      if constexpr (kMasks) {
-        uint64_t mask = ~uint64_t{0};
-        if (cov < 1.0f) {
-          if (!have_spans) {
-            Spans(whole, y0, y1, &spans);
-            have_spans = true;
-          }
-          mask = Mask(spans, col, row);
-        }
-        if constexpr (kBoth) {
-          uint64_t touched = ~uint64_t{0};
-          if (cov < 1.0f) {
-            if (!have_bands) {
-              BandSpans(whole, y0, y1, &bands);
-              have_bands = true;
-            }
-            touched = Touched(bands, col, row);
-          }
-          sink(pixel, cov, mask, TouchedSamples{touched});
+      if constexpr (kLazy || kMasks || kTouched) {
+        const PixelSamples s(&samples, col, row, /*full=*/!(cov < 1.0f));
+        if constexpr (kLazy) {
+          sink(pixel, cov, s);
+        } else if constexpr (kBoth) {
+          sink(pixel, cov, s.mask(), TouchedSamples{s.touched()});
+        } else if constexpr (kMasks) {
+          sink(pixel, cov, s.mask());
         } else {
-          sink(pixel, cov, mask);
+          sink(pixel, cov, TouchedSamples{s.touched()});
         }
-      } else if constexpr (kTouched) {
-        uint64_t touched = ~uint64_t{0};
-        if (cov < 1.0f) {
-          if (!have_spans) {
-            BandSpans(whole, y0, y1, &spans);
-            have_spans = true;
-          }
-          touched = Touched(spans, col, row);
-        }
-        sink(pixel, cov, TouchedSamples{touched});
       } else {
         sink(pixel, cov);
       }

@@ -170,16 +170,15 @@ void Rasterizer::SplatPolygons(const PreparedSplat& s) {
     // opacity covers an unknown part of its pixels' samples: its fragments stay scalar. Both
     // pass the samples whose cells their footprint overlaps (PixelState::touched).
     if (alpha >= kMaskOpacity) {
-      auto masked = [&](uint32_t pixel, float cov, uint64_t mask,
-                        polygon_coverage::TouchedSamples t) {
-        Emit<kClamp, kRad>(pixel, alpha * cov, fr, mask, t.bits);
+      auto masked = [&](uint32_t pixel, float cov, const polygon_coverage::PixelSamples& t) {
+        Emit<kClamp, kRad>(pixel, alpha * cov, fr, PolygonSamples<true>{t});
       };
       for (uint32_t k = 0; k < s.poly_count; ++k) {
         RasterizePolygonTo(polys[k], res_, &mb_.accumulation_, masked, skip);
       }
     } else {
-      auto scalar = [&](uint32_t pixel, float cov, polygon_coverage::TouchedSamples t) {
-        Emit<kClamp, kRad>(pixel, alpha * cov, fr, 0, t.bits, /*translucent=*/true);
+      auto scalar = [&](uint32_t pixel, float cov, const polygon_coverage::PixelSamples& t) {
+        Emit<kClamp, kRad>(pixel, alpha * cov, fr, PolygonSamples<false>{t});
       };
       for (uint32_t k = 0; k < s.poly_count; ++k) {
         RasterizePolygonTo(polys[k], res_, &mb_.accumulation_, scalar, skip);

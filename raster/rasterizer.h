@@ -17,6 +17,7 @@
 #include "pbgi/raster.h"
 #include "pbgi/surfel.h"
 #include "raster/cluster_prep.h"
+#include "raster/polygon_coverage.h"
 #include "raster/simd.h"
 
 namespace pbgi::internal {
@@ -284,6 +285,29 @@ class Rasterizer {
                 (s.flags & kSplatPorous) != 0,
                 (s.flags & kSplatBack) != 0};
   }
+  // What a fragment covers of its pixel's samples, as Layer() asks for it. A cone splat or a
+  // near disk: no coverage mask, every sample touched.
+  struct AllSamples {
+    static constexpr bool kAll = true, kTranslucent = false;
+    uint64_t mask() const { return 0; }
+    uint64_t touched() const { return ~uint64_t{0}; }
+  };
+  // A polygon's fragment: an opaque one's coverage mask and the samples whose cells it overlaps;
+  // a translucent one's (SplatPolygons()) cells alone, computed when asked.
+  template <bool kOpaque>
+  struct PolygonSamples {
+    static constexpr bool kAll = false, kTranslucent = !kOpaque;
+    const polygon_coverage::PixelSamples& s;
+    uint64_t mask() const {
+      if constexpr (kOpaque) {
+        return s.mask();
+      } else {
+        return 0;
+      }
+    }
+    uint64_t touched() const { return s.touched(); }
+  };
+
   template <bool kClamp, bool kRad>
   void Draw(const Gathered& g, uint32_t count);
   // Everything after cluster preparation: Reset(), the surfels, Draw(), Integrate(); on the
@@ -336,9 +360,11 @@ class Rasterizer {
   // it; otherwise it, like every later one, only fills what is left below 1: nearer surfaces
   // hide farther ones (the depth test), see Close(). An open layer's `far` is 0 when it is
   // empty (every depth range ends beyond 0).
-  template <bool kClamp, bool kRad>
-  [[gnu::always_inline]] void Emit(uint32_t p, float cov, const Frag& f, uint64_t mask = 0,
-                                   uint64_t silhouette = ~uint64_t{0}, bool translucent = false) {
+  //
+  // `samples`: what the fragment's footprint covers of the pixel's samples (see Layer()).
+  template <bool kClamp, bool kRad, class Samples = AllSamples>
+  [[gnu::always_inline]] void Emit(uint32_t p, float cov, const Frag& f,
+                                   const Samples& samples = Samples{}) {
     PixelState& px = px_[p];
     px.depth = std::min(px.depth, f.depth);
     if constexpr (!kClamp) {
@@ -351,7 +377,7 @@ class Rasterizer {
       if (px.closed >= 1.0f) return;
       float lo = f.lo, hi = f.hi;
       if (f.flat) PlaneRange(p, f, &lo, &hi);
-      Layer<kRad>(px, cov, f, lo, hi, mask, silhouette, translucent);
+      Layer<kRad>(px, cov, f, lo, hi, samples);
     }
   }
 
@@ -368,19 +394,24 @@ class Rasterizer {
   // corner tile the seam's pixels; composed as leaves they gave a + b - ab, 0.78 for 1, and
   // 2CylinderEngine's casing leaked: bug masked_porous_pieces_composed_as_leaves).
   //
-  // `mask`: the fragment's coverage mask (a polygon's; 0 when unknown). A fragment of another
-  // surface (another facing) inside the open layer's depth range adds only the share of its
-  // samples that the layer does not cover yet: a roof and its wall that tile a pixel at a
+  // `samples.mask()`: the fragment's coverage mask (a polygon's; 0 when unknown). A fragment of
+  // another surface (another facing) inside the open layer's depth range adds only the share of
+  // its samples that the layer does not cover yet: a roof and its wall that tile a pixel at a
   // convex edge add up to the pixel, two surfaces that overlap in it count their union, not
   // their sum (bug: overlapping_surfaces_add; the city's walls were +0.01 too dark).
-  template <bool kRad>
   //
-  // `silhouette`: the samples the fragment's footprint touches (an opaque polygon's coverage
-  // mask, the cells a translucent one overlaps; all when unknown), gathered in
-  // PixelState::touched, and whether it is a translucent polygon's: see CapByTouched().
+  // `samples.touched()`: the samples the fragment's footprint touches (the cells a polygon
+  // overlaps; all when unknown), gathered in PixelState::touched, and Samples::kTranslucent,
+  // whether it is a translucent polygon's: see CapByTouched().
+  //
+  // Both are asked only where the pixel's state needs them (a polygon's spans are found on
+  // first use, polygon_coverage::FaceSamples): not for a pixel a back face cannot reach or that
+  // closes, not for touched samples once all are touched, not for a porous fragment's mask
+  // beside a layer without masks. The state is the same bit for bit as with both computed
+  // first.
+  template <bool kRad, class Samples = AllSamples>
   [[gnu::always_inline]] void Layer(PixelState& px, float cov, const Frag& f, float lo, float hi,
-                                    uint64_t mask = 0, uint64_t silhouette = ~uint64_t{0},
-                                    bool translucent = false) {
+                                    const Samples& samples = Samples{}) {
     // A one-sided fragment seen from behind (hitsides both) behind one seen from the front is
     // the far inside of a closed object showing through its near side's footprints: with them
     // it filled what their opacity left, +0.05 to +0.10 on closed meshes (bug:
@@ -390,31 +421,43 @@ class Rasterizer {
     } else {
       px.front = 1.0f;
     }
-    px.touched |= silhouette;
-    px.translucent |= translucent ? 1u : 0u;
+    if constexpr (Samples::kAll) {
+      px.touched = ~uint64_t{0};
+    } else if (px.touched != ~uint64_t{0}) {
+      px.touched |= samples.touched();
+    }
+    if constexpr (Samples::kTranslucent) px.translucent |= 1u;
     if (lo > px.far && px.open > 0.0f) {
       Close<kRad>(px, /*behind=*/true, free_layer_);
       ++closes_;
       if (px.closed >= 1.0f) return;
     }
+    uint64_t mask = 0;
     if (!(px.open > 0.0f)) {
       px.far = hi;
       px.normal[0] = f.normal.x, px.normal[1] = f.normal.y, px.normal[2] = f.normal.z;
       px.porous = f.porous ? 1.0f : 0.0f;
+      mask = samples.mask();
     } else if (f.normal.x * px.normal[0] + f.normal.y * px.normal[1] + f.normal.z * px.normal[2] >
                kChainCos) {
       px.far = std::max(px.far, hi);
-    } else if (f.porous && (mask == 0 || px.open_mask == 0)) {
-      const float e = std::min(cov, 1.0f) * std::max(0.0f, 1.0f - px.closed - px.open);
-      if constexpr (kRad) {
-        Store4(&px.closed, Load4(&px.closed) + e * f.rgb1);
-      } else {
-        px.closed += e;
+      mask = samples.mask();
+    } else {
+      // A porous fragment without a mask, or beside a layer without masks, is a leaf.
+      if (!f.porous || px.open_mask != 0) mask = samples.mask();
+      if (f.porous && (mask == 0 || px.open_mask == 0)) {
+        const float e = std::min(cov, 1.0f) * std::max(0.0f, 1.0f - px.closed - px.open);
+        if constexpr (kRad) {
+          Store4(&px.closed, Load4(&px.closed) + e * f.rgb1);
+        } else {
+          px.closed += e;
+        }
+        return;
       }
-      return;
-    } else if (mask != 0) {
-      cov *= static_cast<float>(std::popcount(mask & ~px.open_mask)) /
-             static_cast<float>(std::popcount(mask));
+      if (mask != 0) {
+        cov *= static_cast<float>(std::popcount(mask & ~px.open_mask)) /
+               static_cast<float>(std::popcount(mask));
+      }
     }
     if (mask != 0) px.open_masked += cov;
     px.open_mask |= mask;

@@ -104,6 +104,7 @@ absl::Status DecodePage(const PageView& view, Section section, uint64_t page_no,
       std::memcpy(n.sh_area.data(), r.sh_area, sizeof(n.sh_area));
       n.depth = static_cast<uint8_t>(r.depth);
       n.child_count = static_cast<uint8_t>(leaf ? 0 : r.child_count);
+      n.flat = NodeIsFlat(n.sh_area.data(), n.lo, n.hi) ? 1 : 0;
       n.pad = 0;
       n.children = leaf ? kNoNodeRef : r.children;
       n.first_point = r.first_point;

@@ -37,7 +37,10 @@ struct alignas(64) NodeHot {
   Sh9 sh_area;
   uint8_t depth;
   uint8_t child_count;  // 0 for a leaf
-  uint16_t pad;
+  // NodeIsFlat(sh_area, lo, hi) (tree/cut.h): what Cut::curved_scale and the curved-box test
+  // read, once per decoded page instead of per visit.
+  uint8_t flat;
+  uint8_t pad;
   uint64_t children;  // NodeRef of the first child (interior)
   uint64_t first_point;
   uint64_t point_count;

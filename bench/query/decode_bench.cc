@@ -58,6 +58,7 @@ void DecodeV2(const uint8_t* data, Section section, uint32_t count, Channels c, 
       std::memcpy(n.sh_area.data(), n0.sh_area, sizeof(n.sh_area));
       n.depth = static_cast<uint8_t>(n0.depth);
       n.child_count = static_cast<uint8_t>(n0.child_count);
+      n.flat = NodeIsFlat(n.sh_area.data(), n.lo, n.hi) ? 1 : 0;  // as DecodePage
       n.children = n0.children;
       n.first_point = n0.first_point;
       n.point_count = n0.point_count;
