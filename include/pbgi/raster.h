@@ -211,8 +211,8 @@ struct alignas(16) PixelState {
   // Rasterizer::Layer()).
   uint64_t open_mask;
   uint64_t closed_mask;
-  // The samples that the fragments' footprints touched (an opaque polygon: its coverage mask;
-  // a translucent one: the samples whose cells it overlaps; every other fragment: all), and
+  // The samples that the fragments' footprints touched (a polygon, opaque or translucent: the
+  // samples whose cells it overlaps; every other fragment: all), and
   // whether a translucent polygon contributed: then the pixel's coverage is at most their
   // share (RasterOptions::bound_by_footprints, Rasterizer::CapByTouched()).
   uint64_t touched;
