@@ -343,10 +343,6 @@ inline uint64_t Touched(const MaskSpans& s, int col, int row) {
   return m == 0 ? ~uint64_t{0} : m;
 }
 
-struct TouchedSamples {
-  uint64_t bits;
-};
-
 // A polygon's coverage masks and touched samples on one face, their spans found on first use:
 // the rasterizer asks only in pixels that are still open (Rasterizer::Layer()), so a polygon
 // whose partly covered pixels are all closed finds none.
@@ -397,10 +393,9 @@ class PixelSamples {
 }  // namespace polygon_coverage
 
 // RasterizePolygon() (raster/polygon.h) with each covered pixel passed to sink(pixel, coverage)
-// in the same order as RasterizePolygon() appends them. A sink may take a third argument: the
-// pixel's coverage mask (uint64_t), the samples whose cells the polygon overlaps
-// (TouchedSamples), both (uint64_t, TouchedSamples), or a PixelSamples that computes either
-// when asked. Except on a face where
+// in the same order as RasterizePolygon() appends them. A sink may take a third argument, a
+// PixelSamples that computes the pixel's coverage mask or the samples whose cells the polygon
+// overlaps when asked. Except on a face where
 // skip(first, col0, col1, row0, row1) says that the pixels first + row * res + col of the
 // polygon's bounding rectangle there need none (the caller's pixels that a fragment cannot
 // change): its coverage is not computed.
@@ -410,14 +405,8 @@ inline void RasterizePolygonTo(const Polygon& p, int res, std::vector<float>* ac
   using namespace polygon_coverage;  // NOLINT(build/namespaces): this file's own helpers
 
   if (p.n < 3) return;
-  // Whether the sink takes a pixel's samples lazily, its coverage mask as a third argument, or
-  // instead the samples whose cells the polygon overlaps (Touched).
-  constexpr bool kLazy = std::is_invocable_v<Sink, uint32_t, float, const PixelSamples&>;
-  constexpr bool kBoth =
-      !kLazy && std::is_invocable_v<Sink, uint32_t, float, uint64_t, TouchedSamples>;
-  constexpr bool kTouched = !kLazy && std::is_invocable_v<Sink, uint32_t, float, TouchedSamples>;
-  constexpr bool kMasks =
-      kBoth || (!kLazy && !kTouched && std::is_invocable_v<Sink, uint32_t, float, uint64_t>);
+  // Whether the sink takes a pixel's samples (PixelSamples) as a third argument.
+  constexpr bool kSamples = std::is_invocable_v<Sink, uint32_t, float, const PixelSamples&>;
   // The face of each vertex; a polygon whose vertices all lie in one face's pyramid lies in it
   // (the pyramid is convex) and needs no clipping.
   int home = -1;
@@ -499,17 +488,8 @@ inline void RasterizePolygonTo(const Polygon& p, int res, std::vector<float>* ac
       const float cov = std::min(1.0f, 0.5f * std::fabs(area2));
       if (!(cov > 1e-6f)) return;
       const uint32_t pixel = base + static_cast<uint32_t>(row * res + col);
-      if constexpr (kLazy || kMasks || kTouched) {
-        const PixelSamples s(&samples, col, row, /*full=*/!(cov < 1.0f));
-        if constexpr (kLazy) {
-          sink(pixel, cov, s);
-        } else if constexpr (kBoth) {
-          sink(pixel, cov, s.mask(), TouchedSamples{s.touched()});
-        } else if constexpr (kMasks) {
-          sink(pixel, cov, s.mask());
-        } else {
-          sink(pixel, cov, TouchedSamples{s.touched()});
-        }
+      if constexpr (kSamples) {
+        sink(pixel, cov, PixelSamples(&samples, col, row, /*full=*/!(cov < 1.0f)));
       } else {
         sink(pixel, cov);
       }

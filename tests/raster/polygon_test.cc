@@ -18,6 +18,8 @@
 namespace pbgi::internal {
 namespace {
 
+using polygon_coverage::PixelSamples;
+
 // Face-plane pixel area of face +z at resolution res: (2 / res)^2.
 Polygon Quad(glm::vec3 a, glm::vec3 b, glm::vec3 c, glm::vec3 d) {
   Polygon p;
@@ -158,7 +160,9 @@ TEST(PolygonTest, PolygonsSharingAnEdgeTileTheirUnion) {
 std::map<uint32_t, uint64_t> Masks(const Polygon& p, int res) {
   std::vector<float> acc;
   std::map<uint32_t, uint64_t> m;
-  RasterizePolygonTo(p, res, &acc, [&](uint32_t pixel, float, uint64_t mask) { m[pixel] |= mask; });
+  RasterizePolygonTo(p, res, &acc, [&](uint32_t pixel, float, const PixelSamples& s) {
+    m[pixel] |= s.mask();
+  });
   return m;
 }
 
@@ -196,8 +200,8 @@ TEST(PolygonTest, CoverageMasksSampleThePolygon) {
     p.n = 3;
     for (int i = 0; i < 3; ++i) p.v[i] = glm::vec3(u(rng), u(rng), 1.0f);
     std::vector<float> acc;
-    RasterizePolygonTo(p, 12, &acc, [&](uint32_t, float cov, uint64_t mask) {
-      const double share = std::popcount(mask) / 64.0;
+    RasterizePolygonTo(p, 12, &acc, [&](uint32_t, float cov, const PixelSamples& s) {
+      const double share = std::popcount(s.mask()) / 64.0;
       EXPECT_NEAR(share, cov, 0.2);
       err += std::fabs(share - cov);
       ++pixels;
@@ -212,7 +216,6 @@ TEST(PolygonTest, CoverageMasksSampleThePolygon) {
 // coverage (the bound is tight: the cells along the edges).
 TEST(PolygonTest, TouchedSamplesHoldEveryPointOfThePolygon) {
   using polygon_coverage::kMaskSide;
-  using polygon_coverage::TouchedSamples;
   const int res = 12;
   std::mt19937 rng(5);
   std::uniform_real_distribution<float> u(-0.95f, 0.95f), w(0.0f, 1.0f);
@@ -228,22 +231,13 @@ TEST(PolygonTest, TouchedSamplesHoldEveryPointOfThePolygon) {
       p.v[i] =
           c + glm::vec3(size * (w(rng) - 0.5f), (trial % 3 ? size : 0.01f) * (w(rng) - 0.5f), 0.0f);
     }
-    // Alone (a translucent polygon's BandSpans) and beside the coverage mask (an opaque one's
-    // TouchedFromSpans): the same property.
     std::map<uint32_t, uint64_t> touched;
     std::map<uint32_t, float> cover;
     std::vector<float> acc;
-    if (trial % 2 == 0) {
-      RasterizePolygonTo(p, res, &acc, [&](uint32_t pixel, float cov, TouchedSamples t) {
-        touched[pixel] |= t.bits;
-        cover[pixel] += cov;
-      });
-    } else {
-      RasterizePolygonTo(p, res, &acc, [&](uint32_t pixel, float cov, uint64_t, TouchedSamples t) {
-        touched[pixel] |= t.bits;
-        cover[pixel] += cov;
-      });
-    }
+    RasterizePolygonTo(p, res, &acc, [&](uint32_t pixel, float cov, const PixelSamples& s) {
+      touched[pixel] |= s.touched();
+      cover[pixel] += cov;
+    });
     for (int k = 0; k < 4000; ++k) {
       float a = w(rng), b = w(rng);
       if (a + b > 1.0f) a = 1.0f - a, b = 1.0f - b;
