@@ -439,6 +439,7 @@ absl::Status Reader::Impl::CheckQuery(absl::string_view what, const glm::vec3& p
 
 absl::Status Reader::Impl::Gather(const Receiver& receiver, const Cut& cut, Gathered* out) {
   out->Clear();
+  out->position_tolerance = meta.grid_step;
   ++q.queries;
   ClearMemo();
   if (meta.point_count == 0 || meta.root == internal::kNoNodeRef) return absl::OkStatus();
@@ -721,6 +722,7 @@ absl::Status Reader::Impl::GatherFar(const ReceiverGroup& group, const Cut& cut,
 absl::Status Reader::Impl::GatherNear(const glm::vec3& p, const Cut& cut, const FarCut& far,
                                       Gathered* out) {
   out->Clear();
+  out->position_tolerance = meta.grid_step;
   ++q.queries;
   ClearMemo();
   const ReceiverGroup& g = far.group;

@@ -663,8 +663,14 @@ void Rasterizer::PrepareSurfelGroups(const Gathered& g, ShadeResult* out) {
       if (!(area > 0.0) || !(nl > 0.0)) continue;
       const glm::vec3 normal = glm::vec3(nsum / nl);
       const glm::vec3 centroid = glm::vec3(csum / area);
-      const glm::vec3 rel = centroid - origin_;
-      const float side = -glm::dot(normal, rel);  // > 0: the receiver is in front
+      glm::vec3 rel = centroid - origin_;
+      float side = -glm::dot(normal, rel);  // > 0: the receiver is in front
+      glm::vec3 from = origin_;  // the receiver, as this group sees it (CreaseShift)
+      if (const float shift = CreaseShift(first.two_sided, normal, side); shift != 0.0f) {
+        rel -= shift * normal;
+        from += shift * normal;
+        side += shift;
+      }
       const HitSides sides = first.two_sided ? HitSides::kBoth : o_.hitsides;
       const bool visible = (sides == HitSides::kFront && side > 0.0f) ||
                            (sides == HitSides::kBack && side < 0.0f) ||
@@ -699,7 +705,7 @@ void Rasterizer::PrepareSurfelGroups(const Gathered& g, ShadeResult* out) {
                                  : ContactCell(cell, gr, groups, origin_, n_, &contact);
       Polygon p;
       const float alpha =
-          FlatFootprint(centres, snap_to, spacing, facing, -std::fabs(side), origin_, area, &p);
+          FlatFootprint(centres, snap_to, spacing, facing, -std::fabs(side), from, area, &p);
       if (p.n < 3) {
         out->culled += count;
         continue;

@@ -93,7 +93,7 @@ void Rasterizer::PrepareClusters(const std::vector<Cluster>& clusters) {
 }
 
 void Rasterizer::PrepareSurfel(const Surfel& sf, ShadeResult* out) {
-  const glm::vec3 rel = sf.position - origin_;
+  glm::vec3 rel = sf.position - origin_;
   const float r = sf.radius;
   const float nn = glm::dot(sf.normal, sf.normal);
   if (!(r > 0.0f) || !(nn > 0.0f)) {
@@ -101,13 +101,17 @@ void Rasterizer::PrepareSurfel(const Surfel& sf, ShadeResult* out) {
     return;
   }
   const glm::vec3 normal = sf.normal / std::sqrt(nn);
+  // side > 0: the receiver is in front of the surfel.
+  float side = -glm::dot(normal, rel);
+  if (const float shift = CreaseShift(sf.two_sided, normal, side); shift != 0.0f) {
+    rel -= shift * normal;
+    side += shift;
+  }
   // The disk's highest point along the receiver's normal.
   const float cn = glm::dot(normal, n_);
   const float top = glm::dot(n_, rel) + r * std::sqrt(std::max(0.0f, 1.0f - cn * cn));
   const float d2 = glm::dot(rel, rel);
   const float d = std::sqrt(d2);
-  // side > 0: the receiver is in front of the surfel.
-  const float side = -glm::dot(normal, rel);
   // A two-sided surfel shows both sides whatever hitsides says.
   const HitSides sides = sf.two_sided ? HitSides::kBoth : o_.hitsides;
   const bool visible = (sides == HitSides::kFront && side > 0.0f) ||
@@ -633,6 +637,10 @@ void Rasterizer::FinishOn(const Gathered& g, const ShadeReceiver& r, ShadeResult
 absl::Status Rasterizer::Run(const Gathered& g, const ShadeReceiver& r, ShadeResult* out) {
   *out = ShadeResult{};
   SetFrame(r);
+  crease_tol_ = std::max(g.position_tolerance,
+                         8.0f * std::numeric_limits<float>::epsilon() *
+                             std::max({std::fabs(origin_.x), std::fabs(origin_.y),
+                                       std::fabs(origin_.z), 1.0f}));
   auto& splats = mb_.splats_;
   // Written by index: a vector's push_back costs more than the rest of a small splat's setup.
   if (splats.size() < g.size()) splats.resize(g.size());

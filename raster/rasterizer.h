@@ -255,6 +255,24 @@ class Rasterizer {
     const float s = glm::dot(normal, n_) >= 0.0f ? side : -side;
     return s < 0.0f && -s < std::max(thickness, kOwnSheetReach * spacing);
   }
+  // A receiver on a crease (on a wall, where the floor meets it) lies in the other surface's
+  // plane, and the stored positions place that plane up to a grid step either side of it: on
+  // cornell's floor half a step up, so that a wall receiver a rounding above the floor was
+  // behind it, the floor culled, and the pixel along each of the room's edges lost half its
+  // occlusion (0.47 for rays' 0.97: docs/eval.md, "Session 16"). So a one-sided element whose
+  // plane crosses the receiver's tangent plane (normals more than kCreaseCos apart) and that
+  // the receiver lies behind by at most crease_tol_ (the gather's position tolerance, or a
+  // few float steps of the receiver's coordinates) counts as in front: moved back along its
+  // normal by the returned distance, so that the receiver lies crease_tol_ in front. The
+  // receiver's own surface (its normal within kCreaseCos) keeps its side.
+  static constexpr float kCreaseCos = 0.9f;
+  float CreaseShift(bool two_sided, const glm::vec3& normal, float side) const {
+    if (two_sided || !(std::fabs(glm::dot(normal, n_)) < kCreaseCos)) return 0.0f;
+    if (o_.hitsides == HitSides::kBack) {
+      return side >= 0.0f && side < crease_tol_ ? -crease_tol_ - side : 0.0f;
+    }
+    return side <= 0.0f && side > -crease_tol_ ? crease_tol_ - side : 0.0f;
+  }
   // PreparedSplat::flags of a surfel or co-planar group: a two-sided one is a piece of a leaf
   // (porous); with hitsides both, a one-sided one seen from behind is kSplatBack. See Layer().
   uint8_t SurfelFlags(bool two_sided, float side) const {
@@ -522,6 +540,7 @@ class Rasterizer {
   const float max_width_;  // the largest pixel's angular width
   const bool avx2_;        // run the AVX2 builds (UseAvx2())
   glm::vec3 origin_, t_, b_, n_;
+  float crease_tol_ = 0.0f;  // see CreaseShift()
   glm::vec3 world_x_, world_y_, world_z_;  // the world axes x, y, z in the receiver's frame
   uint32_t count_ = 0;                     // prepared splats in mb_.splats_
   uint32_t poly_count_ = 0;                // polygons in mb_.polygons_

@@ -303,7 +303,12 @@ std::vector<CameraHit> Tracer::TraceCamera(const Camera& camera) const {
         CameraHit& c = out[static_cast<size_t>(y) * w + x];
         if (!h.hit) continue;
         c.hit = true;
-        c.position = h.position;
+        // Pulled back towards the eye by epsilon(): the hit point rounded onto the plane of a
+        // surface meeting the one hit (a wall's pixel at the floor), and rays leaving it missed
+        // that surface at t = 0: the reference's own light dots along cornell's room edges
+        // (docs/eval.md, "Session 16"). The segment from the eye is free, so the point lies in
+        // front of every surface there.
+        c.position = camera.eye + d * std::max(0.0f, h.distance - impl_->eps);
         c.normal = h.front ? h.normal : -h.normal;
         c.material = h.material;
       }

@@ -5,6 +5,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <limits>
@@ -261,9 +262,19 @@ absl::Status RunViewEval(const ViewEvalArgs& a) {
                                : a.lobe.lobe == GlossyLobe::kPhong
                                    ? absl::StrFormat("glossy-phong%g", a.lobe.phong_exponent)
                                    : absl::StrFormat("glossy-ggx%g", a.lobe.ggx_roughness);
-  const std::string ref_cache =
-      absl::StrFormat("%s/reference_%s_%s_s%d_size%d_%dx%d%s_%d.bin", a.out_dir, scene->name,
-                      mode_tag, a.seed, a.size, a.width, a.height, window_tag, 2 * half_rays);
+  // The receivers' hash names it too: a reference of other shading points (a tracer that
+  // places them differently, a changed scene) is not reused.
+  uint64_t receivers_hash = 1469598103934665603ull;  // FNV-1a over positions and normals
+  for (const Receiver& r : cr.receivers) {
+    const float v[6] = {r.position.x, r.position.y, r.position.z,
+                        r.normal.x,   r.normal.y,   r.normal.z};
+    unsigned char bytes[sizeof(v)];
+    std::memcpy(bytes, v, sizeof(v));
+    for (unsigned char c : bytes) receivers_hash = (receivers_hash ^ c) * 1099511628211ull;
+  }
+  const std::string ref_cache = absl::StrFormat(
+      "%s/reference_%s_%s_s%d_size%d_%dx%d%s_%d_%016x.bin", a.out_dir, scene->name, mode_tag,
+      a.seed, a.size, a.width, a.height, window_tag, 2 * half_rays, receivers_hash);
   // Every pixel's reference value (see Scalar) with `rays` rays from `seed`.
   auto reference = [&](int rays, uint64_t seed, std::vector<double>* dst) {
     if (occlusion) {

@@ -156,6 +156,7 @@ struct Hit {
 };
 
 // What a camera pixel sees: a receiver for shading, with the normal turned to face the camera.
+// The position is the hit pulled back towards the eye by Tracer::epsilon().
 struct CameraHit {
   bool hit = false;
   glm::vec3 position{0.0f};

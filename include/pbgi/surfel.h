@@ -154,8 +154,15 @@ struct Gathered {
   // Optional (empty: the rasterizer groups surfels on a grid of its own).
   std::vector<uint32_t> surfel_leaf;
   std::vector<Bounds> leaf_cells;
+  // How far a surfel's stored position may lie from its surface along any direction: a
+  // database's position grid step (Gather sets it), 0 for exact positions. The rasterizer takes
+  // a receiver that lies behind a one-sided surface crossing its tangent plane by no more than
+  // this (a receiver on a wall where the floor meets it) as in front of that surface
+  // (docs/design.md, "Contacts").
+  float position_tolerance = 0.0f;
 
   void Clear() {
+    position_tolerance = 0.0f;
     clusters.clear();
     surfels.clear();
     surfel_ids.clear();

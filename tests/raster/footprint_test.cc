@@ -645,6 +645,56 @@ TEST(FootprintTest, AWallStandingOnTheFloorReachesIt) {
   }
 }
 
+// A receiver on a wall where it meets the floor lies in the floor's plane, and a database's
+// stored positions put that plane up to a grid step either side of the true one (Gathered::
+// position_tolerance): a wall receiver a rounding below the stored floor, or exactly in its
+// plane, saw it from behind and culled it, losing half its occlusion (cornell's room edges:
+// 0.47 for rays' 0.97; docs/eval.md, "Session 16"). Within the tolerance it counts as in front;
+// beyond it, below the floor, it does not; a receiver on the floor keeps its own plane culled.
+TEST(FootprintTest, AReceiverOnACreaseSeesTheOtherSurface) {
+  MicroBuffer mb;
+  const float pitch = 0.1f, cell = 3.0f * pitch, d = 0.5f, half = 1.5f;
+  const glm::vec3 floor_offset(0.37f * pitch, 2.0f * pitch, 0.29f * pitch);
+  Gathered floor;
+  std::vector<std::tuple<int, int, int>> floor_keys;
+  AddJitteredRectangle(glm::vec3(-half, d - 2.0f * half, 0.0f), glm::vec3(1, 0, 0), 2.0f * half,
+                       glm::vec3(0, 1, 0), 2.0f * half, glm::vec3(0, 0, 1), pitch, cell,
+                       floor_offset, 23u, &floor, &floor_keys);
+  // Rays from the wall (y = d, facing -y) just above the floor at x: the floor's share.
+  auto floor_by_rays = [&](float x) {
+    return CosineShare([&](const glm::dvec3& about_z) {
+      const glm::dvec3 dir(about_z.x, -about_z.z, about_z.y);  // cosine-weighted about -y
+      if (!(dir.z < 0.0)) return false;
+      const double t = 1e-9 / -dir.z;
+      const glm::dvec3 q = glm::dvec3(x, d, 1e-9) + t * dir;
+      return q.x >= -half && q.x <= half && q.y >= d - 2.0 * half && q.y <= d;
+    });
+  };
+  for (const float tol : {0.0f, 1e-6f}) {
+    floor.position_tolerance = tol;
+    for (float x : {0.013f, 0.047f}) {
+      const double want = floor_by_rays(x);
+      for (float z : {0.0f, -0.5f * tol, -0.99f * tol}) {
+        ShadeReceiver r;
+        r.position = glm::vec3(x, d - 1e-4f, z);
+        r.normal = glm::vec3(0, -1, 0);
+        EXPECT_NEAR(MustShade(floor, r, Polygons(), &mb).occlusion, want, 0.03)
+            << "wall receiver " << x << " z " << z << " tolerance " << tol;
+      }
+      // Below the floor by more than the tolerance: behind it, the floor shows its back.
+      ShadeReceiver below;
+      below.position = glm::vec3(x, d - 1e-4f, -1e-3f);
+      below.normal = glm::vec3(0, -1, 0);
+      EXPECT_EQ(MustShade(floor, below, Polygons(), &mb).occlusion, 0.0f) << x;
+      // On the floor, a rounding below it: the floor is its own plane.
+      EXPECT_EQ(MustShade(floor, At(glm::vec3(x, d - 0.2f, -0.5f * tol)), Polygons(), &mb)
+                    .occlusion,
+                0.0f)
+          << x;
+    }
+  }
+}
+
 // A layer closing behind a nearer one: the samples its masked fragments share with the nearer
 // layer's are hidden, and only the masked share of its coverage shrinks with them. Coverage that
 // came without a mask (a translucent cluster's) fills what the nearer layer left free, as

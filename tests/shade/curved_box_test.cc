@@ -2,6 +2,7 @@
 // (docs/design.md, "The curved-box test").
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <memory>
 #include <vector>
 
@@ -66,6 +67,61 @@ TEST(CurvedBoxTest, ReceiversBesideARoomsEdgeAreFullyOccluded) {
   RecordProperty("worst_without", std::to_string(worst[0]));
   RecordProperty("worst_with", std::to_string(worst[1]));
   EXPECT_LT(worst[0], 0.997);  // the case the test isolates: without it, the edge cells leak
+}
+
+// Receivers on the room's edges (a pixel whose ray meets a wall where the floor does): each
+// lies in the other wall's plane, which the database's position grid stores up to a step
+// either side of the true one; here the receivers lie half a step behind the stored plane, as
+// the true surface may. Before Gathered::position_tolerance such a receiver culled the other
+// wall and lost half its occlusion (cornell's room edges: docs/eval.md, "Session 16"). Every
+// one is fully occluded, and the gather reports the grid's step.
+TEST(CurvedBoxTest, ReceiversOnARoomsEdgeAreFullyOccluded) {
+  const float half = 2.0f;
+  const std::vector<Surfel> surfels = testing_raster::RoomSurfels(half, 0.02f);
+  auto db = testing::TempDatabase::Create(surfels);
+  ASSERT_TRUE(db.ok()) << db.status();
+  const float step = (*db)->db().meta().grid_step;
+  ASSERT_GT(step, 0.0f);
+  // Each wall's stored plane (lo[k]: the wall at -half along axis k), moved half a step out.
+  glm::vec3 lo(std::numeric_limits<float>::infinity()), hi(-lo);
+  for (const Surfel& s : (*db)->surfels()) {
+    lo = glm::min(lo, s.position);
+    hi = glm::max(hi, s.position);
+  }
+  lo -= 0.5f * step;
+  hi += 0.5f * step;
+  std::vector<ShadeReceiver> receivers;
+  for (int k = 0; k < 3; ++k) {
+    const int k1 = (k + 1) % 3, k2 = (k + 2) % 3;
+    for (int side = 0; side < 2; ++side) {
+      // On wall k (side 0: at lo, facing +k), where the walls across axis k1 meet it.
+      glm::vec3 n(0.0f);
+      n[k] = side ? -1.0f : 1.0f;
+      for (int edge = 0; edge < 2; ++edge) {
+        for (float t : {-1.3f, 0.4f}) {
+          glm::vec3 p;
+          p[k] = side ? hi[k] - 2e-5f : lo[k] + 2e-5f;
+          p[k1] = edge ? hi[k1] : lo[k1];
+          p[k2] = t;
+          receivers.push_back({p, n, n});
+        }
+      }
+    }
+  }
+  std::vector<ShadeResult> got(receivers.size());
+  ASSERT_TRUE(
+      ShadeBatch((*db)->db(), receivers, ToolDefaults(1.0f), absl::MakeSpan(got)).ok());
+  for (size_t i = 0; i < receivers.size(); ++i) {
+    EXPECT_GT(got[i].occlusion, 0.99f)
+        << "receiver at " << receivers[i].position.x << " " << receivers[i].position.y << " "
+        << receivers[i].position.z << " normal " << receivers[i].normal.x << " "
+        << receivers[i].normal.y << " " << receivers[i].normal.z;
+  }
+  auto reader = (*db)->db().NewReader();
+  ASSERT_TRUE(reader.ok()) << reader.status();
+  Gathered g;
+  ASSERT_TRUE((*reader)->Gather({receivers[0].position, receivers[0].normal}, Cut{}, &g).ok());
+  EXPECT_EQ(g.position_tolerance, step);
 }
 
 }  // namespace
