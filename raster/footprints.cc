@@ -46,6 +46,9 @@ constexpr float kContactReach = 1.0f;
 // snapping distance of 1.5 spacings.
 constexpr float kContactGrowth = 4.0f;
 constexpr float kContactSnap = 1.4f;
+// Along a contact, a footprint snaps to its cell's side when its centres end within this many
+// spacings of it.
+constexpr float kContactAlong = 2.5f;
 
 // A cluster is porous (foliage, grass: pieces facing every way with gaps between them) when
 // |sum A_i n_i| < kPorousCoherence * sum A_i; two-sided content always is, its sides cancelling
@@ -172,8 +175,8 @@ void DotRange(const Bounds& b, const glm::vec3& n, const glm::vec3& o, float* lo
 // 1.5 of its spacings of a's plane and a's within 1.5 of a's spacings of b's, on one side of
 // it, and their boxes so grown must overlap.
 Bounds ContactCell(const Bounds& cell, const SurfelGroup& a, absl::Span<const SurfelGroup> groups,
-                   const glm::vec3& origin, const glm::vec3& nr, bool* contact,
-                   Bounds* reach = nullptr, bool* on_receiver = nullptr) {
+                   const glm::vec3& origin, const glm::vec3& nr, float crease_tol,
+                   bool* contact, Bounds* reach = nullptr, bool* on_receiver = nullptr) {
   Bounds out = cell;
   *contact = false;
   if (reach) *reach = a.centres;
@@ -202,7 +205,11 @@ Bounds ContactCell(const Bounds& cell, const SurfelGroup& a, absl::Span<const Su
   // for rays' 0.50: FootprintTest.ATurnedWallStandingOnTheFloorReachesIt; docs/eval.md,
   // "Session 16").
   int raised = 0;  // the axes moved to the receiver's plane, bit k
-  if (std::fabs(glm::dot(na, nr)) < 0.9f) {
+  // Only a surface that the receiver sees from the front stands on its plane: with hitsides
+  // both, the receiver's own curved surface seen from behind (a leg's tip) grew into its view
+  // (spider.obj both: 0.37 for rays' 0.0002). A receiver on the crease lies behind by up to
+  // the crease tolerance (Rasterizer::CreaseShift).
+  if (std::fabs(glm::dot(na, nr)) < 0.9f && glm::dot(na, origin - ca) > -crease_tol) {
     const float h = a.hmin;
     if (h > -0.25f * sa && h < kContactReach * sa) {
       for (int k = 0; k < 3; ++k) {
@@ -302,11 +309,17 @@ Bounds ContactCell(const Bounds& cell, const SurfelGroup& a, absl::Span<const Su
   // to its cell's sides, or to where another group's plane ends it (above): a turned block
   // cuts the floor's cells along it in slivers that hold a surfel or two, and their footprints
   // left holes between them right at the receiver's foot.
+  // A side farther than kContactAlong spacings from the centres is where the surface ends (a
+  // trunk's narrow face in a wide cell of ground), not a gap between samples.
   if (raised && reach) {
     for (int k = 0; k < 3; ++k) {
       if (std::fabs(na[k]) > 0.9f || (raised >> k) & 1) continue;
-      reach->lo[k] = std::min(reach->lo[k], out.lo[k] + kContactSnap * sa);
-      reach->hi[k] = std::max(reach->hi[k], out.hi[k] - kContactSnap * sa);
+      if (a.centres.lo[k] - out.lo[k] < kContactAlong * sa) {
+        reach->lo[k] = std::min(reach->lo[k], out.lo[k] + kContactSnap * sa);
+      }
+      if (out.hi[k] - a.centres.hi[k] < kContactAlong * sa) {
+        reach->hi[k] = std::max(reach->hi[k], out.hi[k] - kContactSnap * sa);
+      }
     }
   }
   return out;
@@ -709,7 +722,7 @@ void Rasterizer::PrepareSurfelGroups(const Gathered& g, ShadeResult* out) {
         }
         if (!fills) {
           contact_cell =
-              ContactCell(cell, gr, groups, origin_, n_, &contact, &reach, &on_receiver);
+              ContactCell(cell, gr, groups, origin_, n_, crease_tol_, &contact, &reach, &on_receiver);
           have_contact_cell = true;
           if (!contact) {
             PrepareSurfel(lone, out);
@@ -758,7 +771,7 @@ void Rasterizer::PrepareSurfelGroups(const Gathered& g, ShadeResult* out) {
       // the leaves' groups tiled their cells and over-occluded the forest (+23%, seen once the
       // cells were the octree's, bug: cells_off_the_key_cube).
       if (!first.two_sided && !have_contact_cell) {
-        contact_cell = ContactCell(cell, gr, groups, origin_, n_, &contact, &reach, &on_receiver);
+        contact_cell = ContactCell(cell, gr, groups, origin_, n_, crease_tol_, &contact, &reach, &on_receiver);
       }
       const Bounds snap_to = first.two_sided ? Bounds{} : contact_cell;
       Polygon p;
