@@ -141,19 +141,6 @@ struct SurfelGroup {
   Bounds centres;
 };
 
-// The least and greatest dot(n, x - o) over the corners x of the box b.
-void DotRange(const Bounds& b, const glm::vec3& n, const glm::vec3& o, float* lo, float* hi) {
-  *lo = std::numeric_limits<float>::infinity();
-  *hi = -*lo;
-  for (int i = 0; i < 8; ++i) {
-    const glm::vec3 corner((i & 1) ? b.hi.x : b.lo.x, (i & 2) ? b.hi.y : b.lo.y,
-                           (i & 4) ? b.hi.z : b.lo.z);
-    const float t = glm::dot(n, corner - o);
-    *lo = std::min(*lo, t);
-    *hi = std::max(*hi, t);
-  }
-}
-
 // Where a group's surface meets another's in the same cell (a wall standing on a roof or the
 // street, the two faces of a box's edge), the first ends at the second's plane, not half a
 // spacing past its last row of centres: the cell that a's footprint box snaps to (FootprintBox)
@@ -186,7 +173,7 @@ Bounds ContactCell(const Bounds& cell, const SurfelGroup& a, absl::Span<const Su
   // normal decides how far.
   if (std::fabs(glm::dot(na, nr)) < 0.9f) {
     float h, top;
-    DotRange(a.centres, nr, origin, &h, &top);
+    BoxDotRange(a.centres, nr, origin, &h, &top);
     if (h > -0.25f * sa && h < kContactReach * sa) {
       for (int k = 0; k < 3; ++k) {
         if (std::fabs(na[k]) > 0.9f || std::fabs(nr[k]) < 0.5f) continue;
@@ -239,7 +226,7 @@ Bounds ContactCell(const Bounds& cell, const SurfelGroup& a, absl::Span<const Su
     }
     // b's centres against a's plane.
     float lo, hi;
-    DotRange(b.centres, na, ca, &lo, &hi);
+    BoxDotRange(b.centres, na, ca, &lo, &hi);
     if (lo > 1.5f * sb || hi < -1.5f * sb) continue;
     // b's plane along axis k, at a's centroid.
     float c = cb[k];

@@ -209,6 +209,17 @@ void BoxSilhouette(const glm::vec3& lo, const glm::vec3& hi, int faces, Polygon*
   if (out->n < 3) out->n = 0;
 }
 
+void BoxDotRange(const Bounds& b, const glm::vec3& n, const glm::vec3& o, float* lo, float* hi) {
+  float tl[3], th[3];
+  for (int k = 0; k < 3; ++k) {
+    const float u = n[k] * (b.lo[k] - o[k]), v = n[k] * (b.hi[k] - o[k]);
+    tl[k] = std::min(u, v);
+    th[k] = std::max(u, v);
+  }
+  *lo = tl[0] + tl[1] + tl[2];
+  *hi = th[0] + th[1] + th[2];
+}
+
 float ConeSolidAngle(const Polygon& p) {
   if (p.n < 3) return 0.0f;
   // A fan of triangles from vertex 0, each tan(omega / 2) = N / D (Van Oosterom and Strackee):

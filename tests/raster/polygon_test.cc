@@ -5,6 +5,7 @@
 #include <bit>
 #include <cmath>
 #include <cstring>
+#include <limits>
 #include <map>
 #include <memory>
 #include <random>
@@ -352,6 +353,37 @@ TEST(PolygonTest, SpansInLanesMatchOneRowAtATime) {
   }
   EXPECT_EQ(differ, 0) << "of " << rows << " rows";
   EXPECT_GT(rows, 100000);
+}
+
+// BoxDotRange() against the eight corners' dot products (the code before it): the same values
+// over random boxes, flat ones and normals with zero components included.
+TEST(PolygonTest, BoxDotRangeIsTheCornersOwnExtremes) {
+  std::mt19937 rng(16);
+  std::uniform_real_distribution<float> u(-10.0f, 10.0f);
+  int differ = 0, trials = 0;
+  for (int trial = 0; trial < 200000; ++trial) {
+    Bounds b;
+    glm::vec3 n, o;
+    for (int k = 0; k < 3; ++k) {
+      const float x = u(rng), e = rng() % 5 == 0 ? 0.0f : std::fabs(u(rng)) * 0.1f;
+      b.lo[k] = x, b.hi[k] = x + e;
+      n[k] = rng() % 6 == 0 ? 0.0f : u(rng) * 0.1f;
+      o[k] = rng() % 4 == 0 ? b.lo[k] : u(rng);
+    }
+    float lo = 0.0f, hi = 0.0f;
+    BoxDotRange(b, n, o, &lo, &hi);
+    float want_lo = std::numeric_limits<float>::infinity(), want_hi = -want_lo;
+    for (int i = 0; i < 8; ++i) {
+      const glm::vec3 corner((i & 1) ? b.hi.x : b.lo.x, (i & 2) ? b.hi.y : b.lo.y,
+                             (i & 4) ? b.hi.z : b.lo.z);
+      const float t = glm::dot(n, corner - o);
+      want_lo = std::min(want_lo, t);
+      want_hi = std::max(want_hi, t);
+    }
+    ++trials;
+    differ += !(lo == want_lo) || !(hi == want_hi);
+  }
+  EXPECT_EQ(differ, 0) << "of " << trials;
 }
 
 TEST(PolygonTest, APolygonAcrossFacesKeepsItsSolidAngle) {
