@@ -16,6 +16,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <cstring>
 #include <limits>
 
 #include "absl/container/inlined_vector.h"
@@ -114,13 +115,29 @@ bool BoxFaces(const Cluster& c, const Bounds& box, const glm::vec3& origin) {
   return faces >= 2 && off <= tol;
 }
 
+// A box's lo and hi as four lanes each, the fourth repeating the third: Bounds is six floats,
+// read as two overlapping four-float loads within it.
+inline void LoadBounds(const Bounds& b, V4* lo, V4* hi) {
+  static_assert(sizeof(Bounds) == 6 * sizeof(float));
+  const char* p = reinterpret_cast<const char*>(&b);
+  V4 l, h;
+  std::memcpy(&l, p, sizeof l);
+  std::memcpy(&h, p + 2 * sizeof(float), sizeof h);
+  *lo = __builtin_shufflevector(l, l, 0, 1, 2, 2);
+  *hi = __builtin_shufflevector(h, h, 1, 2, 3, 3);
+}
+
 // Whether `cell` is a usable octree cell for content with box `b` (the gather sets it; a
-// caller-built cluster may not).
+// caller-built cluster may not). Three lanes of four, the same comparisons as one axis at a time.
 bool CellHolds(const Bounds& cell, const Bounds& b) {
-  if (cell.Empty() || b.Empty()) return false;
-  const float tol = 1e-4f * std::max(1e-30f, glm::length(cell.hi - cell.lo));
-  return glm::all(glm::greaterThanEqual(b.lo, cell.lo - tol)) &&
-         glm::all(glm::lessThanEqual(b.hi, cell.hi + tol));
+  V4 clo, chi, blo, bhi;
+  LoadBounds(cell, &clo, &chi);
+  LoadBounds(b, &blo, &bhi);
+  // Bounds::Empty() of either.
+  if (Movemask4((clo > chi) | (blo > bhi)) != 0) return false;
+  const V4 e = chi - clo;
+  const float tol = 1e-4f * std::max(1e-30f, std::sqrt(e[0] * e[0] + e[1] * e[1] + e[2] * e[2]));
+  return Movemask4((blo >= clo - tol) & (bhi <= chi + tol)) == 0xf;
 }
 
 // The spacing of a cluster's surfels, by which its footprint box grows (FootprintBox).
@@ -249,29 +266,37 @@ Bounds ContactCell(const Bounds& cell, const SurfelGroup& a, absl::Span<const Su
 
 Bounds FootprintBox(const Bounds& centres, const Bounds& cell, float spacing,
                     const glm::vec3& plane_normal, bool* full, int* snapped) {
-  Bounds b;
-  bool all = true;
-  int mask = 0;
+  // The three axes in lanes (the fourth repeats the third), each lane the scalar expressions.
   const bool has_cell = CellHolds(cell, centres);
-  for (int k = 0; k < 3; ++k) {
-    const bool in_plane = std::fabs(plane_normal[k]) < 0.9f;
-    // A cell less than two spacings across cannot tell a surface's edge from sampling noise
-    // (bug: sparse_full_cell_leak): its sides always snap.
-    const bool small = cell.hi[k] - cell.lo[k] < 2.0f * spacing;
-    const bool snap_lo =
-        has_cell && in_plane && (small || centres.lo[k] - cell.lo[k] < 1.5f * spacing);
-    const bool snap_hi =
-        has_cell && in_plane && (small || cell.hi[k] - centres.hi[k] < 1.5f * spacing);
-    b.lo[k] = snap_lo ? cell.lo[k] : centres.lo[k] - 0.5f * spacing;
-    b.hi[k] = snap_hi ? cell.hi[k] : centres.hi[k] + 0.5f * spacing;
-    mask |= (snap_lo ? 1 : 0) << (2 * k);
-    mask |= (snap_hi ? 2 : 0) << (2 * k);
+  V4 clo, chi, slo, shi;
+  LoadBounds(cell, &clo, &chi);
+  LoadBounds(centres, &slo, &shi);
+  const V4 n = {plane_normal.x, plane_normal.y, plane_normal.z, plane_normal.z};
+  // |n| by clearing the sign bit.
+  const V4i abs_bits = {0x7fffffff, 0x7fffffff, 0x7fffffff, 0x7fffffff};
+  const V4i in_plane = (V4)((V4i)n & abs_bits) < 0.9f;
+  // A cell less than two spacings across cannot tell a surface's edge from sampling noise
+  // (bug: sparse_full_cell_leak): its sides always snap.
+  const V4i small = chi - clo < 2.0f * spacing;
+  const V4i usable = has_cell ? in_plane : V4i{0, 0, 0, 0};
+  const V4i snap_lo = usable & (small | (slo - clo < 1.5f * spacing));
+  const V4i snap_hi = usable & (small | (chi - shi < 1.5f * spacing));
+  const V4 lo = snap_lo ? clo : slo - 0.5f * spacing;
+  const V4 hi = snap_hi ? chi : shi + 0.5f * spacing;
+  Bounds b;
+  b.lo = glm::vec3(lo[0], lo[1], lo[2]);
+  b.hi = glm::vec3(hi[0], hi[1], hi[2]);
+  if (full) {
     // An axis along which the plane extends must reach both sides of the cell for the plane to
     // fill it (an axis nearly along the normal does not matter).
-    if (in_plane && !(snap_lo && snap_hi)) all = false;
+    *full = has_cell && (Movemask4(in_plane & ~(snap_lo & snap_hi)) & 7) == 0;
   }
-  if (full) *full = all && has_cell;
-  if (snapped) *snapped = mask;
+  if (snapped) {
+    // Bit 2 k: the low side along axis k snapped, bit 2 k + 1: the high side.
+    const int l = Movemask4(snap_lo), h = Movemask4(snap_hi);
+    *snapped = (l & 1) | ((l & 2) << 1) | ((l & 4) << 2) | ((h & 1) << 1) | ((h & 2) << 2) |
+               ((h & 4) << 3);
+  }
   return b;
 }
 
