@@ -366,8 +366,9 @@ void Rasterizer::AddPolygon(const Polygon& world_rel, PreparedSplat* s) {
   p.n = world_rel.n;
   bool below = false;
   for (int i = 0; i < p.n; ++i) {
-    p.v[i] = ToLocal(world_rel.v[i]);
-    below |= p.v[i].z < 0.0f;
+    const V4 v = ToLocal4(world_rel.v[i]);
+    p.v[i] = glm::vec3(v[0], v[1], v[2]);
+    below |= v[2] < 0.0f;
   }
   // Only the hemisphere above the receiver counts.
   if (below) ClipHalfSpace(glm::vec3(0.0f, 0.0f, 1.0f), &p);

@@ -47,6 +47,12 @@ inline V4 Sqrt4(V4 v) {
 #endif
 }
 
+// The product of the matrix with columns cx, cy, cz (lane i of each: row i) and (x, y, z): lane i
+// is (cx[i] x + cy[i] y) + cz[i] z, glm::dot(row i, v) to the bit (its order of operations).
+inline V4 MulColumns4(V4 cx, V4 cy, V4 cz, float x, float y, float z) {
+  return cx * x + cy * y + cz * z;
+}
+
 // Rows a, b, c, d become columns.
 inline void Transpose4(V4& a, V4& b, V4& c, V4& d) {
   const V4 t0 = __builtin_shufflevector(a, b, 0, 4, 1, 5),

@@ -140,6 +140,26 @@ TEST(FootprintTest, FootprintBoxInLanesMatchesOneAxisAtATime) {
   EXPECT_LT(snapped_count, trials - trials / 50);
 }
 
+// Rasterizer::ToLocal4() (AddPolygon's vertices) multiplies by the frame's columns in lanes:
+// against ToLocal()'s three glm::dot, the same floats to the bit over random frames and points.
+TEST(FootprintTest, ToLocalInLanesMatchesGlmDot) {
+  std::mt19937 rng(16);
+  std::uniform_real_distribution<float> u(-1.0f, 1.0f);
+  int differ = 0;
+  const int trials = 200000;
+  for (int trial = 0; trial < trials; ++trial) {
+    const glm::vec3 t(u(rng), u(rng), u(rng)), b(u(rng), u(rng), u(rng)), n(u(rng), u(rng), u(rng));
+    const float scale = trial % 3 == 0 ? 1000.0f : 1.0f;
+    const glm::vec3 v(scale * u(rng), scale * u(rng), trial % 7 == 0 ? 0.0f : u(rng));
+    const internal::V4 r =
+        internal::MulColumns4(internal::V4{t.x, b.x, n.x, 0.0f}, internal::V4{t.y, b.y, n.y, 0.0f},
+                              internal::V4{t.z, b.z, n.z, 0.0f}, v.x, v.y, v.z);
+    const float want[3] = {glm::dot(t, v), glm::dot(b, v), glm::dot(n, v)};
+    differ += std::memcmp(&r, want, sizeof want) != 0;
+  }
+  EXPECT_EQ(differ, 0) << "of " << trials;
+}
+
 TEST(FootprintTest, TilingClustersCoverTheirUnionExactly) {
   MicroBuffer mb;
   const std::vector<Surfel> square = SquareSurfels(1.0f, 1.0f, 0.02f);
