@@ -408,17 +408,12 @@ bool Rasterizer::BoxClosed(const glm::vec3& lo, const glm::vec3& hi, float depth
     in &= (w[q] > 0.0f) & (ax1 < 0.999f * w[q]) & (ax2 < 0.999f * w[q]);
   }
   if (Movemask4(in) != 0xf) return false;
-  float a[8], b[8];
-  for (int q = 0; q < 2; ++q) {
-    const V4 inv = 1.0f / w[q];
-    Store4(a + 4 * q, x1[q] * inv);
-    Store4(b + 4 * q, x2[q] * inv);
-  }
-  float amin = a[0], amax = a[0], bmin = b[0], bmax = b[0];
-  for (int i = 1; i < 8; ++i) {
-    amin = std::min(amin, a[i]), amax = std::max(amax, a[i]);
-    bmin = std::min(bmin, b[i]), bmax = std::max(bmax, b[i]);
-  }
+  const V4 inv0 = 1.0f / w[0], inv1 = 1.0f / w[1];
+  const V4 a0 = x1[0] * inv0, a1 = x1[1] * inv1, b0 = x2[0] * inv0, b1 = x2[1] * inv1;
+  // The same values as one corner at a time (no NaN passed the test above; a zero's sign does
+  // not survive pixel()'s t + 1).
+  const float amin = Least8(a0, a1), amax = Greatest8(a0, a1);
+  const float bmin = Least8(b0, b1), bmax = Greatest8(b0, b1);
   // The polygon's pixel rectangle (RasterizePolygonTo) lies in the corners' one; 1e-2 pixel
   // more keeps clear of rounding (here and in the clipped vertices).
   const float half = 0.5f * static_cast<float>(res_);

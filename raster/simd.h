@@ -38,6 +38,19 @@ inline int Movemask4(V4i m) {
 inline V4 Max4(V4 a, V4 b) { return a > b ? a : b; }
 inline V4 Min4(V4 a, V4 b) { return a < b ? a : b; }
 
+// The least (greatest) of the eight lanes of a and b: the value that std::min (std::max) finds
+// one lane at a time, when no lane is NaN (a zero's sign aside).
+inline float Least8(V4 a, V4 b) {
+  V4 v = Min4(a, b);
+  v = Min4(v, __builtin_shufflevector(v, v, 2, 3, 0, 1));
+  return v[0] < v[1] ? v[0] : v[1];
+}
+inline float Greatest8(V4 a, V4 b) {
+  V4 v = Max4(a, b);
+  v = Max4(v, __builtin_shufflevector(v, v, 2, 3, 0, 1));
+  return v[0] > v[1] ? v[0] : v[1];
+}
+
 inline V4 Sqrt4(V4 v) {
 #if defined(__SSE__)
   return _mm_sqrt_ps(v);

@@ -160,6 +160,24 @@ TEST(FootprintTest, ToLocalInLanesMatchesGlmDot) {
   EXPECT_EQ(differ, 0) << "of " << trials;
 }
 
+// Least8() and Greatest8() (BoxClosed's pixel rectangle) against std::min and std::max one value
+// at a time: the same value over random lanes, ties and equal lanes included.
+TEST(FootprintTest, LeastAndGreatestOfEightLanesMatchOneAtATime) {
+  std::mt19937 rng(16);
+  std::uniform_real_distribution<float> u(-2.0f, 2.0f);
+  int differ = 0;
+  const int trials = 200000;
+  for (int trial = 0; trial < trials; ++trial) {
+    float v[8];
+    for (float& x : v) x = rng() % 4 == 0 ? 0.5f : u(rng);
+    const internal::V4 a = {v[0], v[1], v[2], v[3]}, b = {v[4], v[5], v[6], v[7]};
+    float lo = v[0], hi = v[0];
+    for (int i = 1; i < 8; ++i) lo = std::min(lo, v[i]), hi = std::max(hi, v[i]);
+    differ += !(internal::Least8(a, b) == lo) || !(internal::Greatest8(a, b) == hi);
+  }
+  EXPECT_EQ(differ, 0) << "of " << trials;
+}
+
 TEST(FootprintTest, TilingClustersCoverTheirUnionExactly) {
   MicroBuffer mb;
   const std::vector<Surfel> square = SquareSurfels(1.0f, 1.0f, 0.02f);
