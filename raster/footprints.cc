@@ -156,6 +156,20 @@ struct SurfelGroup {
   double area = 0.0;
   glm::dvec3 nsum{0.0}, csum{0.0}, lsum{0.0};
   Bounds centres;
+  // From the sums once the group is complete (Finish()), for ContactCell's every pair:
+  // whether the group has an area and a normal, its unit normal, centroid and spacing.
+  bool solid = false;
+  glm::vec3 normal{0.0f}, centroid{0.0f};
+  float spacing = 0.0f;
+
+  void Finish() {
+    const double l = glm::length(nsum);
+    solid = l > 0.0 && area > 0.0;
+    if (!solid) return;
+    normal = glm::vec3(nsum / l);
+    centroid = glm::vec3(csum / area);
+    spacing = static_cast<float>(std::sqrt(area / count));
+  }
 };
 
 // Where a group's surface meets another's in the same cell (a wall standing on a roof or the
@@ -171,11 +185,9 @@ Bounds ContactCell(const Bounds& cell, const SurfelGroup& a, absl::Span<const Su
                    const glm::vec3& origin, const glm::vec3& nr, bool* contact) {
   Bounds out = cell;
   *contact = false;
-  if (a.two_sided) return out;
-  const double la = glm::length(a.nsum);
-  if (!(la > 0.0) || !(a.area > 0.0)) return out;
-  const glm::vec3 na = glm::vec3(a.nsum / la), ca = glm::vec3(a.csum / a.area);
-  const float sa = static_cast<float>(std::sqrt(a.area / a.count));
+  if (a.two_sided || !a.solid) return out;
+  const glm::vec3 na = a.normal, ca = a.centroid;
+  const float sa = a.spacing;
   const bool has_cell = CellHolds(cell, a.centres);
   if (!has_cell) {
     // No cell (a caller-built set, a lone surfel's): the box's own, unbounded.
@@ -209,11 +221,9 @@ Bounds ContactCell(const Bounds& cell, const SurfelGroup& a, absl::Span<const Su
   }
   if (!has_cell) return *contact ? out : cell;
   for (const SurfelGroup& b : groups) {
-    if (&b == &a || b.two_sided) continue;
-    const double lb = glm::length(b.nsum);
-    if (!(lb > 0.0) || !(b.area > 0.0)) continue;
-    const glm::vec3 nb = glm::vec3(b.nsum / lb), cb = glm::vec3(b.csum / b.area);
-    const float sb = static_cast<float>(std::sqrt(b.area / b.count));
+    if (&b == &a || b.two_sided || !b.solid) continue;
+    const glm::vec3 nb = b.normal, cb = b.centroid;
+    const float sb = b.spacing;
     int k = 0;
     for (int j = 1; j < 3; ++j) {
       if (std::fabs(nb[j]) > std::fabs(nb[k])) k = j;
@@ -630,13 +640,14 @@ void Rasterizer::PrepareSurfelGroups(const Gathered& g, ShadeResult* out) {
       gr.csum = csum;
       gr.lsum = lsum;
       gr.centres = centres;
+      gr.Finish();
       groups.push_back(gr);
     }
     for (const SurfelGroup& gr : groups) {
       const size_t end = gr.end;
       const int count = gr.count;
       const double area = gr.area;
-      const glm::dvec3 nsum = gr.nsum, csum = gr.csum, lsum = gr.lsum;
+      const glm::dvec3 lsum = gr.lsum;
       const Bounds& centres = gr.centres;
       const Surfel& first = g.surfels[order[end - count]];
       const glm::vec3 n0 = gr.n0;
@@ -667,10 +678,9 @@ void Rasterizer::PrepareSurfelGroups(const Gathered& g, ShadeResult* out) {
           }
         }
       }
-      const double nl = glm::length(nsum);
-      if (!(area > 0.0) || !(nl > 0.0)) continue;
-      const glm::vec3 normal = glm::vec3(nsum / nl);
-      const glm::vec3 centroid = glm::vec3(csum / area);
+      if (!gr.solid) continue;
+      const glm::vec3 normal = gr.normal;
+      const glm::vec3 centroid = gr.centroid;
       const glm::vec3 rel = centroid - origin_;
       const float side = -glm::dot(normal, rel);  // > 0: the receiver is in front
       const HitSides sides = first.two_sided ? HitSides::kBoth : o_.hitsides;
@@ -682,7 +692,7 @@ void Rasterizer::PrepareSurfelGroups(const Gathered& g, ShadeResult* out) {
         out->culled += count;
         continue;
       }
-      const float spacing = static_cast<float>(std::sqrt(area / count));
+      const float spacing = gr.spacing;
       // Drawn, the receiver's own surface seen from behind covered up to half the hemisphere
       // (+0.03 of the +0.055 excess on Wuson.ply; bug: own_surface_seen_from_behind).
       float thickness = 0.0f;
