@@ -184,7 +184,9 @@ class Rasterizer {
     return glm::vec3(glm::dot(t_, v), glm::dot(b_, v), glm::dot(n_, v));
   }
   // ToLocal() in lanes 0-2, the same values.
-  V4 ToLocal4(const glm::vec3& v) const { return MulColumns4(col_x_, col_y_, col_z_, v.x, v.y, v.z); }
+  V4 ToLocal4(const glm::vec3& v) const {
+    return MulColumns4(col_x_, col_y_, col_z_, v.x, v.y, v.z);
+  }
   template <bool kRad>
   void PrepareClusters(const std::vector<Cluster>& clusters);
   void PrepareSurfel(const Surfel& s, ShadeResult* out);

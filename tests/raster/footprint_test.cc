@@ -109,24 +109,32 @@ TEST(FootprintTest, FootprintBoxInLanesMatchesOneAxisAtATime) {
       const float a = cell.lo[k] + side * u(rng), b = cell.lo[k] + side * u(rng);
       centres.lo[k] = std::min(a, b), centres.hi[k] = std::max(a, b);
       switch (rng() % 6) {
-        case 0: centres.lo[k] = cell.lo[k]; break;
-        case 1: centres.hi[k] = cell.hi[k]; break;
-        case 2: centres.lo[k] = cell.lo[k] + 1.5f * spacing; break;
-        case 3: centres.hi[k] = cell.hi[k] + spacing * u(rng); break;
-        default: break;
+        case 0:
+          centres.lo[k] = cell.lo[k];
+          break;
+        case 1:
+          centres.hi[k] = cell.hi[k];
+          break;
+        case 2:
+          centres.lo[k] = cell.lo[k] + 1.5f * spacing;
+          break;
+        case 3:
+          centres.hi[k] = cell.hi[k] + spacing * u(rng);
+          break;
+        default:
+          break;
       }
       const float nk = rng() % 5 == 0 ? 0.9f : 2.0f * u(rng) - 1.0f;
       n[k] = rng() % 2 ? nk : -nk;
     }
-    if (rng() % 20 == 0) cell = Bounds{};  // no cell
+    if (rng() % 20 == 0) cell = Bounds{};                        // no cell
     if (rng() % 50 == 0) std::swap(centres.lo.y, centres.hi.y);  // empty
     bool full = false, want_full = false;
     int snapped = -1, want_snapped = -2;
     const Bounds b = internal::FootprintBox(centres, cell, spacing, n, &full, &snapped);
     const Bounds want =
         FootprintBoxOneAxisAtATime(centres, cell, spacing, n, &want_full, &want_snapped);
-    differ += std::memcmp(&b, &want, sizeof b) != 0 || full != want_full ||
-              snapped != want_snapped;
+    differ += std::memcmp(&b, &want, sizeof b) != 0 || full != want_full || snapped != want_snapped;
     full_count += full;
     snapped_count += snapped != 0;
     // Without the optional outputs, the same box.

@@ -439,9 +439,8 @@ TEST(PolygonTest, ConeSolidAngleInLanesMatchesOneTriangleAtATime) {
     } else {
       // A regular-ish polygon around a random direction at a random distance.
       const glm::vec3 d = glm::normalize(glm::vec3(u(rng), u(rng), u(rng)) + 1e-3f);
-      const glm::vec3 e1 = glm::normalize(glm::cross(d, std::fabs(d.x) < 0.9f
-                                                            ? glm::vec3(1, 0, 0)
-                                                            : glm::vec3(0, 1, 0)));
+      const glm::vec3 e1 = glm::normalize(
+          glm::cross(d, std::fabs(d.x) < 0.9f ? glm::vec3(1, 0, 0) : glm::vec3(0, 1, 0)));
       const glm::vec3 e2 = glm::cross(d, e1);
       const float dist = std::exp(4.0f * u(rng)), r = dist * std::exp(3.0f * u(rng) - 2.0f);
       q.n = 3 + static_cast<int>(rng() % (kMaxPolygonVertices - 2));
