@@ -16,6 +16,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <cstring>
 #include <limits>
 
 #include "absl/container/inlined_vector.h"
@@ -122,13 +123,29 @@ bool BoxFaces(const Cluster& c, const Bounds& box, const glm::vec3& origin) {
   return faces >= 2 && off <= tol;
 }
 
+// A box's lo and hi as four lanes each, the fourth repeating the third: Bounds is six floats,
+// read as two overlapping four-float loads within it.
+inline void LoadBounds(const Bounds& b, V4* lo, V4* hi) {
+  static_assert(sizeof(Bounds) == 6 * sizeof(float));
+  const char* p = reinterpret_cast<const char*>(&b);
+  V4 l, h;
+  std::memcpy(&l, p, sizeof l);
+  std::memcpy(&h, p + 2 * sizeof(float), sizeof h);
+  *lo = __builtin_shufflevector(l, l, 0, 1, 2, 2);
+  *hi = __builtin_shufflevector(h, h, 1, 2, 3, 3);
+}
+
 // Whether `cell` is a usable octree cell for content with box `b` (the gather sets it; a
-// caller-built cluster may not).
+// caller-built cluster may not). Three lanes of four, the same comparisons as one axis at a time.
 bool CellHolds(const Bounds& cell, const Bounds& b) {
-  if (cell.Empty() || b.Empty()) return false;
-  const float tol = 1e-4f * std::max(1e-30f, glm::length(cell.hi - cell.lo));
-  return glm::all(glm::greaterThanEqual(b.lo, cell.lo - tol)) &&
-         glm::all(glm::lessThanEqual(b.hi, cell.hi + tol));
+  V4 clo, chi, blo, bhi;
+  LoadBounds(cell, &clo, &chi);
+  LoadBounds(b, &blo, &bhi);
+  // Bounds::Empty() of either.
+  if (Movemask4((clo > chi) | (blo > bhi)) != 0) return false;
+  const V4 e = chi - clo;
+  const float tol = 1e-4f * std::max(1e-30f, std::sqrt(e[0] * e[0] + e[1] * e[1] + e[2] * e[2]));
+  return Movemask4((blo >= clo - tol) & (bhi <= chi + tol)) == 0xf;
 }
 
 // The spacing of a cluster's surfels, by which its footprint box grows (FootprintBox).
@@ -150,20 +167,21 @@ struct SurfelGroup {
   // The least height of a centre above the receiver's tangent plane (its box's lowest corner
   // lies lower where the plane is not along an axis).
   float hmin = std::numeric_limits<float>::infinity();
-};
+  // From the sums once the group is complete (Finish()), for ContactCell's every pair:
+  // whether the group has an area and a normal, its unit normal, centroid and spacing.
+  bool solid = false;
+  glm::vec3 normal{0.0f}, centroid{0.0f};
+  float spacing = 0.0f;
 
-// The least and greatest dot(n, x - o) over the corners x of the box b.
-void DotRange(const Bounds& b, const glm::vec3& n, const glm::vec3& o, float* lo, float* hi) {
-  *lo = std::numeric_limits<float>::infinity();
-  *hi = -*lo;
-  for (int i = 0; i < 8; ++i) {
-    const glm::vec3 corner((i & 1) ? b.hi.x : b.lo.x, (i & 2) ? b.hi.y : b.lo.y,
-                           (i & 4) ? b.hi.z : b.lo.z);
-    const float t = glm::dot(n, corner - o);
-    *lo = std::min(*lo, t);
-    *hi = std::max(*hi, t);
+  void Finish() {
+    const double l = glm::length(nsum);
+    solid = l > 0.0 && area > 0.0;
+    if (!solid) return;
+    normal = glm::vec3(nsum / l);
+    centroid = glm::vec3(csum / area);
+    spacing = static_cast<float>(std::sqrt(area / count));
   }
-}
+};
 
 // Where a group's surface meets another's in the same cell (a wall standing on a roof or the
 // street, the two faces of a box's edge), the first ends at the second's plane, not half a
@@ -181,11 +199,9 @@ Bounds ContactCell(const Bounds& cell, const SurfelGroup& a, absl::Span<const Su
   *contact = false;
   if (reach) *reach = a.centres;
   if (on_receiver) *on_receiver = false;
-  if (a.two_sided) return out;
-  const double la = glm::length(a.nsum);
-  if (!(la > 0.0) || !(a.area > 0.0)) return out;
-  const glm::vec3 na = glm::vec3(a.nsum / la), ca = glm::vec3(a.csum / a.area);
-  const float sa = static_cast<float>(std::sqrt(a.area / a.count));
+  if (a.two_sided || !a.solid) return out;
+  const glm::vec3 na = a.normal, ca = a.centroid;
+  const float sa = a.spacing;
   const bool has_cell = CellHolds(cell, a.centres);
   if (!has_cell) {
     // No cell (a caller-built set, a lone surfel's): the box's own, unbounded.
@@ -220,7 +236,8 @@ Bounds ContactCell(const Bounds& cell, const SurfelGroup& a, absl::Span<const Su
         float face = nr[k] * ((nr[k] > 0.0f ? a.centres.lo[k] : a.centres.hi[k]) - origin[k]);
         for (int j = 0; j < 3; ++j) {
           if (j != k) {
-            face += std::max(nr[j] * (across.lo[j] - origin[j]), nr[j] * (across.hi[j] - origin[j]));
+            face +=
+                std::max(nr[j] * (across.lo[j] - origin[j]), nr[j] * (across.hi[j] - origin[j]));
           }
         }
         const float ext = std::max(0.0f, face) / std::fabs(nr[k]) + 0.25f * sa;
@@ -255,11 +272,9 @@ Bounds ContactCell(const Bounds& cell, const SurfelGroup& a, absl::Span<const Su
   }
   if (!has_cell) return *contact ? out : cell;
   for (const SurfelGroup& b : groups) {
-    if (&b == &a || b.two_sided) continue;
-    const double lb = glm::length(b.nsum);
-    if (!(lb > 0.0) || !(b.area > 0.0)) continue;
-    const glm::vec3 nb = glm::vec3(b.nsum / lb), cb = glm::vec3(b.csum / b.area);
-    const float sb = static_cast<float>(std::sqrt(b.area / b.count));
+    if (&b == &a || b.two_sided || !b.solid) continue;
+    const glm::vec3 nb = b.normal, cb = b.centroid;
+    const float sb = b.spacing;
     int k = 0;
     for (int j = 1; j < 3; ++j) {
       if (std::fabs(nb[j]) > std::fabs(nb[k])) k = j;
@@ -289,7 +304,7 @@ Bounds ContactCell(const Bounds& cell, const SurfelGroup& a, absl::Span<const Su
     }
     // b's centres against a's plane.
     float lo, hi;
-    DotRange(b.centres, na, ca, &lo, &hi);
+    BoxDotRange(b.centres, na, ca, &lo, &hi);
     if (lo > 1.5f * sb || hi < -1.5f * sb) continue;
     // b's plane along axis k, at a's centroid.
     float c = cb[k];
@@ -329,29 +344,37 @@ Bounds ContactCell(const Bounds& cell, const SurfelGroup& a, absl::Span<const Su
 
 Bounds FootprintBox(const Bounds& centres, const Bounds& cell, float spacing,
                     const glm::vec3& plane_normal, bool* full, int* snapped) {
-  Bounds b;
-  bool all = true;
-  int mask = 0;
+  // The three axes in lanes (the fourth repeats the third), each lane the scalar expressions.
   const bool has_cell = CellHolds(cell, centres);
-  for (int k = 0; k < 3; ++k) {
-    const bool in_plane = std::fabs(plane_normal[k]) < 0.9f;
-    // A cell less than two spacings across cannot tell a surface's edge from sampling noise
-    // (bug: sparse_full_cell_leak): its sides always snap.
-    const bool small = cell.hi[k] - cell.lo[k] < 2.0f * spacing;
-    const bool snap_lo =
-        has_cell && in_plane && (small || centres.lo[k] - cell.lo[k] < 1.5f * spacing);
-    const bool snap_hi =
-        has_cell && in_plane && (small || cell.hi[k] - centres.hi[k] < 1.5f * spacing);
-    b.lo[k] = snap_lo ? cell.lo[k] : centres.lo[k] - 0.5f * spacing;
-    b.hi[k] = snap_hi ? cell.hi[k] : centres.hi[k] + 0.5f * spacing;
-    mask |= (snap_lo ? 1 : 0) << (2 * k);
-    mask |= (snap_hi ? 2 : 0) << (2 * k);
+  V4 clo, chi, slo, shi;
+  LoadBounds(cell, &clo, &chi);
+  LoadBounds(centres, &slo, &shi);
+  const V4 n = {plane_normal.x, plane_normal.y, plane_normal.z, plane_normal.z};
+  // |n| by clearing the sign bit.
+  const V4i abs_bits = {0x7fffffff, 0x7fffffff, 0x7fffffff, 0x7fffffff};
+  const V4i in_plane = (V4)((V4i)n & abs_bits) < 0.9f;
+  // A cell less than two spacings across cannot tell a surface's edge from sampling noise
+  // (bug: sparse_full_cell_leak): its sides always snap.
+  const V4i small = chi - clo < 2.0f * spacing;
+  const V4i usable = has_cell ? in_plane : V4i{0, 0, 0, 0};
+  const V4i snap_lo = usable & (small | (slo - clo < 1.5f * spacing));
+  const V4i snap_hi = usable & (small | (chi - shi < 1.5f * spacing));
+  const V4 lo = snap_lo ? clo : slo - 0.5f * spacing;
+  const V4 hi = snap_hi ? chi : shi + 0.5f * spacing;
+  Bounds b;
+  b.lo = glm::vec3(lo[0], lo[1], lo[2]);
+  b.hi = glm::vec3(hi[0], hi[1], hi[2]);
+  if (full) {
     // An axis along which the plane extends must reach both sides of the cell for the plane to
     // fill it (an axis nearly along the normal does not matter).
-    if (in_plane && !(snap_lo && snap_hi)) all = false;
+    *full = has_cell && (Movemask4(in_plane & ~(snap_lo & snap_hi)) & 7) == 0;
   }
-  if (full) *full = all && has_cell;
-  if (snapped) *snapped = mask;
+  if (snapped) {
+    // Bit 2 k: the low side along axis k snapped, bit 2 k + 1: the high side.
+    const int l = Movemask4(snap_lo), h = Movemask4(snap_hi);
+    *snapped = (l & 1) | ((l & 2) << 1) | ((l & 4) << 2) | ((h & 1) << 1) | ((h & 2) << 2) |
+               ((h & 4) << 3);
+  }
   return b;
 }
 
@@ -421,8 +444,9 @@ void Rasterizer::AddPolygon(const Polygon& world_rel, PreparedSplat* s) {
   p.n = world_rel.n;
   bool below = false;
   for (int i = 0; i < p.n; ++i) {
-    p.v[i] = ToLocal(world_rel.v[i]);
-    below |= p.v[i].z < 0.0f;
+    const V4 v = ToLocal4(world_rel.v[i]);
+    p.v[i] = glm::vec3(v[0], v[1], v[2]);
+    below |= v[2] < 0.0f;
   }
   // Only the hemisphere above the receiver counts.
   if (below) ClipHalfSpace(glm::vec3(0.0f, 0.0f, 1.0f), &p);
@@ -462,17 +486,12 @@ bool Rasterizer::BoxClosed(const glm::vec3& lo, const glm::vec3& hi, float depth
     in &= (w[q] > 0.0f) & (ax1 < 0.999f * w[q]) & (ax2 < 0.999f * w[q]);
   }
   if (Movemask4(in) != 0xf) return false;
-  float a[8], b[8];
-  for (int q = 0; q < 2; ++q) {
-    const V4 inv = 1.0f / w[q];
-    Store4(a + 4 * q, x1[q] * inv);
-    Store4(b + 4 * q, x2[q] * inv);
-  }
-  float amin = a[0], amax = a[0], bmin = b[0], bmax = b[0];
-  for (int i = 1; i < 8; ++i) {
-    amin = std::min(amin, a[i]), amax = std::max(amax, a[i]);
-    bmin = std::min(bmin, b[i]), bmax = std::max(bmax, b[i]);
-  }
+  const V4 inv0 = 1.0f / w[0], inv1 = 1.0f / w[1];
+  const V4 a0 = x1[0] * inv0, a1 = x1[1] * inv1, b0 = x2[0] * inv0, b1 = x2[1] * inv1;
+  // The same values as one corner at a time (no NaN passed the test above; a zero's sign does
+  // not survive pixel()'s t + 1).
+  const float amin = Least8(a0, a1), amax = Greatest8(a0, a1);
+  const float bmin = Least8(b0, b1), bmax = Greatest8(b0, b1);
   // The polygon's pixel rectangle (RasterizePolygonTo) lies in the corners' one; 1e-2 pixel
   // more keeps clear of rounding (here and in the clipped vertices).
   const float half = 0.5f * static_cast<float>(res_);
@@ -692,13 +711,14 @@ void Rasterizer::PrepareSurfelGroups(const Gathered& g, ShadeResult* out) {
       gr.lsum = lsum;
       gr.centres = centres;
       gr.hmin = hmin;
+      gr.Finish();
       groups.push_back(gr);
     }
     for (const SurfelGroup& gr : groups) {
       const size_t end = gr.end;
       const int count = gr.count;
       const double area = gr.area;
-      const glm::dvec3 nsum = gr.nsum, csum = gr.csum, lsum = gr.lsum;
+      const glm::dvec3 lsum = gr.lsum;
       const Bounds& centres = gr.centres;
       const Surfel& first = g.surfels[order[end - count]];
       const glm::vec3 n0 = gr.n0;
@@ -721,8 +741,8 @@ void Rasterizer::PrepareSurfelGroups(const Gathered& g, ShadeResult* out) {
           fills = fills && face <= kSmallCell * sp * sp;
         }
         if (!fills) {
-          contact_cell =
-              ContactCell(cell, gr, groups, origin_, n_, crease_tol_, &contact, &reach, &on_receiver);
+          contact_cell = ContactCell(cell, gr, groups, origin_, n_, crease_tol_, &contact, &reach,
+                                     &on_receiver);
           have_contact_cell = true;
           if (!contact) {
             PrepareSurfel(lone, out);
@@ -730,13 +750,12 @@ void Rasterizer::PrepareSurfelGroups(const Gathered& g, ShadeResult* out) {
           }
         }
       }
-      const double nl = glm::length(nsum);
-      if (!(area > 0.0) || !(nl > 0.0)) continue;
-      const glm::vec3 normal = glm::vec3(nsum / nl);
-      const glm::vec3 centroid = glm::vec3(csum / area);
+      if (!gr.solid) continue;
+      const glm::vec3 normal = gr.normal;
+      const glm::vec3 centroid = gr.centroid;
       glm::vec3 rel = centroid - origin_;
       float side = -glm::dot(normal, rel);  // > 0: the receiver is in front
-      glm::vec3 from = origin_;  // the receiver, as this group sees it (CreaseShift)
+      glm::vec3 from = origin_;             // the receiver, as this group sees it (CreaseShift)
       if (const float shift = CreaseShift(first.two_sided, normal, side); shift != 0.0f) {
         rel -= shift * normal;
         from += shift * normal;
@@ -751,7 +770,7 @@ void Rasterizer::PrepareSurfelGroups(const Gathered& g, ShadeResult* out) {
         out->culled += count;
         continue;
       }
-      const float spacing = static_cast<float>(std::sqrt(area / count));
+      const float spacing = gr.spacing;
       // Drawn, the receiver's own surface seen from behind covered up to half the hemisphere
       // (+0.03 of the +0.055 excess on Wuson.ply; bug: own_surface_seen_from_behind).
       float thickness = 0.0f;
@@ -771,7 +790,8 @@ void Rasterizer::PrepareSurfelGroups(const Gathered& g, ShadeResult* out) {
       // the leaves' groups tiled their cells and over-occluded the forest (+23%, seen once the
       // cells were the octree's, bug: cells_off_the_key_cube).
       if (!first.two_sided && !have_contact_cell) {
-        contact_cell = ContactCell(cell, gr, groups, origin_, n_, crease_tol_, &contact, &reach, &on_receiver);
+        contact_cell =
+            ContactCell(cell, gr, groups, origin_, n_, crease_tol_, &contact, &reach, &on_receiver);
       }
       const Bounds snap_to = first.two_sided ? Bounds{} : contact_cell;
       Polygon p;

@@ -7,6 +7,7 @@
 #include "base/math.h"
 #include "glm/geometric.hpp"
 #include "raster/polygon_coverage.h"
+#include "raster/simd.h"
 
 namespace pbgi::internal {
 namespace {
@@ -209,6 +210,17 @@ void BoxSilhouette(const glm::vec3& lo, const glm::vec3& hi, int faces, Polygon*
   if (out->n < 3) out->n = 0;
 }
 
+void BoxDotRange(const Bounds& b, const glm::vec3& n, const glm::vec3& o, float* lo, float* hi) {
+  float tl[3], th[3];
+  for (int k = 0; k < 3; ++k) {
+    const float u = n[k] * (b.lo[k] - o[k]), v = n[k] * (b.hi[k] - o[k]);
+    tl[k] = std::min(u, v);
+    th[k] = std::max(u, v);
+  }
+  *lo = tl[0] + tl[1] + tl[2];
+  *hi = th[0] + th[1] + th[2];
+}
+
 float ConeSolidAngle(const Polygon& p) {
   if (p.n < 3) return 0.0f;
   // A fan of triangles from vertex 0, each tan(omega / 2) = N / D (Van Oosterom and Strackee):
@@ -216,23 +228,43 @@ float ConeSolidAngle(const Polygon& p) {
   // digits, D = |a||b||c| + (a.b)|c| + (a.c)|b| + (b.c)|a|. The half angles add up, so the
   // product of the complex numbers D + iN has the total's half angle as its argument: one atan2
   // for the polygon. Each factor is scaled to a largest part of 1 (no overflow).
-  float len[kMaxPolygonVertices];
-  for (int i = 0; i < p.n; ++i) len[i] = glm::length(p.v[i]);
-  const glm::vec3& a = p.v[0];
+  // N and D of four triangles at a time (SSE2), each lane glm's expressions in glm's order
+  // (glm::length, glm::cross, glm::dot): the same floats as one triangle at a time.
+  const int n = p.n;
+  // The vertices by component, zero past n (lanes past the last triangle read them).
+  constexpr int kPadded = kMaxPolygonVertices + 4;
+  float x[kPadded] = {}, y[kPadded] = {}, z[kPadded] = {}, len[kPadded] = {};
+  for (int i = 0; i < n; ++i) x[i] = p.v[i].x, y[i] = p.v[i].y, z[i] = p.v[i].z;
+  for (int i = 0; i < n; i += 4) {
+    const V4 vx = Load4(x + i), vy = Load4(y + i), vz = Load4(z + i);
+    Store4(len + i, Sqrt4(vx * vx + vy * vy + vz * vz));
+  }
+  const V4 ax = Splat4(x[0]), ay = Splat4(y[0]), az = Splat4(z[0]), la = Splat4(len[0]);
+  float num[kMaxPolygonVertices], den[kMaxPolygonVertices];
+  for (int j = 0; j < n - 2; j += 4) {
+    // Triangles (a, b, c) = (v0, v[1 + j + lane], v[2 + j + lane]).
+    const V4 bx = Load4(x + 1 + j), by = Load4(y + 1 + j), bz = Load4(z + 1 + j);
+    const V4 cx = Load4(x + 2 + j), cy = Load4(y + 2 + j), cz = Load4(z + 2 + j);
+    const V4 lb = Load4(len + 1 + j), lc = Load4(len + 2 + j);
+    const V4 ux = bx - ax, uy = by - ay, uz = bz - az;
+    const V4 wx = cx - ax, wy = cy - ay, wz = cz - az;
+    const V4 crx = uy * wz - wy * uz, cry = uz * wx - wz * ux, crz = ux * wy - wx * uy;
+    Store4(num + j, ax * crx + ay * cry + az * crz);
+    const V4 dab = ax * bx + ay * by + az * bz;
+    const V4 dac = ax * cx + ay * cy + az * cz;
+    const V4 dbc = bx * cx + by * cy + bz * cz;
+    Store4(den + j, la * lb * lc + dab * lc + dac * lb + dbc * la);
+  }
   float re = 1.0f, im = 0.0f, orient = 0.0f;
-  for (int i = 1; i + 1 < p.n; ++i) {
-    const glm::vec3& b = p.v[i];
-    const glm::vec3& c = p.v[i + 1];
-    const float num = glm::dot(a, glm::cross(b - a, c - a));
-    const float den = len[0] * len[i] * len[i + 1] + glm::dot(a, b) * len[i + 1] +
-                      glm::dot(a, c) * len[i] + glm::dot(b, c) * len[0];
-    const float big = std::max(std::fabs(num), std::fabs(den));
+  for (int i = 0; i < n - 2; ++i) {
+    const float nu = num[i], de = den[i];
+    const float big = std::max(std::fabs(nu), std::fabs(de));
     if (!(big > 0.0f)) continue;
-    const float zr = den / big, zi = num / big;
+    const float zr = de / big, zi = nu / big;
     const float r = re * zr - im * zi;
     im = re * zi + im * zr;
     re = r;
-    orient += num;
+    orient += nu;
   }
   if (orient < 0.0f) im = -im;  // the vertices turn clockwise seen from the origin
   float half = std::atan2(im, re);

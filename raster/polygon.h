@@ -43,6 +43,12 @@ double PolygonArea(const Polygon& p);
 // coverage and its solid angle are theirs summed.
 void BoxSilhouette(const glm::vec3& lo, const glm::vec3& hi, int faces, Polygon* out);
 
+// The least and greatest of glm::dot(n, x - o) over the corners x of the box b (not empty),
+// the same values as the corners' own (a zero's sign aside): each is (t0 + t1) + t2 with
+// t_k = n[k] * (x[k] - o[k]), and rounding is monotonic, so the least sum is that of each axis's
+// least term (the greatest likewise). Six products instead of eight dot products.
+void BoxDotRange(const Bounds& b, const glm::vec3& n, const glm::vec3& o, float* lo, float* hi);
+
 // The solid angle of the cone from the origin over a convex polygon that does not surround the
 // origin (less than 2 pi), either orientation.
 float ConeSolidAngle(const Polygon& p);

@@ -83,6 +83,9 @@ void Rasterizer::SetFrame(const ShadeReceiver& r) {
   world_x_ = ToLocal(glm::vec3(1.0f, 0.0f, 0.0f));
   world_y_ = ToLocal(glm::vec3(0.0f, 1.0f, 0.0f));
   world_z_ = ToLocal(glm::vec3(0.0f, 0.0f, 1.0f));
+  col_x_ = V4{t_.x, b_.x, n_.x, 0.0f};
+  col_y_ = V4{t_.y, b_.y, n_.y, 0.0f};
+  col_z_ = V4{t_.z, b_.z, n_.z, 0.0f};
 }
 
 template <bool kRad>

@@ -183,6 +183,10 @@ class Rasterizer {
   glm::vec3 ToLocal(const glm::vec3& v) const {
     return glm::vec3(glm::dot(t_, v), glm::dot(b_, v), glm::dot(n_, v));
   }
+  // ToLocal() in lanes 0-2, the same values.
+  V4 ToLocal4(const glm::vec3& v) const {
+    return MulColumns4(col_x_, col_y_, col_z_, v.x, v.y, v.z);
+  }
   template <bool kRad>
   void PrepareClusters(const std::vector<Cluster>& clusters);
   void PrepareSurfel(const Surfel& s, ShadeResult* out);
@@ -542,6 +546,8 @@ class Rasterizer {
   glm::vec3 origin_, t_, b_, n_;
   float crease_tol_ = 0.0f;  // see CreaseShift()
   glm::vec3 world_x_, world_y_, world_z_;  // the world axes x, y, z in the receiver's frame
+  // ToLocal()'s matrix by columns, {t_[k], b_[k], n_[k], 0} for k = x, y, z (ToLocal4()).
+  V4 col_x_, col_y_, col_z_;
   uint32_t count_ = 0;                     // prepared splats in mb_.splats_
   uint32_t poly_count_ = 0;                // polygons in mb_.polygons_
   uint32_t cluster_count_ = 0;             // mb_.splats_[0, cluster_count_) are clusters'

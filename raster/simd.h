@@ -38,6 +38,19 @@ inline int Movemask4(V4i m) {
 inline V4 Max4(V4 a, V4 b) { return a > b ? a : b; }
 inline V4 Min4(V4 a, V4 b) { return a < b ? a : b; }
 
+// The least (greatest) of the eight lanes of a and b: the value that std::min (std::max) finds
+// one lane at a time, when no lane is NaN (a zero's sign aside).
+inline float Least8(V4 a, V4 b) {
+  V4 v = Min4(a, b);
+  v = Min4(v, __builtin_shufflevector(v, v, 2, 3, 0, 1));
+  return v[0] < v[1] ? v[0] : v[1];
+}
+inline float Greatest8(V4 a, V4 b) {
+  V4 v = Max4(a, b);
+  v = Max4(v, __builtin_shufflevector(v, v, 2, 3, 0, 1));
+  return v[0] > v[1] ? v[0] : v[1];
+}
+
 inline V4 Sqrt4(V4 v) {
 #if defined(__SSE__)
   return _mm_sqrt_ps(v);
@@ -45,6 +58,12 @@ inline V4 Sqrt4(V4 v) {
   for (int i = 0; i < 4; ++i) v[i] = std::sqrt(v[i]);
   return v;
 #endif
+}
+
+// The product of the matrix with columns cx, cy, cz (lane i of each: row i) and (x, y, z): lane i
+// is (cx[i] x + cy[i] y) + cz[i] z, glm::dot(row i, v) to the bit (its order of operations).
+inline V4 MulColumns4(V4 cx, V4 cy, V4 cz, float x, float y, float z) {
+  return cx * x + cy * y + cz * z;
 }
 
 // Rows a, b, c, d become columns.

@@ -5,10 +5,14 @@
 #include <bit>
 #include <cmath>
 #include <cstdint>
+#include <cstring>
+#include <random>
 #include <string>
 #include <tuple>
 #include <vector>
 
+#include "glm/geometric.hpp"
+#include "glm/vector_relational.hpp"
 #include "gtest/gtest.h"
 #include "pbgi/raster.h"
 #include "raster/rasterizer.h"
@@ -54,6 +58,134 @@ double DiskFormFactor(double r, double h) { return r * r / (h * h + r * r); }
 // Clusters whose cells tile a square cover exactly the square: no gaps between round splats
 // and no overlaps, at every resolution (the square's edges fall on cell sides and inside
 // pixels alike).
+// FootprintBox() computes its three axes in lanes: against the scalar code it replaced, one
+// axis at a time (with CellHolds), the same box to the bit, the same `full` and `snapped`, over
+// random boxes that their cells hold or not (a caller-built cluster's, empty ones), cells less
+// than two spacings across, centres within 1.5 spacings of a side or on it, and normals at
+// 0.9 and around it.
+Bounds FootprintBoxOneAxisAtATime(const Bounds& centres, const Bounds& cell, float spacing,
+                                  const glm::vec3& plane_normal, bool* full, int* snapped) {
+  bool has_cell = !cell.Empty() && !centres.Empty();
+  if (has_cell) {
+    const float tol = 1e-4f * std::max(1e-30f, glm::length(cell.hi - cell.lo));
+    has_cell = glm::all(glm::greaterThanEqual(centres.lo, cell.lo - tol)) &&
+               glm::all(glm::lessThanEqual(centres.hi, cell.hi + tol));
+  }
+  Bounds b;
+  bool all = true;
+  int mask = 0;
+  for (int k = 0; k < 3; ++k) {
+    const bool in_plane = std::fabs(plane_normal[k]) < 0.9f;
+    const bool small = cell.hi[k] - cell.lo[k] < 2.0f * spacing;
+    const bool snap_lo =
+        has_cell && in_plane && (small || centres.lo[k] - cell.lo[k] < 1.5f * spacing);
+    const bool snap_hi =
+        has_cell && in_plane && (small || cell.hi[k] - centres.hi[k] < 1.5f * spacing);
+    b.lo[k] = snap_lo ? cell.lo[k] : centres.lo[k] - 0.5f * spacing;
+    b.hi[k] = snap_hi ? cell.hi[k] : centres.hi[k] + 0.5f * spacing;
+    mask |= (snap_lo ? 1 : 0) << (2 * k);
+    mask |= (snap_hi ? 2 : 0) << (2 * k);
+    if (in_plane && !(snap_lo && snap_hi)) all = false;
+  }
+  *full = all && has_cell;
+  *snapped = mask;
+  return b;
+}
+
+TEST(FootprintTest, FootprintBoxInLanesMatchesOneAxisAtATime) {
+  std::mt19937 rng(16);
+  std::uniform_real_distribution<float> u(0.0f, 1.0f);
+  int differ = 0, full_count = 0, snapped_count = 0;
+  const int trials = 300000;
+  for (int trial = 0; trial < trials; ++trial) {
+    const float spacing = 0.01f + u(rng);
+    Bounds cell, centres;
+    glm::vec3 n;
+    for (int k = 0; k < 3; ++k) {
+      const float x = 20.0f * u(rng) - 10.0f;
+      const float side = (rng() % 4 == 0 ? 2.0f : 8.0f) * spacing * u(rng);
+      cell.lo[k] = x, cell.hi[k] = x + side;
+      // Centres inside the cell, on a side, 1.5 spacings from one, or outside it.
+      const float a = cell.lo[k] + side * u(rng), b = cell.lo[k] + side * u(rng);
+      centres.lo[k] = std::min(a, b), centres.hi[k] = std::max(a, b);
+      switch (rng() % 6) {
+        case 0:
+          centres.lo[k] = cell.lo[k];
+          break;
+        case 1:
+          centres.hi[k] = cell.hi[k];
+          break;
+        case 2:
+          centres.lo[k] = cell.lo[k] + 1.5f * spacing;
+          break;
+        case 3:
+          centres.hi[k] = cell.hi[k] + spacing * u(rng);
+          break;
+        default:
+          break;
+      }
+      const float nk = rng() % 5 == 0 ? 0.9f : 2.0f * u(rng) - 1.0f;
+      n[k] = rng() % 2 ? nk : -nk;
+    }
+    if (rng() % 20 == 0) cell = Bounds{};                        // no cell
+    if (rng() % 50 == 0) std::swap(centres.lo.y, centres.hi.y);  // empty
+    bool full = false, want_full = false;
+    int snapped = -1, want_snapped = -2;
+    const Bounds b = internal::FootprintBox(centres, cell, spacing, n, &full, &snapped);
+    const Bounds want =
+        FootprintBoxOneAxisAtATime(centres, cell, spacing, n, &want_full, &want_snapped);
+    differ += std::memcmp(&b, &want, sizeof b) != 0 || full != want_full || snapped != want_snapped;
+    full_count += full;
+    snapped_count += snapped != 0;
+    // Without the optional outputs, the same box.
+    const Bounds b2 = internal::FootprintBox(centres, cell, spacing, n, nullptr, nullptr);
+    differ += std::memcmp(&b2, &want, sizeof b2) != 0;
+  }
+  EXPECT_EQ(differ, 0) << "of " << trials;
+  // The cases are all there.
+  EXPECT_GT(full_count, trials / 50);
+  EXPECT_GT(snapped_count, trials / 4);
+  EXPECT_LT(snapped_count, trials - trials / 50);
+}
+
+// Rasterizer::ToLocal4() (AddPolygon's vertices) multiplies by the frame's columns in lanes:
+// against ToLocal()'s three glm::dot, the same floats to the bit over random frames and points.
+TEST(FootprintTest, ToLocalInLanesMatchesGlmDot) {
+  std::mt19937 rng(16);
+  std::uniform_real_distribution<float> u(-1.0f, 1.0f);
+  int differ = 0;
+  const int trials = 200000;
+  for (int trial = 0; trial < trials; ++trial) {
+    const glm::vec3 t(u(rng), u(rng), u(rng)), b(u(rng), u(rng), u(rng)), n(u(rng), u(rng), u(rng));
+    const float scale = trial % 3 == 0 ? 1000.0f : 1.0f;
+    const glm::vec3 v(scale * u(rng), scale * u(rng), trial % 7 == 0 ? 0.0f : u(rng));
+    const internal::V4 r =
+        internal::MulColumns4(internal::V4{t.x, b.x, n.x, 0.0f}, internal::V4{t.y, b.y, n.y, 0.0f},
+                              internal::V4{t.z, b.z, n.z, 0.0f}, v.x, v.y, v.z);
+    const float want[3] = {glm::dot(t, v), glm::dot(b, v), glm::dot(n, v)};
+    differ += std::memcmp(&r, want, sizeof want) != 0;
+  }
+  EXPECT_EQ(differ, 0) << "of " << trials;
+}
+
+// Least8() and Greatest8() (BoxClosed's pixel rectangle) against std::min and std::max one value
+// at a time: the same value over random lanes, ties and equal lanes included.
+TEST(FootprintTest, LeastAndGreatestOfEightLanesMatchOneAtATime) {
+  std::mt19937 rng(16);
+  std::uniform_real_distribution<float> u(-2.0f, 2.0f);
+  int differ = 0;
+  const int trials = 200000;
+  for (int trial = 0; trial < trials; ++trial) {
+    float v[8];
+    for (float& x : v) x = rng() % 4 == 0 ? 0.5f : u(rng);
+    const internal::V4 a = {v[0], v[1], v[2], v[3]}, b = {v[4], v[5], v[6], v[7]};
+    float lo = v[0], hi = v[0];
+    for (int i = 1; i < 8; ++i) lo = std::min(lo, v[i]), hi = std::max(hi, v[i]);
+    differ += !(internal::Least8(a, b) == lo) || !(internal::Greatest8(a, b) == hi);
+  }
+  EXPECT_EQ(differ, 0) << "of " << trials;
+}
+
 TEST(FootprintTest, TilingClustersCoverTheirUnionExactly) {
   MicroBuffer mb;
   const std::vector<Surfel> square = SquareSurfels(1.0f, 1.0f, 0.02f);

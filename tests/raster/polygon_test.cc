@@ -5,6 +5,7 @@
 #include <bit>
 #include <cmath>
 #include <cstring>
+#include <limits>
 #include <map>
 #include <memory>
 #include <random>
@@ -13,6 +14,7 @@
 #include "glm/geometric.hpp"
 #include "gtest/gtest.h"
 #include "pbgi/raster.h"
+#include "pbgi/sh.h"
 #include "raster/polygon_coverage.h"
 
 namespace pbgi::internal {
@@ -352,6 +354,109 @@ TEST(PolygonTest, SpansInLanesMatchOneRowAtATime) {
   }
   EXPECT_EQ(differ, 0) << "of " << rows << " rows";
   EXPECT_GT(rows, 100000);
+}
+
+// BoxDotRange() against the eight corners' dot products (the code before it): the same values
+// over random boxes, flat ones and normals with zero components included.
+TEST(PolygonTest, BoxDotRangeIsTheCornersOwnExtremes) {
+  std::mt19937 rng(16);
+  std::uniform_real_distribution<float> u(-10.0f, 10.0f);
+  int differ = 0, trials = 0;
+  for (int trial = 0; trial < 200000; ++trial) {
+    Bounds b;
+    glm::vec3 n, o;
+    for (int k = 0; k < 3; ++k) {
+      const float x = u(rng), e = rng() % 5 == 0 ? 0.0f : std::fabs(u(rng)) * 0.1f;
+      b.lo[k] = x, b.hi[k] = x + e;
+      n[k] = rng() % 6 == 0 ? 0.0f : u(rng) * 0.1f;
+      o[k] = rng() % 4 == 0 ? b.lo[k] : u(rng);
+    }
+    float lo = 0.0f, hi = 0.0f;
+    BoxDotRange(b, n, o, &lo, &hi);
+    float want_lo = std::numeric_limits<float>::infinity(), want_hi = -want_lo;
+    for (int i = 0; i < 8; ++i) {
+      const glm::vec3 corner((i & 1) ? b.hi.x : b.lo.x, (i & 2) ? b.hi.y : b.lo.y,
+                             (i & 4) ? b.hi.z : b.lo.z);
+      const float t = glm::dot(n, corner - o);
+      want_lo = std::min(want_lo, t);
+      want_hi = std::max(want_hi, t);
+    }
+    ++trials;
+    differ += !(lo == want_lo) || !(hi == want_hi);
+  }
+  EXPECT_EQ(differ, 0) << "of " << trials;
+}
+
+// ConeSolidAngle() finds four triangles' N and D at a time: against the code it replaced, one
+// triangle at a time, the same float to the bit, over box silhouettes (its caller's polygons),
+// near and far, and random convex polygons of 3 to 12 vertices, large and tiny.
+float ConeSolidAngleOneTriangleAtATime(const Polygon& p) {
+  if (p.n < 3) return 0.0f;
+  float len[kMaxPolygonVertices];
+  for (int i = 0; i < p.n; ++i) len[i] = glm::length(p.v[i]);
+  const glm::vec3& a = p.v[0];
+  float re = 1.0f, im = 0.0f, orient = 0.0f;
+  for (int i = 1; i + 1 < p.n; ++i) {
+    const glm::vec3& b = p.v[i];
+    const glm::vec3& c = p.v[i + 1];
+    const float num = glm::dot(a, glm::cross(b - a, c - a));
+    const float den = len[0] * len[i] * len[i + 1] + glm::dot(a, b) * len[i + 1] +
+                      glm::dot(a, c) * len[i] + glm::dot(b, c) * len[0];
+    const float big = std::max(std::fabs(num), std::fabs(den));
+    if (!(big > 0.0f)) continue;
+    const float zr = den / big, zi = num / big;
+    const float r = re * zr - im * zi;
+    im = re * zi + im * zr;
+    re = r;
+    orient += num;
+  }
+  if (orient < 0.0f) im = -im;  // the vertices turn clockwise seen from the origin
+  float half = std::atan2(im, re);
+  if (half < 0.0f) half = re < 0.0f ? half + 2.0f * static_cast<float>(sh::kPi) : 0.0f;
+  return 2.0f * half;
+}
+
+TEST(PolygonTest, ConeSolidAngleInLanesMatchesOneTriangleAtATime) {
+  std::mt19937 rng(16);
+  std::uniform_real_distribution<float> u(-1.0f, 1.0f);
+  int differ = 0, polygons = 0;
+  for (int trial = 0; trial < 100000; ++trial) {
+    Polygon q;
+    if (trial % 2 == 0) {
+      const float scale = trial % 6 == 0 ? 200.0f : trial % 6 == 2 ? 20.0f : 2.0f;
+      const glm::vec3 lo(scale * u(rng), scale * u(rng), scale * u(rng));
+      const glm::vec3 ext(0.01f + std::fabs(u(rng)), 0.01f + std::fabs(u(rng)),
+                          0.01f + std::fabs(u(rng)));
+      const glm::vec3 hi = lo + ext;
+      bool inside = true;
+      int mask = 0;
+      for (int k = 0; k < 3; ++k) {
+        inside &= lo[k] <= 0.0f && hi[k] >= 0.0f;
+        mask |= (lo[k] > 0.0f || hi[k] < 0.0f) ? 1 << k : 0;
+      }
+      if (inside) continue;
+      BoxSilhouette(lo, hi, mask, &q);
+    } else {
+      // A regular-ish polygon around a random direction at a random distance.
+      const glm::vec3 d = glm::normalize(glm::vec3(u(rng), u(rng), u(rng)) + 1e-3f);
+      const glm::vec3 e1 = glm::normalize(
+          glm::cross(d, std::fabs(d.x) < 0.9f ? glm::vec3(1, 0, 0) : glm::vec3(0, 1, 0)));
+      const glm::vec3 e2 = glm::cross(d, e1);
+      const float dist = std::exp(4.0f * u(rng)), r = dist * std::exp(3.0f * u(rng) - 2.0f);
+      q.n = 3 + static_cast<int>(rng() % (kMaxPolygonVertices - 2));
+      const float start = 3.14159f * u(rng), turn = trial % 4 == 1 ? -1.0f : 1.0f;
+      for (int i = 0; i < q.n; ++i) {
+        const float angle = start + turn * 6.2831853f * static_cast<float>(i) / q.n;
+        q.v[i] = dist * d + r * (std::cos(angle) * e1 + std::sin(angle) * e2);
+      }
+    }
+    if (q.n < 3) continue;
+    ++polygons;
+    const float got = ConeSolidAngle(q), want = ConeSolidAngleOneTriangleAtATime(q);
+    differ += std::memcmp(&got, &want, sizeof got) != 0;
+  }
+  EXPECT_EQ(differ, 0) << "of " << polygons;
+  EXPECT_GT(polygons, 80000);
 }
 
 TEST(PolygonTest, APolygonAcrossFacesKeepsItsSolidAngle) {
