@@ -334,15 +334,22 @@ Bounds ContactCell(const Bounds& cell, const SurfelGroup& a, absl::Span<const Su
                                                  line.z * line.z}) < 0.98f * line2;
   // Such a footprint's opacity counts only its part in front of the receiver (the caller).
   if (on_receiver) *on_receiver = raised && oblique;
+  // Nor where another surface of the cell goes on past it (a trunk's next face, turned
+  // another way): the receiver's own surface aside, whose plane is the contact's other side.
   if (raised && reach && oblique) {
     for (int k = 0; k < 3; ++k) {
       if (std::fabs(na[k]) > 0.9f || (raised >> k) & 1) continue;
-      if (a.centres.lo[k] - out.lo[k] < kContactAlong * sa) {
-        reach->lo[k] = std::min(reach->lo[k], out.lo[k] + kContactSnap * sa);
+      bool lo_free = a.centres.lo[k] - out.lo[k] < kContactAlong * sa;
+      bool hi_free = out.hi[k] - a.centres.hi[k] < kContactAlong * sa;
+      for (const SurfelGroup& b : groups) {
+        if (&b == &a || b.two_sided || !b.solid || !(std::fabs(glm::dot(b.normal, nr)) < 0.9f)) {
+          continue;
+        }
+        lo_free = lo_free && !(b.centres.lo[k] < a.centres.lo[k] - 0.5f * sa);
+        hi_free = hi_free && !(b.centres.hi[k] > a.centres.hi[k] + 0.5f * sa);
       }
-      if (out.hi[k] - a.centres.hi[k] < kContactAlong * sa) {
-        reach->hi[k] = std::max(reach->hi[k], out.hi[k] - kContactSnap * sa);
-      }
+      if (lo_free) reach->lo[k] = std::min(reach->lo[k], out.lo[k] + kContactSnap * sa);
+      if (hi_free) reach->hi[k] = std::max(reach->hi[k], out.hi[k] - kContactSnap * sa);
     }
   }
   return out;
