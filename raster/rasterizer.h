@@ -264,11 +264,11 @@ class Rasterizer {
   // cornell's floor half a step up, so that a wall receiver a rounding above the floor was
   // behind it, the floor culled, and the pixel along each of the room's edges lost half its
   // occlusion (0.47 for rays' 0.97: docs/eval.md, "Session 16"). So a one-sided element whose
-  // plane crosses the receiver's tangent plane (normals more than kCreaseCos apart) and that
-  // the receiver lies behind by at most crease_tol_ (the gather's position tolerance, or a
-  // few float steps of the receiver's coordinates) counts as in front: moved back along its
-  // normal by the returned distance, so that the receiver lies crease_tol_ in front. The
-  // receiver's own surface (its normal within kCreaseCos) keeps its side.
+  // plane crosses the receiver's tangent plane (the cosine between their normals below
+  // kCreaseCos) and that the receiver lies behind by at most crease_tol_ (the gather's position
+  // tolerance, or a few float steps of the receiver's coordinates) counts as in front: moved
+  // back along its normal by the returned distance, so that the receiver lies crease_tol_ in
+  // front. The receiver's own surface (the cosine at least kCreaseCos) keeps its side.
   static constexpr float kCreaseCos = 0.9f;
   float CreaseShift(bool two_sided, const glm::vec3& normal, float side) const {
     if (two_sided || !(std::fabs(glm::dot(normal, n_)) < kCreaseCos)) return 0.0f;
