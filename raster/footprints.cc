@@ -193,8 +193,8 @@ struct SurfelGroup {
 // 1.5 of its spacings of a's plane and a's within 1.5 of a's spacings of b's, on one side of
 // it, and their boxes so grown must overlap.
 Bounds ContactCell(const Bounds& cell, const SurfelGroup& a, absl::Span<const SurfelGroup> groups,
-                   const glm::vec3& origin, const glm::vec3& nr, float crease_tol,
-                   bool* contact, Bounds* reach = nullptr, bool* on_receiver = nullptr) {
+                   const glm::vec3& origin, const glm::vec3& nr, float crease_tol, bool* contact,
+                   Bounds* reach = nullptr, bool* on_receiver = nullptr) {
   Bounds out = cell;
   *contact = false;
   if (reach) *reach = a.centres;
@@ -330,8 +330,8 @@ Bounds ContactCell(const Bounds& cell, const SurfelGroup& a, absl::Span<const Su
   // (city: 0.89 for rays' 0.85).
   const glm::vec3 line = glm::cross(na, nr);
   const float line2 = glm::dot(line, line);
-  const bool oblique = line2 > 0.0f && std::max({line.x * line.x, line.y * line.y,
-                                                 line.z * line.z}) < 0.98f * line2;
+  const bool oblique =
+      line2 > 0.0f && std::max({line.x * line.x, line.y * line.y, line.z * line.z}) < 0.98f * line2;
   // Such a footprint's opacity counts only its part in front of the receiver (the caller).
   if (on_receiver) *on_receiver = raised && oblique;
   // Nor where another surface of the cell goes on past it (a trunk's next face, turned

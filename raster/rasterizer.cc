@@ -640,10 +640,10 @@ void Rasterizer::FinishOn(const Gathered& g, const ShadeReceiver& r, ShadeResult
 absl::Status Rasterizer::Run(const Gathered& g, const ShadeReceiver& r, ShadeResult* out) {
   *out = ShadeResult{};
   SetFrame(r);
-  crease_tol_ = std::max(g.position_tolerance,
-                         8.0f * std::numeric_limits<float>::epsilon() *
-                             std::max({std::fabs(origin_.x), std::fabs(origin_.y),
-                                       std::fabs(origin_.z)}));
+  crease_tol_ =
+      std::max(g.position_tolerance,
+               8.0f * std::numeric_limits<float>::epsilon() *
+                   std::max({std::fabs(origin_.x), std::fabs(origin_.y), std::fabs(origin_.z)}));
   auto& splats = mb_.splats_;
   // Written by index: a vector's push_back costs more than the rest of a small splat's setup.
   if (splats.size() < g.size()) splats.resize(g.size());

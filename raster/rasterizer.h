@@ -544,13 +544,13 @@ class Rasterizer {
   const float max_width_;  // the largest pixel's angular width
   const bool avx2_;        // run the AVX2 builds (UseAvx2())
   glm::vec3 origin_, t_, b_, n_;
-  float crease_tol_ = 0.0f;  // see CreaseShift()
+  float crease_tol_ = 0.0f;                // see CreaseShift()
   glm::vec3 world_x_, world_y_, world_z_;  // the world axes x, y, z in the receiver's frame
   // ToLocal()'s matrix by columns, {t_[k], b_[k], n_[k], 0} for k = x, y, z (ToLocal4()).
   V4 col_x_, col_y_, col_z_;
-  uint32_t count_ = 0;                     // prepared splats in mb_.splats_
-  uint32_t poly_count_ = 0;                // polygons in mb_.polygons_
-  uint32_t cluster_count_ = 0;             // mb_.splats_[0, cluster_count_) are clusters'
+  uint32_t count_ = 0;          // prepared splats in mb_.splats_
+  uint32_t poly_count_ = 0;     // polygons in mb_.polygons_
+  uint32_t cluster_count_ = 0;  // mb_.splats_[0, cluster_count_) are clusters'
   // Layers closed by a fragment behind them so far (Layer()): until there are a few, no pixel
   // is closed and Draw() does not look for hidden clusters.
   uint32_t closes_ = 0;

@@ -819,9 +819,9 @@ TEST(FootprintTest, AReceiverOnACreaseSeesTheOtherSurface) {
       below.normal = glm::vec3(0, -1, 0);
       EXPECT_EQ(MustShade(floor, below, Polygons(), &mb).occlusion, 0.0f) << x;
       // On the floor, a rounding below it: the floor is its own plane.
-      EXPECT_EQ(MustShade(floor, At(glm::vec3(x, d - 0.2f, -0.5f * tol)), Polygons(), &mb)
-                    .occlusion,
-                0.0f)
+      EXPECT_EQ(
+          MustShade(floor, At(glm::vec3(x, d - 0.2f, -0.5f * tol)), Polygons(), &mb).occlusion,
+          0.0f)
           << x;
     }
   }

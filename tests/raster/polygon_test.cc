@@ -162,9 +162,8 @@ TEST(PolygonTest, PolygonsSharingAnEdgeTileTheirUnion) {
 std::map<uint32_t, uint64_t> Masks(const Polygon& p, int res) {
   std::vector<float> acc;
   std::map<uint32_t, uint64_t> m;
-  RasterizePolygonTo(p, res, &acc, [&](uint32_t pixel, float, const PixelSamples& s) {
-    m[pixel] |= s.mask();
-  });
+  RasterizePolygonTo(p, res, &acc,
+                     [&](uint32_t pixel, float, const PixelSamples& s) { m[pixel] |= s.mask(); });
   return m;
 }
 

@@ -109,8 +109,7 @@ TEST(CurvedBoxTest, ReceiversOnARoomsEdgeAreFullyOccluded) {
     }
   }
   std::vector<ShadeResult> got(receivers.size());
-  ASSERT_TRUE(
-      ShadeBatch((*db)->db(), receivers, ToolDefaults(1.0f), absl::MakeSpan(got)).ok());
+  ASSERT_TRUE(ShadeBatch((*db)->db(), receivers, ToolDefaults(1.0f), absl::MakeSpan(got)).ok());
   for (size_t i = 0; i < receivers.size(); ++i) {
     EXPECT_GT(got[i].occlusion, 0.99f)
         << "receiver at " << receivers[i].position.x << " " << receivers[i].position.y << " "
