@@ -230,16 +230,13 @@ Bounds ContactCell(const Bounds& cell, const SurfelGroup& a, absl::Span<const Su
     if (h > -0.25f * sa && h < kContactReach * sa) {
       for (int k = 0; k < 3; ++k) {
         if (std::fabs(na[k]) > 0.9f || std::fabs(nr[k]) < 0.5f) continue;
-        // Across the cell (the centres' box without one): the surface goes on along the
-        // contact to the cell's sides (below).
-        const Bounds& across = has_cell ? cell : a.centres;
-        float face = nr[k] * ((nr[k] > 0.0f ? a.centres.lo[k] : a.centres.hi[k]) - origin[k]);
-        for (int j = 0; j < 3; ++j) {
-          if (j != k) {
-            face +=
-                std::max(nr[j] * (across.lo[j] - origin[j]), nr[j] * (across.hi[j] - origin[j]));
-          }
-        }
+        // The box's side facing the plane, across the cell (the centres' box without one: the
+        // surface goes on along the contact to the cell's sides, below), as a box flat along
+        // k: its highest point decides how far the side moves.
+        Bounds side = has_cell ? cell : a.centres;
+        side.lo[k] = side.hi[k] = nr[k] > 0.0f ? a.centres.lo[k] : a.centres.hi[k];
+        float side_low, face;
+        BoxDotRange(side, nr, origin, &side_low, &face);
         const float ext = std::max(0.0f, face) / std::fabs(nr[k]) + 0.25f * sa;
         if (!(ext < kContactGrowth * sa)) continue;
         // Past the cell's side too, when the plane lies beyond all of that side (a sliver of
@@ -247,12 +244,10 @@ Bounds ContactCell(const Bounds& cell, const SurfelGroup& a, absl::Span<const Su
         // enters the cell through that side, the next cell's surface reaches it there.
         bool past = true;
         if (has_cell) {
-          float near = nr[k] * ((nr[k] > 0.0f ? cell.lo[k] : cell.hi[k]) - origin[k]);
-          for (int j = 0; j < 3; ++j) {
-            if (j != k) {
-              near += std::min(nr[j] * (cell.lo[j] - origin[j]), nr[j] * (cell.hi[j] - origin[j]));
-            }
-          }
+          Bounds cell_side = cell;
+          cell_side.lo[k] = cell_side.hi[k] = nr[k] > 0.0f ? cell.lo[k] : cell.hi[k];
+          float near, far;
+          BoxDotRange(cell_side, nr, origin, &near, &far);
           past = near > 0.0f;
         }
         if (nr[k] > 0.0f) {
