@@ -148,6 +148,107 @@ bool CellHolds(const Bounds& cell, const Bounds& b) {
   return Movemask4((blo >= clo - tol) & (bhi <= chi + tol)) == 0xf;
 }
 
+// A solid cluster that is two faces of a box's edge inside its cell: a building's corner or
+// the top of its wall, the street beside a wall. Its normals lie along two world axes i and j,
+// one way each (sum A_i n_i n_i^T is diagonal with |N_i| and |N_j| on it), and each face spans
+// the footprint box `box` along the third axis k, so that the i face reaches |N_i| / ext_k along
+// j and the j face |N_j| / ext_k along i. A face reaches from the edge to the side of the cell
+// that its surface goes on through: the side along which the centres come nearest to the cell
+// (the edge lies inside the cell, at any distance from the other side). Drawn as its box's
+// silhouette at an even opacity, the edge of a convex corner inside its cell spread the
+// content's projected area over the air in front of the faces, and a building's corner came out
+// half transparent from the street (0.56 of the pixels where rays find the wall; the city's
+// error rose at finer cuts: docs/eval.md, "Session 17"). Writes the faces that the receiver at
+// `origin` sees from the front (up to two) into `out`, relative to it, and returns their
+// count; -1 when the content is not such an edge (or both faces fill their sides, a room's
+// corner or a box's edge, which BoxFaces and the box's silhouette draw).
+constexpr float kEdgeFaceFill = 0.9f;
+int EdgeFaces(const Cluster& c, const Bounds& box, const glm::vec3& origin, HitSides sides,
+              Polygon out[2]) {
+  if (!(c.area > 0.0f) || !CellHolds(c.cell, c.bounds)) return -1;
+  const sh::FirstMoments f = sh::AreaAndNormalSum(c.sh_area.data());
+  const std::array<float, 6> m = sh::SecondMoment(c.sh_area.data());
+  const float tol = kBoxFaceTolerance * f.area;
+  if (std::fabs(m[3]) > tol || std::fabs(m[4]) > tol || std::fabs(m[5]) > tol) return -1;
+  int axes[3], faces = 0, k = -1;
+  float off = 0.0f;
+  for (int a = 0; a < 3; ++a) {
+    const float n = std::fabs(f.normal_sum[a]);
+    off += std::fabs(n - m[a]);
+    if (n > tol) {
+      axes[faces++] = a;
+    } else {
+      k = a;
+    }
+  }
+  if (faces != 2 || off > tol) return -1;
+  const int i = axes[0], j = axes[1];
+  const glm::vec3 ext = box.hi - box.lo;
+  if (!(ext[k] > 0.0f) || !(ext[i] > 0.0f) || !(ext[j] > 0.0f)) return -1;
+  // How far each face reaches across the other's axis.
+  float len[3] = {0.0f, 0.0f, 0.0f};
+  len[j] = std::fabs(f.normal_sum[i]) / ext[k];
+  len[i] = std::fabs(f.normal_sum[j]) / ext[k];
+  if (len[i] > (2.0f - kEdgeFaceFill) * ext[i] || len[j] > (2.0f - kEdgeFaceFill) * ext[j]) {
+    return -1;
+  }
+  float edge[3] = {0.0f, 0.0f, 0.0f};
+  bool to_hi[3] = {false, false, false};
+  const float sign[3] = {f.normal_sum[0] > 0.0f ? 1.0f : -1.0f,
+                         f.normal_sum[1] > 0.0f ? 1.0f : -1.0f,
+                         f.normal_sum[2] > 0.0f ? 1.0f : -1.0f};
+  // Where the receiver lies behind one face wherever in the centres' box its plane is, and in
+  // front of the other (a building's wall and roof seen from the street), the edge is convex
+  // (a concave one, a wall on the street, would put the receiver under the street): each face
+  // lies at the centres' box's side that its normal points to, and reaches from the other
+  // face's plane across the box, away from that face's normal.
+  auto surely_behind = [&](int a) {
+    return sign[a] > 0.0f ? origin[a] < c.bounds.lo[a] : origin[a] > c.bounds.hi[a];
+  };
+  if (sides == HitSides::kFront && surely_behind(i) != surely_behind(j)) {
+    for (int a : {i, j}) {
+      edge[a] = sign[a] > 0.0f ? c.bounds.hi[a] : c.bounds.lo[a];
+      to_hi[a] = sign[a] < 0.0f;
+    }
+  } else {
+    if (len[i] >= kEdgeFaceFill * ext[i] && len[j] >= kEdgeFaceFill * ext[j]) return -1;
+    // The edge's position along each face axis, from the side the other face goes on through.
+    for (int a : {i, j}) {
+      to_hi[a] = c.cell.hi[a] - c.bounds.hi[a] < c.bounds.lo[a] - c.cell.lo[a];
+      const float l = std::min(len[a], ext[a]);
+      edge[a] = to_hi[a] ? box.hi[a] - l : box.lo[a] + l;
+    }
+  }
+  int n = 0;
+  for (int a : {i, j}) {
+    const int b = a == i ? j : i;  // the axis the face spans besides k
+    const float front = sign[a] * (origin[a] - edge[a]);
+    if (!(front > 0.0f)) {
+      // Seen from behind: nothing with front; with back or both, the box's silhouette.
+      if (sides != HitSides::kFront) return -1;
+      continue;
+    }
+    const float b0 = to_hi[b] ? edge[b] : box.lo[b], b1 = to_hi[b] ? box.hi[b] : edge[b];
+    if (!(b1 > b0)) continue;
+    // A face drawn larger than its content (a wall that ends inside the box along k) would be
+    // drawn opaque over what it does not cover.
+    if ((b1 - b0) * ext[k] * kEdgeFaceFill > std::fabs(f.normal_sum[a])) return -1;
+    Polygon& p = out[n];
+    p.n = 4;
+    const float bs[4] = {b0, b1, b1, b0};
+    const float ks[4] = {box.lo[k], box.lo[k], box.hi[k], box.hi[k]};
+    for (int v = 0; v < 4; ++v) {
+      glm::vec3 x;
+      x[a] = edge[a];
+      x[b] = bs[v];
+      x[k] = ks[v];
+      p.v[v] = x - origin;
+    }
+    ++n;
+  }
+  return n;
+}
+
 // The spacing of a cluster's surfels, by which its footprint box grows (FootprintBox).
 float ClusterSpacing(const Cluster& c) {
   return std::sqrt(std::max(0.0f, c.area) /
@@ -557,6 +658,17 @@ bool Rasterizer::BuildClusterFootprint(const Cluster& c, PreparedSplat& s) {
         glm::dot(n_, 0.5f * (c.bounds.lo + c.bounds.hi) - origin_) < 0.0f) {
       return false;
     }
+    if (s.flat && !(s.flags & kSplatPorous)) {
+      const Bounds box = FootprintBox(c.bounds, c.cell, spacing, glm::vec3(0.0f), nullptr);
+      Polygon faces[2];
+      const int count = EdgeFaces(c, box, origin_, o_.hitsides, faces);
+      if (count >= 0) {
+        for (int f = 0; f < count; ++f) AddPolygon(faces[f], &s);
+        s.alpha = 1.0f;
+        s.near = 2;
+        return true;
+      }
+    }
     if (s.flat) {
       // The mean plane (through the box centre, s.plane in the receiver's frame), cut by the box.
       const float cosw = std::fabs(glm::dot(s.normal, s.dir));
@@ -588,6 +700,16 @@ bool Rasterizer::BuildClusterFootprint(const Cluster& c, PreparedSplat& s) {
         const bool seen = lo[k] > 0.0f || hi[k] < 0.0f;
         // A face of zero extent subtends nothing and draws nothing.
         if (seen && ext[(k + 1) % 3] > 0.0f && ext[(k + 2) % 3] > 0.0f) drawn |= 1 << k;
+      }
+      if (!(s.flags & kSplatPorous)) {
+        Polygon faces[2];
+        const int count = EdgeFaces(c, box, origin_, o_.hitsides, faces);
+        if (count >= 0) {
+          for (int f = 0; f < count; ++f) AddPolygon(faces[f], &s);
+          s.alpha = 1.0f;
+          s.near = 2;
+          return true;
+        }
       }
       Polygon q;
       BoxSilhouette(lo, hi, drawn, &q);

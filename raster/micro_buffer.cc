@@ -111,6 +111,8 @@ absl::Status MicroBuffer::Prepare(int resolution) {
   hemisphere_.clear();
   hemi_weight_.clear();
   hemi_omega_.clear();
+  hemi_slope_x_.clear();
+  hemi_slope_y_.clear();
   pixels_.assign(n, internal::PixelState{});
   for (internal::PixelState& px : pixels_) px.depth = std::numeric_limits<float>::infinity();
   fragments_.resize(n);
@@ -157,6 +159,26 @@ absl::Status MicroBuffer::Prepare(int resolution) {
         hemisphere_.push_back(static_cast<uint32_t>(p));
         hemi_weight_.push_back(static_cast<float>(cos_weight_[p]));
         hemi_omega_.push_back(static_cast<float>(omega_above_[p]));
+        // The weight's slope across the pixel's coverage samples: with a sample's weight
+        // w / 64 * (1 + gx (i - 3.5) + gy (j - 3.5)) (column i, row j of kMaskSide = 8), the
+        // halves' weights differ by 2 w gx and 2 w gy. Exact where the weight is linear across
+        // the pixel (the row above the horizon: cos ~ b), and the samples' weights sum to w.
+        double gx = 0.0, gy = 0.0;
+        if (c0 == b0 && cos_weight_[p] > 0.0) {
+          auto weight = [&](double x0, double x1, double y0, double y1) {
+            const glm::dvec3 q[4] = {point(x0, y0), point(x1, y0), point(x1, y1), point(x0, y1)};
+            return internal::PolygonCosineWeight(q, 4);
+          };
+          const double am = 0.5 * (a0 + a1), bm = 0.5 * (b0 + b1);
+          const double w = cos_weight_[p];
+          gx = (weight(am, a1, b0, b1) - weight(a0, am, b0, b1)) / (2.0 * w);
+          gy = (weight(a0, a1, bm, b1) - weight(a0, a1, b0, bm)) / (2.0 * w);
+          // Every sample keeps a positive weight.
+          const double worst = 3.5 * (std::fabs(gx) + std::fabs(gy));
+          if (worst > 0.95) gx *= 0.95 / worst, gy *= 0.95 / worst;
+        }
+        hemi_slope_x_.push_back(static_cast<float>(gx));
+        hemi_slope_y_.push_back(static_cast<float>(gy));
       }
     }
   }

@@ -434,6 +434,8 @@ inline void Rasterizer::Integrate(const ShadeReceiver& r, ShadeResult* out) {
   const uint32_t* hp = mb_.hemisphere_.data();
   const float* om = mb_.hemi_omega_.data();
   const float* w = mb_.hemi_weight_.data();
+  const float* gx = mb_.hemi_slope_x_.data();
+  const float* gy = mb_.hemi_slope_y_.data();
   // Each hemisphere pixel's open layer is closed as it is summed; the pixels below the horizon
   // count for nothing and stay open (MicroBuffer's accessors close them on reading).
   // Coverage and radiance in four double lanes: the same products and sums, in the same order,
@@ -446,7 +448,8 @@ inline void Rasterizer::Integrate(const ShadeReceiver& r, ShadeResult* out) {
       PixelState& px = px_[hp[i]];
       Close<true>(px, /*behind=*/false, free_layer_);
       if (bound_) CapByTouched<true>(px);
-      sum += __builtin_convertvector(Load4(&px.closed), V4d) * static_cast<double>(w[i]);
+      sum += __builtin_convertvector(Load4(&px.closed), V4d) *
+             static_cast<double>(w[i] * SampleWeight(px, gx[i], gy[i]));
       cover += static_cast<double>(std::min(1.0f, px.closed)) * om[i];
     }
   } else {
@@ -455,7 +458,7 @@ inline void Rasterizer::Integrate(const ShadeReceiver& r, ShadeResult* out) {
       PixelState& px = px_[hp[i]];
       Close<false>(px, /*behind=*/false, free_layer_);
       if (bound_) CapByTouched<false>(px);
-      occ += static_cast<double>(px.closed) * w[i];
+      occ += static_cast<double>(px.closed) * (w[i] * SampleWeight(px, gx[i], gy[i]));
       cover += static_cast<double>(std::min(1.0f, px.closed)) * om[i];
     }
     sum[0] = occ;

@@ -111,6 +111,37 @@ class Rasterizer {
     px.closed = cap;
   }
 
+  // The pixel's cosine weight where its coverage lies, over its mean weight: the coverage of a
+  // pixel is weighted by the samples it covers, not by the pixel's centre. Up to an upward
+  // receiver's horizon the weight grows from 0 across a pixel (cos ~ elevation), and a wall's
+  // top edge in the pixel covers its lower part: weighted by the whole pixel it counted up to
+  // twice its share, and the city's streets and roofs, which see buildings standing up to that
+  // edge, came out +0.003 too dark at res 12 (docs/eval.md, "Session 17"). The samples are the
+  // closed layers' coverage masks where only opaque polygons drew (and their count matches the
+  // coverage), else the samples the fragments' footprints touched, spread evenly; unknown
+  // (a disk, a splat: every sample touched) or a pixel wholly covered, 1. `gx`, `gy`: the
+  // weight's slope per sample column and row (MicroBuffer::hemi_slope_x_).
+  [[gnu::always_inline]] static float SampleWeight(const PixelState& px, float gx, float gy) {
+    if (!(px.closed > 0.0f) || !(px.closed < 1.0f) || px.touched == ~uint64_t{0}) return 1.0f;
+    uint64_t s = px.touched;
+    if (px.translucent == 0 && px.closed_mask != 0 &&
+        std::fabs(px.closed - static_cast<float>(std::popcount(px.closed_mask)) * (1.0f / 64.0f)) <=
+            2.0f / 64.0f) {
+      s = px.closed_mask;
+    }
+    const int n = std::popcount(s);
+    if (n == 0) return 1.0f;
+    const int sx = std::popcount(s & 0xAAAAAAAAAAAAAAAAull) +
+                   2 * std::popcount(s & 0xCCCCCCCCCCCCCCCCull) +
+                   4 * std::popcount(s & 0xF0F0F0F0F0F0F0F0ull);
+    const int sy = std::popcount(s & 0xFF00FF00FF00FF00ull) +
+                   2 * std::popcount(s & 0xFFFF0000FFFF0000ull) +
+                   4 * std::popcount(s & 0xFFFFFFFF00000000ull);
+    const float fn = static_cast<float>(n);
+    return 1.0f + (gx * (static_cast<float>(sx) - 3.5f * fn) +
+                   gy * (static_cast<float>(sy) - 3.5f * fn)) / fn;
+  }
+
   // `behind`: a fragment wholly behind the layer closes it. The first layer keeps its free sum
   // only when nothing lies behind it (a lone surface whose splats' overlaps and gaps cancel);
   // with a surface behind, the gaps are filled by that surface, so the overlaps must not count

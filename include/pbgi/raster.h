@@ -273,6 +273,9 @@ class MicroBuffer {
   std::vector<uint32_t> hemisphere_;  // pixels with omega_above_ > 0
   std::vector<float> hemi_weight_;    // cos_weight_ of hemisphere_ pixels
   std::vector<float> hemi_omega_;     // omega_above_ of hemisphere_ pixels
+  // The cosine weight's slope across each hemisphere pixel's coverage samples, per sample
+  // column and row (Rasterizer::SampleWeight(); 0 for a pixel the horizon cuts).
+  std::vector<float> hemi_slope_x_, hemi_slope_y_;
   std::vector<internal::PixelState> pixels_;
   std::vector<internal::PreparedSplat> splats_;
   std::vector<uint64_t> order_, order_tmp_;            // (depth key << 32) | splat index
