@@ -148,103 +148,119 @@ bool CellHolds(const Bounds& cell, const Bounds& b) {
   return Movemask4((blo >= clo - tol) & (bhi <= chi + tol)) == 0xf;
 }
 
-// A solid cluster that is two faces of a box's edge inside its cell: a building's corner or
-// the top of its wall, the street beside a wall. Its normals lie along two world axes i and j,
-// one way each (sum A_i n_i n_i^T is diagonal with |N_i| and |N_j| on it), and each face spans
-// the footprint box `box` along the third axis k, so that the i face reaches |N_i| / ext_k along
-// j and the j face |N_j| / ext_k along i. A face reaches from the edge to the side of the cell
-// that its surface goes on through: the side along which the centres come nearest to the cell
-// (the edge lies inside the cell, at any distance from the other side). Drawn as its box's
-// silhouette at an even opacity, the edge of a convex corner inside its cell spread the
-// content's projected area over the air in front of the faces, and a building's corner came out
-// half transparent from the street (0.56 of the pixels where rays find the wall; the city's
-// error rose at finer cuts: docs/eval.md, "Session 17"). Writes the faces that the receiver at
-// `origin` sees from the front (up to two) into `out`, relative to it, and returns their
-// count; -1 when the content is not such an edge (or both faces fill their sides, a room's
-// corner or a box's edge, which BoxFaces and the box's silhouette draw).
+// A solid cluster that is two or three faces of a box's edge or corner inside its cell: a
+// building's corner, the top of its wall, a roof's corner, the street beside a wall. Its
+// normals lie along two or three world axes, one way each (sum A_i n_i n_i^T is diagonal with
+// the |N_a| on it). Drawn as its box's silhouette at an even opacity, such content spread its
+// projected area over the air in front of its faces where the edge lies inside the cell, and a
+// building's corner came out half transparent from the street (0.56 of the pixels where rays
+// find the wall; the city's error rose at finer cuts: docs/eval.md, "Session 17"). Where the
+// faces are:
+// - Convex, when the receiver lies behind one face wherever in the centres' box its plane
+//   is, and not behind another (a building's wall and roof seen from the street; a concave
+//   edge, a wall on the street, would put the receiver under the street): each face lies at
+//   the side of the centres' box that its normal points to, and reaches from the other faces'
+//   planes across the footprint box `box`, away from their normals.
+// - Two faces otherwise (hitsides front or not): each spans the box along the third axis k
+//   and reaches from the edge to the side of the cell that its surface goes on through: the
+//   side at which the centres come nearest to the cell (the edge lies inside the cell, at any
+//   distance from the other side). Each face's plane is the end of the centres' box that the
+//   other face leaves. Where the faces' areas say otherwise (the a face reaches |N_a| / ext_k
+//   across the other's axis: more than the box holds), it is not such an edge; where both
+//   faces fill their sides (a room's corner, a box's edge), BoxFaces and the box's silhouette
+//   draw it.
+// Writes the faces that the receiver at `origin` sees from the front (up to three) into
+// `out`, relative to it, and returns their count; -1 when the content is not such an edge, or
+// a face would be drawn larger than its content.
 constexpr float kEdgeFaceFill = 0.9f;
-int EdgeFaces(const Cluster& c, const Bounds& box, const glm::vec3& origin, HitSides sides,
-              Polygon out[2]) {
-  if (!(c.area > 0.0f) || !CellHolds(c.cell, c.bounds)) return -1;
+int EdgeFaces(const Cluster& c, float spacing, const glm::vec3& origin, HitSides sides,
+              Polygon out[3]) {
+  if (!(c.area > 0.0f)) return -1;
   const sh::FirstMoments f = sh::AreaAndNormalSum(c.sh_area.data());
   const std::array<float, 6> m = sh::SecondMoment(c.sh_area.data());
   const float tol = kBoxFaceTolerance * f.area;
   if (std::fabs(m[3]) > tol || std::fabs(m[4]) > tol || std::fabs(m[5]) > tol) return -1;
-  int axes[3], faces = 0, k = -1;
+  bool face[3];
+  int faces = 0;
   float off = 0.0f;
   for (int a = 0; a < 3; ++a) {
     const float n = std::fabs(f.normal_sum[a]);
     off += std::fabs(n - m[a]);
-    if (n > tol) {
-      axes[faces++] = a;
-    } else {
-      k = a;
+    face[a] = n > tol;
+    faces += face[a] ? 1 : 0;
+  }
+  if (faces < 2 || off > tol || !CellHolds(c.cell, c.bounds)) return -1;
+  const Bounds box = FootprintBox(c.bounds, c.cell, spacing, glm::vec3(0.0f), nullptr);
+  const glm::vec3 ext = box.hi - box.lo;
+  if (!(ext.x > 0.0f) || !(ext.y > 0.0f) || !(ext.z > 0.0f)) return -1;
+  float sign[3], edge[3] = {0.0f, 0.0f, 0.0f};
+  bool to_hi[3] = {false, false, false};
+  int behind = 0;
+  for (int a = 0; a < 3; ++a) {
+    sign[a] = f.normal_sum[a] > 0.0f ? 1.0f : -1.0f;
+    // Behind the face wherever in the centres' box its plane is.
+    if (face[a] && (sign[a] > 0.0f ? origin[a] < c.bounds.lo[a] : origin[a] > c.bounds.hi[a])) {
+      ++behind;
     }
   }
-  if (faces != 2 || off > tol) return -1;
-  const int i = axes[0], j = axes[1];
-  const glm::vec3 ext = box.hi - box.lo;
-  if (!(ext[k] > 0.0f) || !(ext[i] > 0.0f) || !(ext[j] > 0.0f)) return -1;
-  // How far each face reaches across the other's axis.
-  float len[3] = {0.0f, 0.0f, 0.0f};
-  len[j] = std::fabs(f.normal_sum[i]) / ext[k];
-  len[i] = std::fabs(f.normal_sum[j]) / ext[k];
-  if (len[i] > (2.0f - kEdgeFaceFill) * ext[i] || len[j] > (2.0f - kEdgeFaceFill) * ext[j]) {
-    return -1;
-  }
-  float edge[3] = {0.0f, 0.0f, 0.0f};
-  bool to_hi[3] = {false, false, false};
-  const float sign[3] = {f.normal_sum[0] > 0.0f ? 1.0f : -1.0f,
-                         f.normal_sum[1] > 0.0f ? 1.0f : -1.0f,
-                         f.normal_sum[2] > 0.0f ? 1.0f : -1.0f};
-  // Where the receiver lies behind one face wherever in the centres' box its plane is, and in
-  // front of the other (a building's wall and roof seen from the street), the edge is convex
-  // (a concave one, a wall on the street, would put the receiver under the street): each face
-  // lies at the centres' box's side that its normal points to, and reaches from the other
-  // face's plane across the box, away from that face's normal.
-  auto surely_behind = [&](int a) {
-    return sign[a] > 0.0f ? origin[a] < c.bounds.lo[a] : origin[a] > c.bounds.hi[a];
-  };
-  if (sides == HitSides::kFront && surely_behind(i) != surely_behind(j)) {
-    for (int a : {i, j}) {
+  if (sides == HitSides::kFront && behind > 0 && behind < faces) {
+    for (int a = 0; a < 3; ++a) {
+      if (!face[a]) continue;
       edge[a] = sign[a] > 0.0f ? c.bounds.hi[a] : c.bounds.lo[a];
       to_hi[a] = sign[a] < 0.0f;
     }
   } else {
+    if (faces != 2) return -1;
+    const int k = !face[0] ? 0 : (!face[1] ? 1 : 2);
+    const int i = (k + 1) % 3, j = (k + 2) % 3;
+    // How far each face reaches across the other's axis.
+    float len[3] = {0.0f, 0.0f, 0.0f};
+    len[j] = std::fabs(f.normal_sum[i]) / ext[k];
+    len[i] = std::fabs(f.normal_sum[j]) / ext[k];
+    if (len[i] > (2.0f - kEdgeFaceFill) * ext[i] || len[j] > (2.0f - kEdgeFaceFill) * ext[j]) {
+      return -1;
+    }
     if (len[i] >= kEdgeFaceFill * ext[i] && len[j] >= kEdgeFaceFill * ext[j]) return -1;
-    // The edge's position along each face axis, from the side the other face goes on through.
+    // The a face's plane is at the end of the centres' box that the other face leaves: its
+    // centres all lie in it.
     for (int a : {i, j}) {
       to_hi[a] = c.cell.hi[a] - c.bounds.hi[a] < c.bounds.lo[a] - c.cell.lo[a];
-      const float l = std::min(len[a], ext[a]);
-      edge[a] = to_hi[a] ? box.hi[a] - l : box.lo[a] + l;
+      edge[a] = to_hi[a] ? c.bounds.lo[a] : c.bounds.hi[a];
     }
   }
   int n = 0;
-  for (int a : {i, j}) {
-    const int b = a == i ? j : i;  // the axis the face spans besides k
-    const float front = sign[a] * (origin[a] - edge[a]);
-    if (!(front > 0.0f)) {
+  for (int a = 0; a < 3; ++a) {
+    if (!face[a]) continue;
+    if (!(sign[a] * (origin[a] - edge[a]) > 0.0f)) {
       // Seen from behind: nothing with front; with back or both, the box's silhouette.
       if (sides != HitSides::kFront) return -1;
       continue;
     }
-    const float b0 = to_hi[b] ? edge[b] : box.lo[b], b1 = to_hi[b] ? box.hi[b] : edge[b];
-    if (!(b1 > b0)) continue;
-    // A face drawn larger than its content (a wall that ends inside the box along k) would be
-    // drawn opaque over what it does not cover.
-    if ((b1 - b0) * ext[k] * kEdgeFaceFill > std::fabs(f.normal_sum[a])) return -1;
-    Polygon& p = out[n];
+    // The face's extent along the other two axes: from another face's plane away from its
+    // normal, or across the box.
+    const int b = (a + 1) % 3, d = (a + 2) % 3;
+    float lo[3], hi[3];
+    for (int e : {b, d}) {
+      lo[e] = face[e] && !to_hi[e] ? box.lo[e] : (face[e] ? edge[e] : box.lo[e]);
+      hi[e] = face[e] && !to_hi[e] ? edge[e] : box.hi[e];
+    }
+    if (!(hi[b] > lo[b]) || !(hi[d] > lo[d])) continue;
+    // A face drawn larger than its content (a wall that ends inside the box) would be drawn
+    // opaque over what it does not cover.
+    if ((hi[b] - lo[b]) * (hi[d] - lo[d]) * kEdgeFaceFill > std::fabs(f.normal_sum[a])) {
+      return -1;
+    }
+    Polygon& p = out[n++];
     p.n = 4;
-    const float bs[4] = {b0, b1, b1, b0};
-    const float ks[4] = {box.lo[k], box.lo[k], box.hi[k], box.hi[k]};
+    const float bs[4] = {lo[b], hi[b], hi[b], lo[b]};
+    const float ds[4] = {lo[d], lo[d], hi[d], hi[d]};
     for (int v = 0; v < 4; ++v) {
       glm::vec3 x;
       x[a] = edge[a];
       x[b] = bs[v];
-      x[k] = ks[v];
+      x[d] = ds[v];
       p.v[v] = x - origin;
     }
-    ++n;
   }
   return n;
 }
@@ -659,9 +675,8 @@ bool Rasterizer::BuildClusterFootprint(const Cluster& c, PreparedSplat& s) {
       return false;
     }
     if (s.flat && !(s.flags & kSplatPorous)) {
-      const Bounds box = FootprintBox(c.bounds, c.cell, spacing, glm::vec3(0.0f), nullptr);
-      Polygon faces[2];
-      const int count = EdgeFaces(c, box, origin_, o_.hitsides, faces);
+      Polygon faces[3];
+      const int count = EdgeFaces(c, spacing, origin_, o_.hitsides, faces);
       if (count >= 0) {
         for (int f = 0; f < count; ++f) AddPolygon(faces[f], &s);
         s.alpha = 1.0f;
@@ -702,8 +717,8 @@ bool Rasterizer::BuildClusterFootprint(const Cluster& c, PreparedSplat& s) {
         if (seen && ext[(k + 1) % 3] > 0.0f && ext[(k + 2) % 3] > 0.0f) drawn |= 1 << k;
       }
       if (!(s.flags & kSplatPorous)) {
-        Polygon faces[2];
-        const int count = EdgeFaces(c, box, origin_, o_.hitsides, faces);
+        Polygon faces[3];
+        const int count = EdgeFaces(c, spacing, origin_, o_.hitsides, faces);
         if (count >= 0) {
           for (int f = 0; f < count; ++f) AddPolygon(faces[f], &s);
           s.alpha = 1.0f;
