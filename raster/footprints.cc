@@ -173,24 +173,27 @@ bool CellHolds(const Bounds& cell, const Bounds& b) {
 // `out`, relative to it, and returns their count; -1 when the content is not such an edge, or
 // a face would be drawn larger than its content.
 constexpr float kEdgeFaceFill = 0.9f;
-int EdgeFaces(const Cluster& c, float spacing, const glm::vec3& origin, HitSides sides,
-              Polygon out[3]) {
+int EdgeFaces(const Cluster& c, const Bounds* footprint_box, float spacing,
+              const glm::vec3& origin, HitSides sides, Polygon out[3]) {
   if (!(c.area > 0.0f)) return -1;
+  // The first moments first: most clusters face one axis or none.
   const sh::FirstMoments f = sh::AreaAndNormalSum(c.sh_area.data());
-  const std::array<float, 6> m = sh::SecondMoment(c.sh_area.data());
   const float tol = kBoxFaceTolerance * f.area;
-  if (std::fabs(m[3]) > tol || std::fabs(m[4]) > tol || std::fabs(m[5]) > tol) return -1;
   bool face[3];
   int faces = 0;
-  float off = 0.0f;
   for (int a = 0; a < 3; ++a) {
-    const float n = std::fabs(f.normal_sum[a]);
-    off += std::fabs(n - m[a]);
-    face[a] = n > tol;
+    face[a] = std::fabs(f.normal_sum[a]) > tol;
     faces += face[a] ? 1 : 0;
   }
-  if (faces < 2 || off > tol || !CellHolds(c.cell, c.bounds)) return -1;
-  const Bounds box = FootprintBox(c.bounds, c.cell, spacing, glm::vec3(0.0f), nullptr);
+  if (faces < 2) return -1;
+  const std::array<float, 6> m = sh::SecondMoment(c.sh_area.data());
+  if (std::fabs(m[3]) > tol || std::fabs(m[4]) > tol || std::fabs(m[5]) > tol) return -1;
+  float off = 0.0f;
+  for (int a = 0; a < 3; ++a) off += std::fabs(std::fabs(f.normal_sum[a]) - m[a]);
+  if (off > tol || !CellHolds(c.cell, c.bounds)) return -1;
+  const Bounds box = footprint_box != nullptr
+                         ? *footprint_box
+                         : FootprintBox(c.bounds, c.cell, spacing, glm::vec3(0.0f), nullptr);
   const glm::vec3 ext = box.hi - box.lo;
   if (!(ext.x > 0.0f) || !(ext.y > 0.0f) || !(ext.z > 0.0f)) return -1;
   float sign[3], edge[3] = {0.0f, 0.0f, 0.0f};
@@ -676,7 +679,7 @@ bool Rasterizer::BuildClusterFootprint(const Cluster& c, PreparedSplat& s) {
     }
     if (s.flat && !(s.flags & kSplatPorous)) {
       Polygon faces[3];
-      const int count = EdgeFaces(c, spacing, origin_, o_.hitsides, faces);
+      const int count = EdgeFaces(c, nullptr, spacing, origin_, o_.hitsides, faces);
       if (count >= 0) {
         for (int f = 0; f < count; ++f) AddPolygon(faces[f], &s);
         s.alpha = 1.0f;
@@ -718,7 +721,7 @@ bool Rasterizer::BuildClusterFootprint(const Cluster& c, PreparedSplat& s) {
       }
       if (!(s.flags & kSplatPorous)) {
         Polygon faces[3];
-        const int count = EdgeFaces(c, spacing, origin_, o_.hitsides, faces);
+        const int count = EdgeFaces(c, &box, spacing, origin_, o_.hitsides, faces);
         if (count >= 0) {
           for (int f = 0; f < count; ++f) AddPolygon(faces[f], &s);
           s.alpha = 1.0f;
