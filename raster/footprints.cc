@@ -173,8 +173,8 @@ bool CellHolds(const Bounds& cell, const Bounds& b) {
 // `out`, relative to it, and returns their count; -1 when the content is not such an edge, or
 // a face would be drawn larger than its content.
 constexpr float kEdgeFaceFill = 0.9f;
-int EdgeFaces(const Cluster& c, const Bounds* footprint_box, float spacing,
-              const glm::vec3& origin, HitSides sides, Polygon out[3]) {
+int EdgeFaces(const Cluster& c, const Bounds* footprint_box, float spacing, const glm::vec3& origin,
+              HitSides sides, Polygon out[3]) {
   if (!(c.area > 0.0f)) return -1;
   // The first moments first: most clusters face one axis or none.
   const sh::FirstMoments f = sh::AreaAndNormalSum(c.sh_area.data());

@@ -138,8 +138,9 @@ class Rasterizer {
                    2 * std::popcount(s & 0xFFFF0000FFFF0000ull) +
                    4 * std::popcount(s & 0xFFFFFFFF00000000ull);
     const float fn = static_cast<float>(n);
-    return 1.0f + (gx * (static_cast<float>(sx) - 3.5f * fn) +
-                   gy * (static_cast<float>(sy) - 3.5f * fn)) / fn;
+    return 1.0f +
+           (gx * (static_cast<float>(sx) - 3.5f * fn) + gy * (static_cast<float>(sy) - 3.5f * fn)) /
+               fn;
   }
 
   // `behind`: a fragment wholly behind the layer closes it. The first layer keeps its free sum
