@@ -48,6 +48,7 @@ namespace internal {
 namespace {
 
 constexpr size_t kBatch = 8192;
+constexpr size_t kUnpackChunk = 256;  // decoded records at a time in the octree pass (12 KiB)
 constexpr uint64_t kProgressEvery = uint64_t{1} << 18;
 constexpr uint64_t kMinRunRecords = 256;
 constexpr uint64_t kMiB = uint64_t{1} << 20;
@@ -395,13 +396,25 @@ absl::StatusOr<BuildStats> BuildToSink(SurfelSource& source, PageSink& sink,
     }
     return octree.Add(r);
   };
+  // Packed records are decoded a chunk at a time (SpillCodec::UnpackBlock), not one by one as
+  // their point pages take them (docs/format.md, "Session 17").
+  const bool unpack = sorter.output_packed() && !estimate;
+  std::vector<SortRecord> unpacked(unpack ? kUnpackChunk : 0);
   uint64_t done = 0, next_report = kProgressEvery;
   for (;;) {
     PBGI_ASSIGN_OR_RETURN(absl::Span<const SortRecord> recs, sorter.NextBlock());
     if (recs.empty()) break;
     PBGI_RETURN_IF_ERROR(CheckCancel(options));
-    for (const SortRecord& r : recs) {
-      PBGI_RETURN_IF_ERROR(estimate ? estimator.Add(r, to_octree) : octree.Add(r));
+    if (unpack) {
+      for (size_t i = 0; i < recs.size(); i += kUnpackChunk) {
+        const size_t k = std::min(kUnpackChunk, recs.size() - i);
+        sort_options.compact->UnpackBlock(&recs[i], k, unpacked.data());
+        for (size_t j = 0; j < k; ++j) PBGI_RETURN_IF_ERROR(octree.Add(recs[i + j], unpacked[j]));
+      }
+    } else {
+      for (const SortRecord& r : recs) {
+        PBGI_RETURN_IF_ERROR(estimate ? estimator.Add(r, to_octree) : octree.Add(r));
+      }
     }
     done += recs.size();
     if (done >= next_report) {

@@ -36,6 +36,14 @@ absl::Status PointPageWriter::Add(const SortRecord& r, SortRecord* stored) {
   return absl::OkStatus();
 }
 
+absl::Status PointPageWriter::AddPacked(const SortRecord& r) {
+  std::memcpy(buf_.data() + size_t{count_} * record_size_, SpillCodec::PackedBytes(&r),
+              record_size_);
+  ++points_;
+  if (++count_ == per_page_) return Flush();
+  return absl::OkStatus();
+}
+
 absl::Status PointPageWriter::Flush() {
   if (count_ == 0) return absl::OkStatus();
   absl::Status s =
@@ -107,7 +115,13 @@ OctreeBuilder::OctreeBuilder(uint32_t leaf_size, Channels channels, PointPageWri
   stack_.reserve(kMaxSplitDepth + 1);
 }
 
-absl::Status OctreeBuilder::Add(const SortRecord& r) {
+absl::Status OctreeBuilder::Add(const SortRecord& r) { return Push(r, nullptr); }
+
+absl::Status OctreeBuilder::Add(const SortRecord& r, const SortRecord& stored) {
+  return Push(r, &stored);
+}
+
+absl::Status OctreeBuilder::Push(const SortRecord& r, const SortRecord* stored) {
   if (any_ && r.key < last_key_) {
     return absl::InternalError(absl::StrFormat("octree pass: point %d arrived out of Morton order",
                                                next_point_ + window_size_));
@@ -117,12 +131,18 @@ absl::Status OctreeBuilder::Add(const SortRecord& r) {
   last_key_ = r.key;
   last_rank_ = rank;
   const size_t cap = window_.size();
-  window_[(window_head_ + window_size_) % cap] = r;
-  window_rank_[(window_head_ + window_size_) % cap] = rank;
+  const size_t at = (window_head_ + window_size_) % cap;
+  window_[at] = r;
+  window_rank_[at] = rank;
+  if (stored != nullptr) {
+    if (window_stored_.empty()) window_stored_.resize(cap);
+    window_stored_[at] = *stored;
+  }
   if (++window_size_ == cap) {
     // The oldest point is i, the newest i + leaf_size.
-    PBGI_RETURN_IF_ERROR(
-        Process(window_[window_head_], window_rank_[window_head_], true, r.key, rank));
+    PBGI_RETURN_IF_ERROR(Process(window_[window_head_],
+                                 stored != nullptr ? &window_stored_[window_head_] : nullptr,
+                                 window_rank_[window_head_], true, r.key, rank));
     window_head_ = (window_head_ + 1) % cap;
     --window_size_;
   }
@@ -195,13 +215,13 @@ absl::Status OctreeBuilder::CloseTop() {
   return Deliver(std::move(c), n.agg, n.count);
 }
 
-absl::Status OctreeBuilder::Process(const SortRecord& r, uint32_t rank, bool have_ahead,
-                                    uint64_t ahead_key, uint32_t ahead_rank) {
+absl::Status OctreeBuilder::Process(const SortRecord& r, const SortRecord* stored, uint32_t rank,
+                                    bool have_ahead, uint64_t ahead_key, uint32_t ahead_rank) {
   if (leaf_open_) {
     if (PrefixAt(r.key, rank, leaf_.depth) == leaf_.prefix) {
       ++leaf_.count;
       ++next_point_;
-      return AddPoint(r);
+      return AddPoint(r, stored);
     }
     PBGI_RETURN_IF_ERROR(CloseLeaf());
   }
@@ -229,20 +249,27 @@ absl::Status OctreeBuilder::Process(const SortRecord& r, uint32_t rank, bool hav
   }
   ++leaf_.count;
   ++next_point_;
-  return AddPoint(r);
+  return AddPoint(r, stored);
 }
 
-absl::Status OctreeBuilder::AddPoint(const SortRecord& r) {
-  SortRecord stored;
-  PBGI_RETURN_IF_ERROR(points_->Add(r, &stored));
-  leaf_.agg.AddPoint(stored, HasRadiance(channels_));
+absl::Status OctreeBuilder::AddPoint(const SortRecord& r, const SortRecord* stored) {
+  if (stored != nullptr) {
+    PBGI_RETURN_IF_ERROR(points_->AddPacked(r));
+    leaf_.agg.AddPoint(*stored, HasRadiance(channels_));
+    return absl::OkStatus();
+  }
+  SortRecord as_stored;
+  PBGI_RETURN_IF_ERROR(points_->Add(r, &as_stored));
+  leaf_.agg.AddPoint(as_stored, HasRadiance(channels_));
   return absl::OkStatus();
 }
 
 absl::StatusOr<NodeRef> OctreeBuilder::Finish() {
   const size_t cap = window_.size();
   while (window_size_ > 0) {
-    PBGI_RETURN_IF_ERROR(Process(window_[window_head_], window_rank_[window_head_], false, 0, 0));
+    PBGI_RETURN_IF_ERROR(Process(window_[window_head_],
+                                 window_stored_.empty() ? nullptr : &window_stored_[window_head_],
+                                 window_rank_[window_head_], false, 0, 0));
     window_head_ = (window_head_ + 1) % cap;
     --window_size_;
   }

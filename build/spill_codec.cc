@@ -1,6 +1,11 @@
 #include "build/spill_codec.h"
 
+#include <cstddef>
 #include <cstring>
+
+#if defined(__SSE2__)
+#include <emmintrin.h>
+#endif
 
 #include "absl/strings/str_format.h"
 #include "zstd.h"
@@ -55,6 +60,111 @@ uint32_t GetU32(const uint8_t* p) {
 size_t SpillCodec::max_block_bytes() const {
   return kSpillBlockHeaderBytes +
          ZSTD_compressBound(size_t{kSpillBlockRecords} * raw_record_bytes());
+}
+
+// UnpackBlock's stores: a record's floats from byte 8 on, in this order.
+static_assert(offsetof(SortRecord, position) == 8 && offsetof(SortRecord, normal) == 20 &&
+              offsetof(SortRecord, radius) == 32 && offsetof(SortRecord, radiance) == 36);
+
+void SpillCodec::UnpackBlock(const SortRecord* packed, size_t n, SortRecord* out) const {
+  size_t i = 0;
+#if defined(__SSE2__)
+  // Each lane makes the IEEE operations of DecodePointRecord and MakeSortRecord in the same
+  // order (no FMA on the x86-64 baseline), so every float is bit-identical; the branches become
+  // masks. Four records are loaded as rows (bytes 0-15 of the point record: cell, normal, radius,
+  // first radiance code) and transposed into one field per register.
+  const __m128i m21 = _mm_set1_epi32(static_cast<int>(kGridMax));
+  const __m128i m16 = _mm_set1_epi32(0xffff);
+  const __m128 sign = _mm_castsi128_ps(_mm_set1_epi32(static_cast<int>(0x80000000u)));
+  const __m128 half = _mm_set1_ps(0.5f), one = _mm_set1_ps(1.0f), zero = _mm_setzero_ps();
+  const __m128 unit = _mm_set1_ps(1.0f / 32767.0f);
+  const __m128 step = _mm_set1_ps(grid.step);
+  const bool radiance = HasRadiance(channels);
+  // DecodeSmallFloat<6, M>: exponent e (0: zero), bits (e - 32 + 127) << 23 | mantissa << (23 - M).
+  auto small_float = [](__m128i e, __m128i mant_bits) {
+    const __m128i bits =
+        _mm_or_si128(_mm_slli_epi32(_mm_add_epi32(e, _mm_set1_epi32(127 - 32)), 23), mant_bits);
+    return _mm_castsi128_ps(_mm_andnot_si128(_mm_cmpeq_epi32(e, _mm_setzero_si128()), bits));
+  };
+  for (; i + 4 <= n; i += 4) {
+    __m128 r0 = _mm_castsi128_ps(
+        _mm_loadu_si128(reinterpret_cast<const __m128i*>(PackedBytes(&packed[i]))));
+    __m128 r1 = _mm_castsi128_ps(
+        _mm_loadu_si128(reinterpret_cast<const __m128i*>(PackedBytes(&packed[i + 1]))));
+    __m128 r2 = _mm_castsi128_ps(
+        _mm_loadu_si128(reinterpret_cast<const __m128i*>(PackedBytes(&packed[i + 2]))));
+    __m128 r3 = _mm_castsi128_ps(
+        _mm_loadu_si128(reinterpret_cast<const __m128i*>(PackedBytes(&packed[i + 3]))));
+    _MM_TRANSPOSE4_PS(r0, r1, r2, r3);
+    const __m128i cell_lo = _mm_castps_si128(r0), cell_hi = _mm_castps_si128(r1);
+    const __m128i oct = _mm_castps_si128(r2), w3 = _mm_castps_si128(r3);
+    // Position: Coord(q) = origin + (q + 0.5) * step per axis.
+    const __m128i qx = _mm_and_si128(cell_lo, m21);
+    const __m128i qy =
+        _mm_and_si128(_mm_or_si128(_mm_srli_epi32(cell_lo, 21), _mm_slli_epi32(cell_hi, 11)), m21);
+    const __m128i qz = _mm_and_si128(_mm_srli_epi32(cell_hi, 10), m21);
+    const __m128 px = _mm_add_ps(_mm_set1_ps(grid.origin[0]),
+                                 _mm_mul_ps(_mm_add_ps(_mm_cvtepi32_ps(qx), half), step));
+    const __m128 py = _mm_add_ps(_mm_set1_ps(grid.origin[1]),
+                                 _mm_mul_ps(_mm_add_ps(_mm_cvtepi32_ps(qy), half), step));
+    const __m128 pz = _mm_add_ps(_mm_set1_ps(grid.origin[2]),
+                                 _mm_mul_ps(_mm_add_ps(_mm_cvtepi32_ps(qz), half), step));
+    // Normal: DecodeOctahedral. Times +-1 is a sign flip, exact.
+    const __m128 x = _mm_mul_ps(_mm_cvtepi32_ps(_mm_srai_epi32(_mm_slli_epi32(oct, 16), 16)), unit);
+    const __m128 y = _mm_mul_ps(_mm_cvtepi32_ps(_mm_srai_epi32(oct, 16)), unit);
+    const __m128 ax = _mm_andnot_ps(sign, x), ay = _mm_andnot_ps(sign, y);
+    const __m128 z = _mm_sub_ps(_mm_sub_ps(one, ax), ay);
+    const __m128 fold = _mm_cmplt_ps(z, zero);
+    const __m128 ox = _mm_xor_ps(_mm_sub_ps(one, ay), _mm_and_ps(_mm_cmplt_ps(x, zero), sign));
+    const __m128 oy = _mm_xor_ps(_mm_sub_ps(one, ax), _mm_and_ps(_mm_cmplt_ps(y, zero), sign));
+    const __m128 nx0 = _mm_or_ps(_mm_and_ps(fold, ox), _mm_andnot_ps(fold, x));
+    const __m128 ny0 = _mm_or_ps(_mm_and_ps(fold, oy), _mm_andnot_ps(fold, y));
+    const __m128 len2 =
+        _mm_add_ps(_mm_add_ps(_mm_mul_ps(nx0, nx0), _mm_mul_ps(ny0, ny0)), _mm_mul_ps(z, z));
+    const __m128 inv = _mm_div_ps(one, _mm_sqrt_ps(len2));
+    const __m128 nx = _mm_mul_ps(nx0, inv), ny = _mm_mul_ps(ny0, inv), nz = _mm_mul_ps(z, inv);
+    // Radius: DecodeRadius16, the two-sided flag (cell bit 63) in its sign bit.
+    const __m128i rc = _mm_and_si128(w3, m16);
+    const __m128 rad =
+        _mm_or_ps(small_float(_mm_and_si128(_mm_srli_epi32(rc, 10), _mm_set1_epi32(63)),
+                              _mm_slli_epi32(_mm_and_si128(rc, _mm_set1_epi32(1023)), 13)),
+                  _mm_and_ps(_mm_castsi128_ps(cell_hi), sign));
+    // Radiance: DecodeRadiance16, the code's bit 15 the sign.
+    __m128 l0 = zero, l1 = zero, l2 = zero;
+    if (radiance) {
+      auto radiance16 = [&](__m128i c) {
+        const __m128 mag = small_float(_mm_and_si128(_mm_srli_epi32(c, 9), _mm_set1_epi32(63)),
+                                       _mm_slli_epi32(_mm_and_si128(c, _mm_set1_epi32(511)), 14));
+        return _mm_or_ps(
+            mag, _mm_castsi128_ps(_mm_slli_epi32(_mm_and_si128(c, _mm_set1_epi32(0x8000)), 16)));
+      };
+      uint32_t w4[4];
+      for (int k = 0; k < 4; ++k) std::memcpy(&w4[k], PackedBytes(&packed[i + k]) + 16, 4);
+      const __m128i l12 = _mm_loadu_si128(reinterpret_cast<const __m128i*>(w4));
+      l0 = radiance16(_mm_srli_epi32(w3, 16));
+      l1 = radiance16(_mm_and_si128(l12, m16));
+      l2 = radiance16(_mm_srli_epi32(l12, 16));
+    }
+    // Back to records: (position, normal x), (normal y z, radius, radiance 0), (radiance 1 2).
+    __m128 a0 = px, a1 = py, a2 = pz, a3 = nx;
+    _MM_TRANSPOSE4_PS(a0, a1, a2, a3);
+    __m128 b0 = ny, b1 = nz, b2 = rad, b3 = l0;
+    _MM_TRANSPOSE4_PS(b0, b1, b2, b3);
+    const __m128 c01 = _mm_unpacklo_ps(l1, l2), c23 = _mm_unpackhi_ps(l1, l2);
+    const __m128 rows_a[4] = {a0, a1, a2, a3}, rows_b[4] = {b0, b1, b2, b3};
+    for (int k = 0; k < 4; ++k) {
+      out[i + k].key = packed[i + k].key;
+      uint8_t* o = reinterpret_cast<uint8_t*>(&out[i + k]);
+      _mm_storeu_ps(reinterpret_cast<float*>(o + 8), rows_a[k]);
+      _mm_storeu_ps(reinterpret_cast<float*>(o + 24), rows_b[k]);
+    }
+    _mm_storel_pi(reinterpret_cast<__m64*>(reinterpret_cast<uint8_t*>(&out[i]) + 40), c01);
+    _mm_storeh_pi(reinterpret_cast<__m64*>(reinterpret_cast<uint8_t*>(&out[i + 1]) + 40), c01);
+    _mm_storel_pi(reinterpret_cast<__m64*>(reinterpret_cast<uint8_t*>(&out[i + 2]) + 40), c23);
+    _mm_storeh_pi(reinterpret_cast<__m64*>(reinterpret_cast<uint8_t*>(&out[i + 3]) + 40), c23);
+  }
+#endif
+  for (; i < n; ++i) out[i] = Unpack(packed[i]);
 }
 
 SpillBlockWriter::SpillBlockWriter(const SpillCodec& codec) : codec_(codec) {}

@@ -7,12 +7,14 @@
 #include "build/spill_codec.h"
 
 #include <algorithm>
+#include <cmath>
 #include <cstring>
 #include <filesystem>
 #include <random>
 #include <vector>
 
 #include "build/external_sort.h"
+#include "build/node_packer.h"
 #include "build/octree_builder.h"
 #include "gtest/gtest.h"
 #include "store/mem_page_store.h"
@@ -255,6 +257,66 @@ TEST(SpillCodecTest, PackedRecordsGiveTheSameBlocks) {
   }
 }
 
+// UnpackBlock is Unpack, bit for bit (its SIMD lanes and its scalar tail), for every field
+// value a packed record can hold: random bytes (any cell, the two-sided bit, every octahedral
+// code including -32768, radius and radiance codes with zero exponents, negative radiance),
+// every octahedral code pair on a lattice through the folds (z = 0, x = 0, y = 0), on the
+// builder's grid and on grids far from the origin with steps from 2^-30 to 2^20.
+TEST(SpillCodecTest, UnpackBlockIsUnpack) {
+  std::mt19937_64 rng(20);
+  std::vector<PositionGrid> grids = {Codec(Channels::kOcclusion).grid};
+  std::uniform_real_distribution<float> origin(-1e6f, 1e6f);
+  for (int e = -30; e <= 20; e += 5) {
+    PositionGrid g;
+    for (float& o : g.origin) o = origin(rng);
+    g.step = std::ldexp(1.0f + float(rng() % 1000) / 1000.0f, e);
+    grids.push_back(g);
+  }
+  std::vector<SortRecord> packed;
+  for (int i = 0; i < 20000; ++i) {
+    SortRecord r;
+    std::memset(&r, 0, sizeof r);
+    r.key = rng();
+    uint64_t words[3] = {rng(), rng(), rng()};
+    std::memcpy(SpillCodec::PackedBytes(&r), words, kPointRecordRadianceBytes);
+    if (i % 7 == 0) {  // zero exponents: zero radius and radiance
+      SpillCodec::PackedBytes(&r)[13] &= 0x03;
+      SpillCodec::PackedBytes(&r)[15] &= 0x81;
+    }
+    packed.push_back(r);
+  }
+  for (int a = -32768; a <= 32767; a += 257) {
+    for (int b : {-32768, -32767, -16384, -1, 0, 1, 16383, 16384, 32767, 32767 - std::abs(a)}) {
+      SortRecord r = packed[packed.size() % 20000];
+      const int16_t oct[2] = {static_cast<int16_t>(a), static_cast<int16_t>(b)};
+      std::memcpy(SpillCodec::PackedBytes(&r) + 8, oct, 4);
+      packed.push_back(r);
+    }
+  }
+  for (Channels ch : {Channels::kOcclusion, Channels::kRadiance}) {
+    for (const PositionGrid& g : grids) {
+      const SpillCodec codec{ch, g};
+      std::vector<SortRecord> got(packed.size());
+      codec.UnpackBlock(packed.data(), packed.size(), got.data());
+      for (size_t i = 0; i < packed.size(); ++i) {
+        const SortRecord want = codec.Unpack(packed[i]);
+        ASSERT_EQ(0, std::memcmp(&got[i], &want, sizeof(SortRecord)))
+            << "record " << i << " channels " << static_cast<int>(ch) << " step " << g.step;
+      }
+      // Every length up to 9 and every start: the scalar tail and the SIMD body agree.
+      for (size_t n = 0; n <= 9; ++n) {
+        for (size_t at = 0; at < 4; ++at) {
+          std::vector<SortRecord> part(n);
+          codec.UnpackBlock(packed.data() + at, n, part.data());
+          for (size_t k = 0; k < n; ++k) {
+            ASSERT_EQ(0, std::memcmp(&part[k], &got[at + k], sizeof(SortRecord))) << n << " " << at;
+          }
+        }
+      }
+    }
+  }
+}
+
 // The external sort over packed input, spilled (with and without threads) or not: the same
 // records in the same order as plain input through compact runs, and quantized either way.
 TEST(SpillCodecTest, ExternalSortOverPackedInput) {
@@ -366,6 +428,38 @@ TEST(SpillCodecTest, PackedInputGivesTheSamePagesAndRecords) {
     ASSERT_TRUE(b.Flush().ok());
     EXPECT_GT(encoding.page_count(Section::kPoints), 1u);
     EXPECT_EQ(encoding.pages(Section::kPoints), copying.pages(Section::kPoints));
+  }
+}
+
+// The octree pass over packed records given with their decoded form (OctreeBuilder::Add(r,
+// stored), stored from SpillCodec::UnpackBlock, as the builder does) writes the same node and
+// point pages as the one that decodes each record itself.
+TEST(SpillCodecTest, OctreeOverUnpackedBlocksWritesTheSamePages) {
+  for (Channels ch : {Channels::kOcclusion, Channels::kRadiance}) {
+    const SpillCodec codec = Codec(ch);
+    std::vector<SortRecord> in = Records(20000, 29, CloudBounds(), true);
+    std::stable_sort(in.begin(), in.end(),
+                     [](const SortRecord& a, const SortRecord& b) { return a.key < b.key; });
+    std::vector<SortRecord> packed(in.size()), unpacked(in.size());
+    for (size_t i = 0; i < in.size(); ++i) codec.Pack(in[i], &packed[i]);
+    codec.UnpackBlock(packed.data(), packed.size(), unpacked.data());
+    MemPageStore one(4096), block(4096);
+    for (bool by_block : {false, true}) {
+      MemPageStore* sink = by_block ? &block : &one;
+      NodePacker packer(Layout::kCoherent, ch, sink, 0, codec.grid);
+      PointPageWriter points(ch, sink, codec.grid);
+      points.set_input_quantized(true);
+      points.set_input_packed(true);
+      OctreeBuilder octree(4, ch, &points, &packer);
+      for (size_t i = 0; i < packed.size(); ++i) {
+        ASSERT_TRUE((by_block ? octree.Add(packed[i], unpacked[i]) : octree.Add(packed[i])).ok());
+      }
+      ASSERT_TRUE(octree.Finish().ok());
+    }
+    EXPECT_GT(one.page_count(Section::kNodes), 1u);
+    EXPECT_GT(one.page_count(Section::kPoints), 1u);
+    EXPECT_EQ(one.pages(Section::kNodes), block.pages(Section::kNodes));
+    EXPECT_EQ(one.pages(Section::kPoints), block.pages(Section::kPoints));
   }
 }
 
