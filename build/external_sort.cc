@@ -270,7 +270,12 @@ class ExternalSorter::RunWriter {
   RunWriter(int fd, const std::optional<SpillCodec>& codec, const std::string& dir,
             bool packed = false)
       : fd_(fd), dir_(dir), packed_(packed) {
-    if (codec) enc_ = std::make_unique<SpillBlockWriter>(*codec);
+    if (codec) {
+      enc_ = std::make_unique<SpillBlockWriter>(*codec);
+      // Room for a flush's worth and one more block, allocated once: not zero-filled a block
+      // at a time as a growing vector would be.
+      out_.reset(new uint8_t[kFlushBytes + codec->max_block_bytes()]);
+    }
   }
   absl::Status Append(const SortRecord* recs, size_t n) {
     if (enc_ == nullptr) return Write(recs, n * sizeof(SortRecord));
@@ -280,7 +285,32 @@ class ExternalSorter::RunWriter {
       recs += k;
       n -= k;
       if (pending_.size() == kSpillBlockRecords) PBGI_RETURN_IF_ERROR(EncodePending());
-      if (out_.size() >= kFlushBytes) PBGI_RETURN_IF_ERROR(FlushOut());
+    }
+    return absl::OkStatus();
+  }
+  // Appends recs[order[i].index] for i < n, in this order: compact blocks are encoded straight
+  // from `recs`, raw runs go through a chunk.
+  absl::Status AppendGathered(const SortRecord* recs, const KeyIndex* order, size_t n) {
+    if (enc_ == nullptr || !pending_.empty()) {
+      std::vector<SortRecord> chunk(std::min<size_t>(kWriteChunkRecords, n));
+      for (size_t i = 0; i < n;) {
+        const size_t k = std::min(chunk.size(), n - i);
+        for (size_t j = 0; j < k; ++j) {
+          // The gather is random access: fetch a few records ahead.
+          if (i + j + 16 < n) __builtin_prefetch(&recs[order[i + j + 16].index]);
+          chunk[j] = recs[order[i + j].index];
+        }
+        PBGI_RETURN_IF_ERROR(Append(chunk.data(), k));
+        i += k;
+      }
+      return absl::OkStatus();
+    }
+    for (size_t i = 0; i < n; i += kSpillBlockRecords) {
+      const size_t k = std::min<size_t>(kSpillBlockRecords, n - i);
+      PBGI_ASSIGN_OR_RETURN(size_t bytes,
+                            enc_->EncodeGathered(recs, absl::MakeConstSpan(order + i, k),
+                                                 out_.get() + out_len_, packed_));
+      PBGI_RETURN_IF_ERROR(Wrote(bytes));
     }
     return absl::OkStatus();
   }
@@ -300,15 +330,22 @@ class ExternalSorter::RunWriter {
     offset_ += bytes;
     return absl::OkStatus();
   }
-  absl::Status EncodePending() {
-    PBGI_RETURN_IF_ERROR(enc_->Append(absl::MakeConstSpan(pending_), &out_, packed_));
-    pending_.clear();
+  // A block of `bytes` was encoded at out_ + out_len_.
+  absl::Status Wrote(size_t bytes) {
+    out_len_ += bytes;
+    if (out_len_ >= kFlushBytes) return FlushOut();
     return absl::OkStatus();
   }
+  absl::Status EncodePending() {
+    PBGI_ASSIGN_OR_RETURN(
+        size_t bytes, enc_->Encode(absl::MakeConstSpan(pending_), out_.get() + out_len_, packed_));
+    pending_.clear();
+    return Wrote(bytes);
+  }
   absl::Status FlushOut() {
-    if (out_.empty()) return absl::OkStatus();
-    PBGI_RETURN_IF_ERROR(Write(out_.data(), out_.size()));
-    out_.clear();
+    if (out_len_ == 0) return absl::OkStatus();
+    PBGI_RETURN_IF_ERROR(Write(out_.get(), out_len_));
+    out_len_ = 0;
     return absl::OkStatus();
   }
   int fd_;
@@ -316,7 +353,8 @@ class ExternalSorter::RunWriter {
   bool packed_;
   std::unique_ptr<SpillBlockWriter> enc_;
   std::vector<SortRecord> pending_;
-  std::vector<uint8_t> out_;
+  std::unique_ptr<uint8_t[]> out_;  // compact: encoded blocks not yet written
+  size_t out_len_ = 0;
   uint64_t offset_ = 0;
   uint32_t crc_ = 0;
 };
@@ -585,23 +623,13 @@ absl::Status ExternalSorter::SpillBuffer(const SortRecord* recs, uint64_t n) {
   PBGI_ASSIGN_OR_RETURN(Run run, NewRunFile(!run_dir_.empty()));
   runs_.push_back(run);
   RunWriter writer(run.fd, options_.compact, options_.tmp_dir, options_.packed_input);
-  std::vector<SortRecord> chunk(std::min<uint64_t>(kWriteChunkRecords, n));
-  for (uint64_t i = 0; i < n;) {
-    size_t k = static_cast<size_t>(std::min<uint64_t>(chunk.size(), n - i));
-    for (size_t j = 0; j < k; ++j) {
-      // The gather is random access: fetch a few records ahead.
-      if (i + j + 16 < n) __builtin_prefetch(&recs[sorted_[i + j + 16].index]);
-      chunk[j] = recs[sorted_[i + j].index];
-    }
-    absl::Status s = writer.Append(chunk.data(), k);
-    if (s.ok() && i + k == n) s = writer.Finish();
-    if (!s.ok()) {
-      return absl::Status(s.code(), absl::StrFormat("sort run %d (input records %d..%d), byte "
-                                                    "offset %d: %s",
-                                                    runs_.size() - 1, total_, total_ + n - 1,
-                                                    writer.bytes(), s.message()));
-    }
-    i += k;
+  absl::Status s = writer.AppendGathered(recs, sorted_, static_cast<size_t>(n));
+  if (s.ok()) s = writer.Finish();
+  if (!s.ok()) {
+    return absl::Status(s.code(), absl::StrFormat("sort run %d (input records %d..%d), byte "
+                                                  "offset %d: %s",
+                                                  runs_.size() - 1, total_, total_ + n - 1,
+                                                  writer.bytes(), s.message()));
   }
   runs_.back().count = n;
   runs_.back().bytes = writer.bytes();

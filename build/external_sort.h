@@ -44,10 +44,6 @@
 
 namespace pbgi::internal {
 
-struct KeyIndex {
-  uint64_t key;
-  uint64_t index;
-};
 // Sorts `pairs` by key, stably: MSD radix passes on 8-bit digits of the bits that differ between
 // the keys, the highest first, each bucket split again until it is small enough for an insertion
 // sort. `scratch` has the same size. Returns whichever of the two arrays holds the result.

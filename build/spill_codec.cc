@@ -170,9 +170,9 @@ void SpillCodec::UnpackBlock(const SortRecord* packed, size_t n, SortRecord* out
 SpillBlockWriter::SpillBlockWriter(const SpillCodec& codec) : codec_(codec) {}
 SpillBlockWriter::~SpillBlockWriter() { ZSTD_freeCCtx(static_cast<ZSTD_CCtx*>(cctx_)); }
 
-absl::Status SpillBlockWriter::Append(absl::Span<const SortRecord> recs, std::vector<uint8_t>* out,
-                                      bool packed) {
-  const size_t n = recs.size();
+template <typename Record>
+absl::StatusOr<size_t> SpillBlockWriter::EncodeBlock(size_t n, const Record& record, uint8_t* dst,
+                                                     bool packed) {
   if (n == 0 || n > kSpillBlockRecords) {
     return absl::InternalError(absl::StrFormat("a spill block of %d records", n));
   }
@@ -185,7 +185,7 @@ absl::Status SpillBlockWriter::Append(absl::Span<const SortRecord> recs, std::ve
   uint64_t prev = 0;
   uint8_t encoded[kPointRecordRadianceBytes];
   for (size_t i = 0; i < n; ++i) {
-    const SortRecord& r = recs[i];
+    const SortRecord& r = record(i);
     const uint64_t delta = r.key - prev;
     prev = r.key;
     std::memcpy(raw + c.keys + 8 * i, &delta, 8);
@@ -202,20 +202,45 @@ absl::Status SpillBlockWriter::Append(absl::Span<const SortRecord> recs, std::ve
     std::memcpy(raw + c.radii + 2 * i, rec + 12, 2);
     if (radiance) std::memcpy(raw + c.radiance + 6 * i, rec + 14, 6);
   }
-  const size_t at = out->size();
-  out->resize(at + kSpillBlockHeaderBytes + ZSTD_compressBound(c.end));
-  const size_t z =
-      ZSTD_compressCCtx(static_cast<ZSTD_CCtx*>(cctx_), out->data() + at + kSpillBlockHeaderBytes,
-                        out->size() - at - kSpillBlockHeaderBytes, raw, c.end, kSpillZstdLevel);
+  const size_t z = ZSTD_compressCCtx(static_cast<ZSTD_CCtx*>(cctx_), dst + kSpillBlockHeaderBytes,
+                                     codec_.max_block_bytes() - kSpillBlockHeaderBytes, raw, c.end,
+                                     kSpillZstdLevel);
   if (ZSTD_isError(z)) {
-    out->resize(at);
     return absl::InternalError(
         absl::StrFormat("zstd cannot compress a sort run block: %s", ZSTD_getErrorName(z)));
   }
-  PutU32(out->data() + at, static_cast<uint32_t>(z));
-  PutU32(out->data() + at + 4, static_cast<uint32_t>(n));
-  out->resize(at + kSpillBlockHeaderBytes + z);
-  return absl::OkStatus();
+  PutU32(dst, static_cast<uint32_t>(z));
+  PutU32(dst + 4, static_cast<uint32_t>(n));
+  return kSpillBlockHeaderBytes + z;
+}
+
+absl::StatusOr<size_t> SpillBlockWriter::Encode(absl::Span<const SortRecord> recs, uint8_t* dst,
+                                                bool packed) {
+  return EncodeBlock(
+      recs.size(), [&](size_t i) -> const SortRecord& { return recs[i]; }, dst, packed);
+}
+
+absl::StatusOr<size_t> SpillBlockWriter::EncodeGathered(const SortRecord* base,
+                                                        absl::Span<const KeyIndex> order,
+                                                        uint8_t* dst, bool packed) {
+  const size_t n = order.size();
+  return EncodeBlock(
+      n,
+      [&](size_t i) -> const SortRecord& {
+        // The gather is random access: fetch a few records ahead.
+        if (i + 16 < n) __builtin_prefetch(&base[order[i + 16].index]);
+        return base[order[i].index];
+      },
+      dst, packed);
+}
+
+absl::Status SpillBlockWriter::Append(absl::Span<const SortRecord> recs, std::vector<uint8_t>* out,
+                                      bool packed) {
+  const size_t at = out->size();
+  out->resize(at + codec_.max_block_bytes());
+  absl::StatusOr<size_t> n = Encode(recs, out->data() + at, packed);
+  out->resize(at + (n.ok() ? *n : 0));
+  return n.status();
 }
 
 SpillBlockReader::SpillBlockReader(const SpillCodec& codec) : codec_(codec) {}

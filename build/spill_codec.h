@@ -81,8 +81,20 @@ class SpillBlockWriter {
   // are packed (SpillCodec::Pack), else plain.
   absl::Status Append(absl::Span<const SortRecord> recs, std::vector<uint8_t>* out,
                       bool packed = false);
+  // The same block written at `dst`, which has room for SpillCodec::max_block_bytes(); returns
+  // its size.
+  absl::StatusOr<size_t> Encode(absl::Span<const SortRecord> recs, uint8_t* dst,
+                                bool packed = false);
+  // Encode of the records base[order[i].index], gathered from a run buffer in sorted order
+  // without copying them first (docs/format.md, "Session 17").
+  absl::StatusOr<size_t> EncodeGathered(const SortRecord* base, absl::Span<const KeyIndex> order,
+                                        uint8_t* dst, bool packed = false);
 
  private:
+  // Fills raw_ with the columns of n records, record(i) the i-th, then compresses it at dst.
+  template <typename Record>
+  absl::StatusOr<size_t> EncodeBlock(size_t n, const Record& record, uint8_t* dst, bool packed);
+
   SpillCodec codec_;
   void* cctx_ = nullptr;  // ZSTD_CCtx
   std::vector<uint8_t> raw_;

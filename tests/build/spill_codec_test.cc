@@ -257,6 +257,38 @@ TEST(SpillCodecTest, PackedRecordsGiveTheSameBlocks) {
   }
 }
 
+// A block encoded straight from a run buffer through a permutation (EncodeGathered, the sort
+// thread's spill) is the block of the records gathered first: the same bytes, packed or plain,
+// for one record, a part block and a full one.
+TEST(SpillCodecTest, GatheredBlocksAreTheBlocksOfTheGatheredRecords) {
+  for (Channels ch : {Channels::kOcclusion, Channels::kRadiance}) {
+    const SpillCodec codec = Codec(ch);
+    const std::vector<SortRecord> in = Records(3000, 31, CloudBounds(), true);
+    std::vector<SortRecord> packed(in.size());
+    for (size_t i = 0; i < in.size(); ++i) codec.Pack(in[i], &packed[i]);
+    std::vector<KeyIndex> order(in.size());
+    for (size_t i = 0; i < in.size(); ++i) order[i] = KeyIndex{in[i].key, i};
+    std::mt19937_64 rng(5);
+    std::shuffle(order.begin(), order.end(), rng);
+    for (bool is_packed : {false, true}) {
+      const std::vector<SortRecord>& base = is_packed ? packed : in;
+      for (size_t n : {size_t{1}, size_t{700}, size_t{kSpillBlockRecords}}) {
+        std::vector<SortRecord> gathered;
+        for (size_t i = 0; i < n; ++i) gathered.push_back(base[order[i].index]);
+        SpillBlockWriter a(codec), b(codec);
+        std::vector<uint8_t> want;
+        ASSERT_TRUE(a.Append(gathered, &want, is_packed).ok());
+        std::vector<uint8_t> got(codec.max_block_bytes());
+        auto size = b.EncodeGathered(base.data(), absl::MakeConstSpan(order).subspan(0, n),
+                                     got.data(), is_packed);
+        ASSERT_TRUE(size.ok()) << size.status();
+        got.resize(*size);
+        EXPECT_EQ(got, want) << n << " packed " << is_packed;
+      }
+    }
+  }
+}
+
 // UnpackBlock is Unpack, bit for bit (its SIMD lanes and its scalar tail), for every field
 // value a packed record can hold: random bytes (any cell, the two-sided bit, every octahedral
 // code including -32768, radius and radiance codes with zero exponents, negative radiance),
