@@ -212,7 +212,10 @@ absl::Status OctreeBuilder::CloseTop() {
   ClosedNode c;
   c.node = MakeRecord(n, false);
   PBGI_RETURN_IF_ERROR(packer_->CloseInterior(absl::MakeSpan(n.children), &c));
-  return Deliver(std::move(c), n.agg, n.count);
+  PBGI_RETURN_IF_ERROR(Deliver(std::move(c), n.agg, n.count));
+  n.children.clear();
+  spare_children_.push_back(std::move(n.children));
+  return absl::OkStatus();
 }
 
 absl::Status OctreeBuilder::Process(const SortRecord& r, const SortRecord* stored, uint32_t rank,
@@ -244,6 +247,12 @@ absl::Status OctreeBuilder::Process(const SortRecord& r, const SortRecord* store
       leaf_ = std::move(n);
       leaf_open_ = true;
       break;
+    }
+    if (spare_children_.empty()) {
+      n.children.reserve(8);
+    } else {
+      n.children = std::move(spare_children_.back());
+      spare_children_.pop_back();
     }
     stack_.push_back(std::move(n));
   }

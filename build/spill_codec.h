@@ -70,6 +70,11 @@ struct SpillCodec {
 };
 static_assert(sizeof(SortRecord) - sizeof(uint64_t) >= kPointRecordRadianceBytes);
 
+// The depth-21 cell of a Morton key (tree/morton.h), packed as a point record's cell (PackCell):
+// a stored cell is XORed with its key's cell, which leaves a column of mostly zeros (a position's
+// grid cell is its key's cell give or take rounding, GridOfCube). Bit 63 of the key is ignored.
+uint64_t KeyCell(uint64_t key);
+
 class SpillBlockWriter {
  public:
   explicit SpillBlockWriter(const SpillCodec& codec);

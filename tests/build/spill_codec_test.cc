@@ -289,6 +289,28 @@ TEST(SpillCodecTest, GatheredBlocksAreTheBlocksOfTheGatheredRecords) {
   }
 }
 
+// KeyCell is the key's bits 0, 3, 6, ... (x), 1, 4, 7, ... (y) and 2, 5, 8, ... (z), each in
+// its 21-bit field, bit by bit, for random keys, single bits and all ones.
+TEST(SpillCodecTest, KeyCellDeinterleavesTheKey) {
+  auto slow = [](uint64_t key) {
+    uint64_t cell = 0;
+    for (int b = 0; b < kGridBits; ++b) {
+      for (int axis = 0; axis < 3; ++axis) {
+        cell |= ((key >> (3 * b + axis)) & 1) << (axis * kGridBits + b);
+      }
+    }
+    return cell;
+  };
+  std::mt19937_64 rng(63);
+  std::vector<uint64_t> keys = {0, ~uint64_t{0}, uint64_t{1} << 63};
+  for (int b = 0; b < 64; ++b) keys.push_back(uint64_t{1} << b);
+  for (int i = 0; i < 100000; ++i) keys.push_back(rng());
+  for (uint64_t k : keys) ASSERT_EQ(KeyCell(k), slow(k)) << std::hex << k;
+  const MortonQuantizer quant(CloudBounds());
+  const glm::vec3 p(0.25f, -1.5f, 2.0f);
+  EXPECT_EQ(KeyCell(quant.Key(p)), slow(quant.Key(p)));
+}
+
 // UnpackBlock is Unpack, bit for bit (its SIMD lanes and its scalar tail), for every field
 // value a packed record can hold: random bytes (any cell, the two-sided bit, every octahedral
 // code including -32768, radius and radiance codes with zero exponents, negative radiance),
