@@ -37,8 +37,13 @@ absl::Status PointPageWriter::Add(const SortRecord& r, SortRecord* stored) {
 }
 
 absl::Status PointPageWriter::AddPacked(const SortRecord& r) {
-  std::memcpy(buf_.data() + size_t{count_} * record_size_, SpillCodec::PackedBytes(&r),
-              record_size_);
+  // Copies of a constant size (two moves, not a call).
+  uint8_t* dst = buf_.data() + size_t{count_} * record_size_;
+  if (record_size_ == kPointRecordRadianceBytes) {
+    std::memcpy(dst, SpillCodec::PackedBytes(&r), kPointRecordRadianceBytes);
+  } else {
+    std::memcpy(dst, SpillCodec::PackedBytes(&r), kPointRecordOcclusionBytes);
+  }
   ++points_;
   if (++count_ == per_page_) return Flush();
   return absl::OkStatus();
