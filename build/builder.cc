@@ -49,6 +49,7 @@ namespace {
 
 constexpr size_t kBatch = 8192;
 constexpr size_t kUnpackChunk = 256;  // decoded records at a time in the octree pass (12 KiB)
+constexpr size_t kPackChunk = 256;    // records packed at a time in the input pass (12 KiB)
 constexpr uint64_t kProgressEvery = uint64_t{1} << 18;
 constexpr uint64_t kMinRunRecords = 256;
 constexpr uint64_t kMiB = uint64_t{1} << 20;
@@ -311,9 +312,16 @@ absl::StatusOr<BuildStats> BuildToSink(SurfelSource& source, PageSink& sink,
   } else {
     const MortonQuantizer quant(bounds);
     const Bounds inside = KeyBoundsTolerance(bounds);
-    // Records are made in place in the sorter's run buffer.
+    // Records are made in place in the sorter's run buffer, and packed there a chunk at a time
+    // (SpillCodec::PackBlock; docs/format.md, "Session 17").
     absl::Span<SortRecord> slots;
-    size_t used = 0;
+    size_t used = 0, packed = 0;
+    auto pack = [&] {
+      if (sort_options.packed_input && used > packed) {
+        sort_options.compact->PackBlock(&slots[packed], used - packed, &slots[packed]);
+      }
+      packed = used;
+    };
     PBGI_RETURN_IF_ERROR(
         for_each_valid("sort", [&](const Surfel& in, uint64_t index) -> absl::Status {
           PBGI_RETURN_IF_ERROR(options.estimate.radius ? range.AddPosition(in, index)
@@ -327,8 +335,9 @@ absl::StatusOr<BuildStats> BuildToSink(SurfelSource& source, PageSink& sink,
                 bounds.lo.z, bounds.hi.x, bounds.hi.y, bounds.hi.z));
           }
           if (used == slots.size()) {
+            pack();
             sorter.Commit(used);
-            used = 0;
+            used = packed = 0;
             PBGI_ASSIGN_OR_RETURN(slots, sorter.Reserve(kBatch));
           }
           Surfel s = in;
@@ -339,13 +348,11 @@ absl::StatusOr<BuildStats> BuildToSink(SurfelSource& source, PageSink& sink,
           }
           if (options.estimate.radius) s.radius = 0.0f;
           if (!radiance) s.radiance = glm::vec3(0.0f);
-          if (sort_options.packed_input) {
-            sort_options.compact->Pack(MakeSortRecord(quant.Key(s.position), s), &slots[used++]);
-          } else {
-            slots[used++] = MakeSortRecord(quant.Key(s.position), s);
-          }
+          slots[used++] = MakeSortRecord(quant.Key(s.position), s);
+          if (used - packed == kPackChunk) pack();
           return absl::OkStatus();
         }));
+    pack();
     sorter.Commit(used);
     PBGI_RETURN_IF_ERROR(sorter.FinishInput());
     stats.seconds_sort = t.Seconds();

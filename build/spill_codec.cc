@@ -74,6 +74,152 @@ size_t SpillCodec::max_block_bytes() const {
          ZSTD_compressBound(size_t{kSpillBlockRecords} * raw_record_bytes());
 }
 
+void SpillCodec::PackBlock(const SortRecord* in, size_t n, SortRecord* out) const {
+  size_t i = 0;
+#if defined(__SSE2__)
+  // Each lane makes the IEEE operations of EncodePointRecord in the same order (the cells'
+  // division in double, as Nearest; no FMA on the x86-64 baseline), and its integer steps as
+  // masks, so the bytes are Pack's. A group of four with a field that is not finite or a zero
+  // normal goes to Pack, and so does every record when the grid's step is not positive.
+  if (grid.step > 0.0f) {
+    const bool radiance = HasRadiance(channels);
+    const __m128 sign = _mm_castsi128_ps(_mm_set1_epi32(static_cast<int>(0x80000000u)));
+    const __m128 zero = _mm_setzero_ps(), one = _mm_set1_ps(1.0f);
+    const __m128d half_d = _mm_set1_pd(0.5), one_d = _mm_set1_pd(1.0), zero_d = _mm_setzero_pd();
+    const __m128d grid_max = _mm_set1_pd(double{kGridMax}), step = _mm_set1_pd(double{grid.step});
+    // Nearest on two lanes: t = (v - origin) / step - 0.5, 0 unless t > 0, kGridMax from
+    // kGridMax on, else RoundHalfAway(t) (t >= 0: truncate, plus one from a half up).
+    auto nearest2 = [&](__m128d v, double origin) {
+      const __m128d t = _mm_sub_pd(_mm_div_pd(_mm_sub_pd(v, _mm_set1_pd(origin)), step), half_d);
+      const __m128d q = _mm_cvtepi32_pd(_mm_cvttpd_epi32(t));
+      const __m128d r = _mm_add_pd(q, _mm_and_pd(_mm_cmpge_pd(_mm_sub_pd(t, q), half_d), one_d));
+      const __m128d top = _mm_cmpge_pd(t, grid_max);
+      const __m128d c = _mm_or_pd(_mm_and_pd(top, grid_max), _mm_andnot_pd(top, r));
+      return _mm_cvttpd_epi32(_mm_and_pd(_mm_cmpgt_pd(t, zero_d), c));
+    };
+    auto nearest4 = [&](__m128 v, int axis) {
+      const __m128i lo = nearest2(_mm_cvtps_pd(v), double{grid.origin[axis]});
+      const __m128i hi = nearest2(_mm_cvtps_pd(_mm_movehl_ps(v, v)), double{grid.origin[axis]});
+      return _mm_unpacklo_epi64(lo, hi);
+    };
+    // EncodeSmallFloat<6, M>(v) for v >= 0 finite: `flush` for zero, denormals and exponents
+    // below the range, the largest code above it.
+    auto small_float = [](__m128 v, int m, int flush) {
+      const __m128i bits = _mm_castps_si128(v);
+      const __m128i biased = _mm_srli_epi32(bits, 23);  // the float's exponent field
+      const __m128i rounded = _mm_add_epi32(_mm_and_si128(bits, _mm_set1_epi32(0x7fffff)),
+                                            _mm_set1_epi32(1 << (23 - m - 1)));
+      const __m128i e = _mm_add_epi32(_mm_add_epi32(biased, _mm_srli_epi32(rounded, 23)),
+                                      _mm_set1_epi32(32 - 127));
+      const __m128i mant = _mm_srli_epi32(_mm_and_si128(rounded, _mm_set1_epi32(0x7fffff)), 23 - m);
+      __m128i code = _mm_or_si128(_mm_slli_epi32(e, m), mant);
+      const __m128i big = _mm_cmpgt_epi32(e, _mm_set1_epi32(63));
+      code = _mm_or_si128(_mm_and_si128(big, _mm_set1_epi32((63 << m) | ((1 << m) - 1))),
+                          _mm_andnot_si128(big, code));
+      const __m128i small = _mm_or_si128(_mm_cmplt_epi32(e, _mm_set1_epi32(1)),
+                                         _mm_cmpeq_epi32(biased, _mm_setzero_si128()));
+      return _mm_or_si128(_mm_and_si128(small, _mm_set1_epi32(flush)),
+                          _mm_andnot_si128(small, code));
+    };
+    auto radiance16 = [&](__m128 v) {
+      const __m128i mag = small_float(_mm_andnot_ps(sign, v), 9, 0);
+      const __m128i negative = _mm_srai_epi32(_mm_castps_si128(v), 31);
+      const __m128i nonzero =
+          _mm_xor_si128(_mm_cmpeq_epi32(mag, _mm_setzero_si128()), _mm_set1_epi32(-1));
+      return _mm_or_si128(mag,
+                          _mm_and_si128(_mm_and_si128(negative, nonzero), _mm_set1_epi32(0x8000)));
+    };
+    auto finite = [&](__m128 v) { return _mm_cmpeq_ps(_mm_sub_ps(v, v), zero); };
+    for (; i + 4 <= n; i += 4) {
+      const uint8_t* r[4];
+      for (int k = 0; k < 4; ++k) r[k] = reinterpret_cast<const uint8_t*>(&in[i + k]);
+      __m128 px = _mm_loadu_ps(reinterpret_cast<const float*>(r[0] + 8));
+      __m128 py = _mm_loadu_ps(reinterpret_cast<const float*>(r[1] + 8));
+      __m128 pz = _mm_loadu_ps(reinterpret_cast<const float*>(r[2] + 8));
+      __m128 nx = _mm_loadu_ps(reinterpret_cast<const float*>(r[3] + 8));
+      _MM_TRANSPOSE4_PS(px, py, pz, nx);
+      __m128 ny = _mm_loadu_ps(reinterpret_cast<const float*>(r[0] + 24));
+      __m128 nz = _mm_loadu_ps(reinterpret_cast<const float*>(r[1] + 24));
+      __m128 rad = _mm_loadu_ps(reinterpret_cast<const float*>(r[2] + 24));
+      __m128 l0 = _mm_loadu_ps(reinterpret_cast<const float*>(r[3] + 24));
+      _MM_TRANSPOSE4_PS(ny, nz, rad, l0);
+      __m128 c01 = _mm_loadl_pi(zero, reinterpret_cast<const __m64*>(r[0] + 40));
+      c01 = _mm_loadh_pi(c01, reinterpret_cast<const __m64*>(r[1] + 40));
+      __m128 c23 = _mm_loadl_pi(zero, reinterpret_cast<const __m64*>(r[2] + 40));
+      c23 = _mm_loadh_pi(c23, reinterpret_cast<const __m64*>(r[3] + 40));
+      const __m128 l1 = _mm_shuffle_ps(c01, c23, _MM_SHUFFLE(2, 0, 2, 0));
+      const __m128 l2 = _mm_shuffle_ps(c01, c23, _MM_SHUFFLE(3, 1, 3, 1));
+      const __m128 l1n = _mm_add_ps(_mm_add_ps(_mm_andnot_ps(sign, nx), _mm_andnot_ps(sign, ny)),
+                                    _mm_andnot_ps(sign, nz));
+      __m128 ok =
+          _mm_and_ps(_mm_and_ps(finite(px), finite(py)), _mm_and_ps(finite(pz), finite(rad)));
+      ok = _mm_and_ps(ok, _mm_and_ps(finite(l1n), _mm_cmpgt_ps(l1n, zero)));
+      if (radiance) ok = _mm_and_ps(ok, _mm_and_ps(finite(l0), _mm_and_ps(finite(l1), finite(l2))));
+      if (_mm_movemask_ps(ok) != 0xf) {
+        for (int k = 0; k < 4; ++k) {
+          const SortRecord copy = in[i + k];
+          Pack(copy, &out[i + k]);
+        }
+        continue;
+      }
+      const uint64_t keys[4] = {in[i].key, in[i + 1].key, in[i + 2].key, in[i + 3].key};
+      // Cell: Nearest on each axis, bit 63 the two-sided flag (the radius's sign).
+      const __m128i qx = nearest4(px, 0), qy = nearest4(py, 1), qz = nearest4(pz, 2);
+      const __m128i cell_lo = _mm_or_si128(qx, _mm_slli_epi32(qy, 21));
+      const __m128i cell_hi =
+          _mm_or_si128(_mm_or_si128(_mm_srli_epi32(qy, 11), _mm_slli_epi32(qz, 10)),
+                       _mm_and_si128(_mm_castps_si128(rad), _mm_castps_si128(sign)));
+      // Normal: EncodeOctahedral. Times +-1 is a sign flip, exact; x and y are finite here.
+      const __m128 x = _mm_div_ps(nx, l1n), y = _mm_div_ps(ny, l1n);
+      const __m128 fold = _mm_cmplt_ps(nz, zero);
+      const __m128 ox = _mm_xor_ps(_mm_sub_ps(one, _mm_andnot_ps(sign, y)),
+                                   _mm_and_ps(_mm_cmplt_ps(x, zero), sign));
+      const __m128 oy = _mm_xor_ps(_mm_sub_ps(one, _mm_andnot_ps(sign, x)),
+                                   _mm_and_ps(_mm_cmplt_ps(y, zero), sign));
+      // RoundHalfAway(clamp(v, -1, 1) * 32767) in float: |v * 32767| < 2^15, so the truncation
+      // and its remainder are exact, as in double.
+      auto octahedral = [&](__m128 v) {
+        const __m128 c =
+            _mm_mul_ps(_mm_min_ps(_mm_max_ps(v, _mm_set1_ps(-1.0f)), one), _mm_set1_ps(32767.0f));
+        const __m128i q = _mm_cvttps_epi32(c);
+        const __m128 f = _mm_sub_ps(c, _mm_cvtepi32_ps(q));
+        return _mm_add_epi32(_mm_sub_epi32(q, _mm_castps_si128(_mm_cmpge_ps(f, _mm_set1_ps(0.5f)))),
+                             _mm_castps_si128(_mm_cmple_ps(f, _mm_set1_ps(-0.5f))));
+      };
+      const __m128i o0 = octahedral(_mm_or_ps(_mm_and_ps(fold, ox), _mm_andnot_ps(fold, x)));
+      const __m128i o1 = octahedral(_mm_or_ps(_mm_and_ps(fold, oy), _mm_andnot_ps(fold, y)));
+      const __m128i w2 =
+          _mm_or_si128(_mm_and_si128(o0, _mm_set1_epi32(0xffff)), _mm_slli_epi32(o1, 16));
+      // Radius (EncodeRadius16, flushed to the smallest code) and radiance (EncodeRadiance16).
+      const __m128i r16 = small_float(_mm_andnot_ps(sign, rad), 10, 1 << 10);
+      __m128i w3 = r16, w4 = _mm_setzero_si128();
+      if (radiance) {
+        w3 = _mm_or_si128(r16, _mm_slli_epi32(radiance16(l0), 16));
+        w4 = _mm_or_si128(radiance16(l1), _mm_slli_epi32(radiance16(l2), 16));
+      }
+      __m128 a0 = _mm_castsi128_ps(cell_lo), a1 = _mm_castsi128_ps(cell_hi);
+      __m128 a2 = _mm_castsi128_ps(w2), a3 = _mm_castsi128_ps(w3);
+      _MM_TRANSPOSE4_PS(a0, a1, a2, a3);
+      const __m128 rows[4] = {a0, a1, a2, a3};
+      uint32_t tail[4];
+      _mm_storeu_si128(reinterpret_cast<__m128i*>(tail), w4);
+      for (int k = 0; k < 4; ++k) {
+        uint8_t* o = reinterpret_cast<uint8_t*>(&out[i + k]);
+        std::memcpy(o, &keys[k], 8);
+        _mm_storeu_ps(reinterpret_cast<float*>(o + 8), rows[k]);
+        std::memcpy(o + 24, &tail[k], 4);
+        _mm_storeu_ps(reinterpret_cast<float*>(o + 28), zero);
+        _mm_storeu_ps(reinterpret_cast<float*>(o + 32), zero);
+      }
+    }
+  }
+#endif
+  for (; i < n; ++i) {
+    const SortRecord copy = in[i];
+    Pack(copy, &out[i]);
+  }
+}
+
 // UnpackBlock's stores: a record's floats from byte 8 on, in this order.
 static_assert(offsetof(SortRecord, position) == 8 && offsetof(SortRecord, normal) == 20 &&
               offsetof(SortRecord, radius) == 32 && offsetof(SortRecord, radiance) == 36);

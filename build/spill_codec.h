@@ -56,6 +56,10 @@ struct SpillCodec {
     std::memset(p, 0, sizeof(SortRecord) - sizeof(uint64_t));
     EncodePointRecord(r.position, r.normal, r.radius, r.radiance, channels, grid, p);
   }
+  // Pack(in[i], &out[i]) for i < n, bit for bit, four records at a time with SSE2 where their
+  // fields are finite and their normals not zero (the builder's; the others go to Pack). `out`
+  // may be `in` (packs in place) or not overlap it.
+  void PackBlock(const SortRecord* in, size_t n, SortRecord* out) const;
   SortRecord Unpack(const SortRecord& packed) const {
     return MakeSortRecord(packed.key, DecodePointRecord(PackedBytes(&packed), channels, grid));
   }

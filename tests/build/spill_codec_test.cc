@@ -10,6 +10,7 @@
 #include <cmath>
 #include <cstring>
 #include <filesystem>
+#include <limits>
 #include <random>
 #include <vector>
 
@@ -309,6 +310,90 @@ TEST(SpillCodecTest, KeyCellDeinterleavesTheKey) {
   const MortonQuantizer quant(CloudBounds());
   const glm::vec3 p(0.25f, -1.5f, 2.0f);
   EXPECT_EQ(KeyCell(quant.Key(p)), slow(quant.Key(p)));
+}
+
+// PackBlock is Pack, bit for bit, in place or not: records as the builder makes them (finite,
+// normalized normals) and not (unnormalized, zero and signed-zero normals, normals on the folds,
+// positions on and off the grid, radii and radiance from denormals to 2^100 with either sign,
+// zeros, -0, infinities and NaN in any field), on several grids and on one with a zero step.
+TEST(SpillCodecTest, PackBlockIsPack) {
+  std::mt19937_64 rng(17);
+  std::uniform_real_distribution<float> u(-1.0f, 1.0f);
+  auto wild = [&]() -> float {
+    switch (rng() % 12) {
+      case 0:
+        return 0.0f;
+      case 1:
+        return -0.0f;
+      case 2:
+        return std::numeric_limits<float>::infinity();
+      case 3:
+        return std::numeric_limits<float>::quiet_NaN();
+      case 4:
+        return std::numeric_limits<float>::denorm_min() * float(rng() % 1000);
+      default:
+        return std::ldexp(u(rng), static_cast<int>(rng() % 200) - 100);
+    }
+  };
+  const Bounds b = CloudBounds();
+  std::vector<SortRecord> in = Records(20000, 41, b, true);
+  for (size_t i = 0; i < in.size(); ++i) {
+    SortRecord& r = in[i];
+    if (i % 4 == 1) {  // positions off the grid, unnormalized normals, wide magnitudes
+      for (float& p : r.position) p *= 3.0f * u(rng);
+      for (float& n : r.normal) n *= std::ldexp(1.0f, static_cast<int>(rng() % 60) - 30);
+      r.radius = std::ldexp(u(rng), static_cast<int>(rng() % 80) - 40);
+      for (float& l : r.radiance) l = std::ldexp(u(rng), static_cast<int>(rng() % 80) - 40);
+    } else if (i % 4 == 2) {  // normals on the folds and axes, signed zeros
+      const float a = u(rng);
+      const float cases[6][3] = {{a, 1.0f - std::fabs(a), 0.0f},
+                                 {a, std::fabs(a) - 1.0f, -0.0f},
+                                 {0.0f, -0.0f, -1.0f},
+                                 {-0.0f, 0.0f, 1.0f},
+                                 {a, 0.0f, -0.5f},
+                                 {-0.0f, a, -0.25f}};
+      std::memcpy(r.normal, cases[rng() % 6], sizeof r.normal);
+    } else if (i % 16 == 3) {  // anything in any field
+      float* f = r.position;
+      f[rng() % 10] = wild();
+      f[rng() % 10] = wild();
+    }
+  }
+  std::vector<PositionGrid> grids = {Codec(Channels::kOcclusion).grid};
+  PositionGrid far;
+  for (float& o : far.origin) o = 1e5f * u(rng);
+  far.step = 1e-3f;
+  grids.push_back(far);
+  PositionGrid coarse = grids[0];
+  coarse.step *= 4096.0f;
+  grids.push_back(coarse);
+  PositionGrid flat = grids[0];
+  flat.step = 0.0f;
+  grids.push_back(flat);
+  for (Channels ch : {Channels::kOcclusion, Channels::kRadiance}) {
+    for (const PositionGrid& g : grids) {
+      const SpillCodec codec{ch, g};
+      std::vector<SortRecord> want(in.size()), got(in.size());
+      for (size_t i = 0; i < in.size(); ++i) codec.Pack(in[i], &want[i]);
+      codec.PackBlock(in.data(), in.size(), got.data());
+      for (size_t i = 0; i < in.size(); ++i) {
+        ASSERT_EQ(0, std::memcmp(&got[i], &want[i], sizeof(SortRecord)))
+            << "record " << i << " channels " << static_cast<int>(ch) << " step " << g.step;
+      }
+      std::vector<SortRecord> in_place = in;
+      codec.PackBlock(in_place.data(), in_place.size(), in_place.data());
+      ASSERT_EQ(0, std::memcmp(in_place.data(), want.data(), in.size() * sizeof(SortRecord)));
+      for (size_t n = 0; n <= 9; ++n) {
+        for (size_t at = 0; at < 4; ++at) {
+          std::vector<SortRecord> part(in.begin() + at, in.begin() + at + n);
+          codec.PackBlock(part.data(), n, part.data());
+          for (size_t k = 0; k < n; ++k) {
+            ASSERT_EQ(0, std::memcmp(&part[k], &want[at + k], sizeof(SortRecord))) << n << at;
+          }
+        }
+      }
+    }
+  }
 }
 
 // UnpackBlock is Unpack, bit for bit (its SIMD lanes and its scalar tail), for every field
