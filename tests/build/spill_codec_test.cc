@@ -495,6 +495,47 @@ TEST(SpillCodecTest, ExternalSortOverPackedInput) {
   EXPECT_FALSE(unspilled.output_quantized());
 }
 
+// With threads, the caller shares the sort thread's spill when its next run buffer is full
+// (ExternalSorter::HelpSpill: the last half of the blocks left become a run of its own): the
+// same records in the same stable order, from tmp runs and from named runs, and merged again
+// through a merge pass. Whether the caller arrives in time depends on the scheduler, so the
+// sort is repeated until it shared a spill (it shares about every one on an idle machine).
+TEST(SpillCodecTest, SharedSpillsKeepTheOrder) {
+  testing_build::ScratchDir dir("sort_shared");
+  const SpillCodec codec = Codec(Channels::kRadiance);
+  std::vector<SortRecord> in = Records(250000, 19, CloudBounds(), true);
+  for (size_t i = 0; i < in.size(); ++i) in[i].key %= 100003;  // duplicates across the split
+  std::vector<SortRecord> packed(in.size()), want(in.size());
+  for (size_t i = 0; i < in.size(); ++i) codec.Pack(in[i], &packed[i]);
+  std::transform(packed.begin(), packed.end(), want.begin(),
+                 [&](const SortRecord& r) { return codec.Unpack(r); });
+  std::stable_sort(want.begin(), want.end(),
+                   [](const SortRecord& a, const SortRecord& b) { return a.key < b.key; });
+  for (bool named : {false, true}) {
+    for (uint64_t merge_bytes : {uint64_t{64} << 20, uint64_t{200} << 10}) {
+      SCOPED_TRACE(::testing::Message() << "named " << named << " merge " << merge_bytes);
+      uint64_t shared = 0;
+      for (int attempt = 0; attempt < 20 && shared == 0; ++attempt) {
+        const std::filesystem::path runs = dir.path() / "runs";
+        std::filesystem::remove_all(runs);
+        std::filesystem::create_directories(runs);
+        ExternalSorter::Options o{dir.path().string(), 40960, merge_bytes, 2};
+        o.compact = codec;
+        o.packed_input = true;
+        ExternalSorter s(o);
+        if (named) s.SetRunDirectory(runs.string(), nullptr);
+        for (const auto& p : packed) ASSERT_TRUE(s.Add(p).ok());
+        ASSERT_TRUE(s.FinishInput().ok());
+        shared = s.spills_shared();
+        EXPECT_EQ(s.runs_spilled(), (in.size() + 40959) / 40960 + shared);
+        if (merge_bytes < (uint64_t{8} << 20)) EXPECT_GT(s.merge_passes(), 0u);
+        ASSERT_NO_FATAL_FAILURE(ExpectOutput(s, want));
+      }
+      EXPECT_GT(shared, 0u);
+    }
+  }
+}
+
 // Packed output (docs/format.md, "Session 13"): the records in the same stable order as the
 // plain sort's, each as SpillCodec::Pack makes it, from packed or plain input, spilled or not,
 // through merge passes too, with 1 and 2 threads.
