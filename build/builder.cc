@@ -114,7 +114,8 @@ MemoryPlan PlanFor(const BuildOptions& o, int64_t known_count, int threads) {
   // allocations and the process's baseline (code, libraries). Threads add the merge's block
   // pipe and the LMDB writer's page slots, and LMDB's dirty pages then come from the writer
   // thread's malloc arena, which keeps about one more batch of freed pages resident
-  // (docs/design.md, "Memory plan").
+  // (docs/design.md, "Memory plan"). In the input pass, before the pipe exists, the same share
+  // holds the caller's writer of a shared spill (about 1.3 MiB: ExternalSorter::HelpSpill).
   const uint64_t fixed = FixedBytes(o) + (threads > 1 ? 4 * kMiB + p.batch_bytes : 0);
   p.fixed_bytes = fixed;
   uint64_t sort_bytes = m > p.batch_bytes + fixed ? m - p.batch_bytes - fixed : 0;

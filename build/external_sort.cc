@@ -785,8 +785,15 @@ absl::Status ExternalSorter::FinishInput() {
     }
     return absl::OkStatus();
   }
+  if (spiller_.joinable()) {
+    // The last run goes to the sort thread as the others did, and the caller shares its spill.
+    PBGI_RETURN_IF_ERROR(SpillRun());
+    HelpSpill();
+    PBGI_RETURN_IF_ERROR(WaitSpiller());
+  } else {
+    PBGI_RETURN_IF_ERROR(SpillBuffer(records_.get(), size_));
+  }
   StopSpiller();
-  PBGI_RETURN_IF_ERROR(SpillBuffer(records_.get(), size_));
   size_ = 0;
   FreeBuffers();
   if (!run_dir_.empty() && runs_written_) {

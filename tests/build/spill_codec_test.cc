@@ -528,7 +528,9 @@ TEST(SpillCodecTest, SharedSpillsKeepTheOrder) {
         ASSERT_TRUE(s.FinishInput().ok());
         shared = s.spills_shared();
         EXPECT_EQ(s.runs_spilled(), (in.size() + 40959) / 40960 + shared);
-        if (merge_bytes < (uint64_t{8} << 20)) EXPECT_GT(s.merge_passes(), 0u);
+        if (merge_bytes < (uint64_t{8} << 20)) {
+          EXPECT_GT(s.merge_passes(), 0u);
+        }
         ASSERT_NO_FATAL_FAILURE(ExpectOutput(s, want));
       }
       EXPECT_GT(shared, 0u);
