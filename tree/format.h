@@ -312,41 +312,23 @@ inline Int ScaledCode(float c, float s) {
 // finite c has |c / s| <= 1, so |c / s * kMax| <= kMax < 2^31 needs no clamp and truncates
 // exactly to int32, and the remainder and the half-away step are those of RoundHalfAway. A pair
 // with a NaN (std::max skipped it, so s is finite) goes to the scalar formula.
-// The largest magnitude is taken four at a time: max is exact, so its order does not matter,
-// and a NaN, which std::max(s, NaN) skips, counts as 0. An odd last coefficient makes a pair with
-// 0 (docs/format.md, "Session 17").
 template <typename Int, int kMax>
 inline float EncodeScaled(const float* c, int n, Int* q) {
   float s = 0.0f;
-  int k = 0;
-#if defined(__SSE2__)
-  if (n >= 4) {
-    const __m128 magnitude = _mm_castsi128_ps(_mm_set1_epi32(0x7fffffff));
-    __m128 m = _mm_setzero_ps();
-    for (; k + 4 <= n; k += 4) {
-      const __m128 v = _mm_loadu_ps(c + k);
-      m = _mm_max_ps(m, _mm_and_ps(_mm_and_ps(v, magnitude), _mm_cmpord_ps(v, v)));
-    }
-    m = _mm_max_ps(m, _mm_movehl_ps(m, m));
-    m = _mm_max_ss(m, _mm_shuffle_ps(m, m, 1));
-    s = _mm_cvtss_f32(m);
-  }
-#endif
-  for (; k < n; ++k) s = std::max(s, std::fabs(c[k]));
+  for (int k = 0; k < n; ++k) s = std::max(s, std::fabs(c[k]));
   if (!(s > 0.0f) || !std::isfinite(s)) {
     for (int k = 0; k < n; ++k) q[k] = 0;
     return std::isfinite(s) ? 0.0f : s;
   }
-  k = 0;
+  int k = 0;
 #if defined(__SSE2__)
   const __m128d sd = _mm_set1_pd(s), scale = _mm_set1_pd(kMax);
   const __m128d half = _mm_set1_pd(0.5), minus_half = _mm_set1_pd(-0.5), one = _mm_set1_pd(1.0);
-  for (; k < n; k += 2) {
-    const bool pair = k + 1 < n;
-    const __m128d x = _mm_mul_pd(_mm_div_pd(_mm_set_pd(pair ? c[k + 1] : 0.0f, c[k]), sd), scale);
+  for (; k + 2 <= n; k += 2) {
+    const __m128d x = _mm_mul_pd(_mm_div_pd(_mm_set_pd(c[k + 1], c[k]), sd), scale);
     if (_mm_movemask_pd(_mm_cmpunord_pd(x, x)) != 0) {
       q[k] = ScaledCode<Int, kMax>(c[k], s);
-      if (pair) q[k + 1] = ScaledCode<Int, kMax>(c[k + 1], s);
+      q[k + 1] = ScaledCode<Int, kMax>(c[k + 1], s);
       continue;
     }
     const __m128d t = _mm_cvtepi32_pd(_mm_cvttpd_epi32(x));
@@ -355,7 +337,7 @@ inline float EncodeScaled(const float* c, int n, Int* q) {
                                  _mm_and_pd(_mm_cmple_pd(f, minus_half), one));
     const __m128i qi = _mm_cvttpd_epi32(r);
     q[k] = static_cast<Int>(_mm_cvtsi128_si32(qi));
-    if (pair) q[k + 1] = static_cast<Int>(_mm_cvtsi128_si32(_mm_srli_si128(qi, 4)));
+    q[k + 1] = static_cast<Int>(_mm_cvtsi128_si32(_mm_srli_si128(qi, 4)));
   }
 #endif
   for (; k < n; ++k) q[k] = ScaledCode<Int, kMax>(c[k], s);
