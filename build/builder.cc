@@ -48,6 +48,8 @@ namespace internal {
 namespace {
 
 constexpr size_t kBatch = 8192;
+constexpr size_t kUnpackChunk = 256;  // decoded records at a time in the octree pass (12 KiB)
+constexpr size_t kPackChunk = 256;    // records packed at a time in the input pass (12 KiB)
 constexpr uint64_t kProgressEvery = uint64_t{1} << 18;
 constexpr uint64_t kMinRunRecords = 256;
 constexpr uint64_t kMiB = uint64_t{1} << 20;
@@ -112,7 +114,8 @@ MemoryPlan PlanFor(const BuildOptions& o, int64_t known_count, int threads) {
   // allocations and the process's baseline (code, libraries). Threads add the merge's block
   // pipe and the LMDB writer's page slots, and LMDB's dirty pages then come from the writer
   // thread's malloc arena, which keeps about one more batch of freed pages resident
-  // (docs/design.md, "Memory plan").
+  // (docs/design.md, "Memory plan"). In the input pass, before the pipe exists, the same share
+  // holds the caller's writer of a shared spill (about 1.3 MiB: ExternalSorter::HelpSpill).
   const uint64_t fixed = FixedBytes(o) + (threads > 1 ? 4 * kMiB + p.batch_bytes : 0);
   p.fixed_bytes = fixed;
   uint64_t sort_bytes = m > p.batch_bytes + fixed ? m - p.batch_bytes - fixed : 0;
@@ -310,9 +313,16 @@ absl::StatusOr<BuildStats> BuildToSink(SurfelSource& source, PageSink& sink,
   } else {
     const MortonQuantizer quant(bounds);
     const Bounds inside = KeyBoundsTolerance(bounds);
-    // Records are made in place in the sorter's run buffer.
+    // Records are made in place in the sorter's run buffer, and packed there a chunk at a time
+    // (SpillCodec::PackBlock; docs/format.md, "Session 17").
     absl::Span<SortRecord> slots;
-    size_t used = 0;
+    size_t used = 0, packed = 0;
+    auto pack = [&] {
+      if (sort_options.packed_input && used > packed) {
+        sort_options.compact->PackBlock(&slots[packed], used - packed, &slots[packed]);
+      }
+      packed = used;
+    };
     PBGI_RETURN_IF_ERROR(
         for_each_valid("sort", [&](const Surfel& in, uint64_t index) -> absl::Status {
           PBGI_RETURN_IF_ERROR(options.estimate.radius ? range.AddPosition(in, index)
@@ -326,8 +336,9 @@ absl::StatusOr<BuildStats> BuildToSink(SurfelSource& source, PageSink& sink,
                 bounds.lo.z, bounds.hi.x, bounds.hi.y, bounds.hi.z));
           }
           if (used == slots.size()) {
+            pack();
             sorter.Commit(used);
-            used = 0;
+            used = packed = 0;
             PBGI_ASSIGN_OR_RETURN(slots, sorter.Reserve(kBatch));
           }
           Surfel s = in;
@@ -338,13 +349,11 @@ absl::StatusOr<BuildStats> BuildToSink(SurfelSource& source, PageSink& sink,
           }
           if (options.estimate.radius) s.radius = 0.0f;
           if (!radiance) s.radiance = glm::vec3(0.0f);
-          if (sort_options.packed_input) {
-            sort_options.compact->Pack(MakeSortRecord(quant.Key(s.position), s), &slots[used++]);
-          } else {
-            slots[used++] = MakeSortRecord(quant.Key(s.position), s);
-          }
+          slots[used++] = MakeSortRecord(quant.Key(s.position), s);
+          if (used - packed == kPackChunk) pack();
           return absl::OkStatus();
         }));
+    pack();
     sorter.Commit(used);
     PBGI_RETURN_IF_ERROR(sorter.FinishInput());
     stats.seconds_sort = t.Seconds();
@@ -395,13 +404,25 @@ absl::StatusOr<BuildStats> BuildToSink(SurfelSource& source, PageSink& sink,
     }
     return octree.Add(r);
   };
+  // Packed records are decoded a chunk at a time (SpillCodec::UnpackBlock), not one by one as
+  // their point pages take them (docs/format.md, "Session 17").
+  const bool unpack = sorter.output_packed() && !estimate;
+  std::vector<SortRecord> unpacked(unpack ? kUnpackChunk : 0);
   uint64_t done = 0, next_report = kProgressEvery;
   for (;;) {
     PBGI_ASSIGN_OR_RETURN(absl::Span<const SortRecord> recs, sorter.NextBlock());
     if (recs.empty()) break;
     PBGI_RETURN_IF_ERROR(CheckCancel(options));
-    for (const SortRecord& r : recs) {
-      PBGI_RETURN_IF_ERROR(estimate ? estimator.Add(r, to_octree) : octree.Add(r));
+    if (unpack) {
+      for (size_t i = 0; i < recs.size(); i += kUnpackChunk) {
+        const size_t k = std::min(kUnpackChunk, recs.size() - i);
+        sort_options.compact->UnpackBlock(&recs[i], k, unpacked.data());
+        for (size_t j = 0; j < k; ++j) PBGI_RETURN_IF_ERROR(octree.Add(recs[i + j], unpacked[j]));
+      }
+    } else {
+      for (const SortRecord& r : recs) {
+        PBGI_RETURN_IF_ERROR(estimate ? estimator.Add(r, to_octree) : octree.Add(r));
+      }
     }
     done += recs.size();
     if (done >= next_report) {

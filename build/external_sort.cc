@@ -270,7 +270,12 @@ class ExternalSorter::RunWriter {
   RunWriter(int fd, const std::optional<SpillCodec>& codec, const std::string& dir,
             bool packed = false)
       : fd_(fd), dir_(dir), packed_(packed) {
-    if (codec) enc_ = std::make_unique<SpillBlockWriter>(*codec);
+    if (codec) {
+      enc_ = std::make_unique<SpillBlockWriter>(*codec);
+      // Room for a flush's worth and one more block, allocated once: not zero-filled a block
+      // at a time as a growing vector would be.
+      out_.reset(new uint8_t[kFlushBytes + codec->max_block_bytes()]);
+    }
   }
   absl::Status Append(const SortRecord* recs, size_t n) {
     if (enc_ == nullptr) return Write(recs, n * sizeof(SortRecord));
@@ -280,7 +285,32 @@ class ExternalSorter::RunWriter {
       recs += k;
       n -= k;
       if (pending_.size() == kSpillBlockRecords) PBGI_RETURN_IF_ERROR(EncodePending());
-      if (out_.size() >= kFlushBytes) PBGI_RETURN_IF_ERROR(FlushOut());
+    }
+    return absl::OkStatus();
+  }
+  // Appends recs[order[i].index] for i < n, in this order: compact blocks are encoded straight
+  // from `recs`, raw runs go through a chunk.
+  absl::Status AppendGathered(const SortRecord* recs, const KeyIndex* order, size_t n) {
+    if (enc_ == nullptr || !pending_.empty()) {
+      std::vector<SortRecord> chunk(std::min<size_t>(kWriteChunkRecords, n));
+      for (size_t i = 0; i < n;) {
+        const size_t k = std::min(chunk.size(), n - i);
+        for (size_t j = 0; j < k; ++j) {
+          // The gather is random access: fetch a few records ahead.
+          if (i + j + 16 < n) __builtin_prefetch(&recs[order[i + j + 16].index]);
+          chunk[j] = recs[order[i + j].index];
+        }
+        PBGI_RETURN_IF_ERROR(Append(chunk.data(), k));
+        i += k;
+      }
+      return absl::OkStatus();
+    }
+    for (size_t i = 0; i < n; i += kSpillBlockRecords) {
+      const size_t k = std::min<size_t>(kSpillBlockRecords, n - i);
+      PBGI_ASSIGN_OR_RETURN(size_t bytes,
+                            enc_->EncodeGathered(recs, absl::MakeConstSpan(order + i, k),
+                                                 out_.get() + out_len_, packed_));
+      PBGI_RETURN_IF_ERROR(Wrote(bytes));
     }
     return absl::OkStatus();
   }
@@ -300,15 +330,22 @@ class ExternalSorter::RunWriter {
     offset_ += bytes;
     return absl::OkStatus();
   }
-  absl::Status EncodePending() {
-    PBGI_RETURN_IF_ERROR(enc_->Append(absl::MakeConstSpan(pending_), &out_, packed_));
-    pending_.clear();
+  // A block of `bytes` was encoded at out_ + out_len_.
+  absl::Status Wrote(size_t bytes) {
+    out_len_ += bytes;
+    if (out_len_ >= kFlushBytes) return FlushOut();
     return absl::OkStatus();
   }
+  absl::Status EncodePending() {
+    PBGI_ASSIGN_OR_RETURN(
+        size_t bytes, enc_->Encode(absl::MakeConstSpan(pending_), out_.get() + out_len_, packed_));
+    pending_.clear();
+    return Wrote(bytes);
+  }
   absl::Status FlushOut() {
-    if (out_.empty()) return absl::OkStatus();
-    PBGI_RETURN_IF_ERROR(Write(out_.data(), out_.size()));
-    out_.clear();
+    if (out_len_ == 0) return absl::OkStatus();
+    PBGI_RETURN_IF_ERROR(Write(out_.get(), out_len_));
+    out_len_ = 0;
     return absl::OkStatus();
   }
   int fd_;
@@ -316,7 +353,8 @@ class ExternalSorter::RunWriter {
   bool packed_;
   std::unique_ptr<SpillBlockWriter> enc_;
   std::vector<SortRecord> pending_;
-  std::vector<uint8_t> out_;
+  std::unique_ptr<uint8_t[]> out_;  // compact: encoded blocks not yet written
+  size_t out_len_ = 0;
   uint64_t offset_ = 0;
   uint32_t crc_ = 0;
 };
@@ -528,6 +566,7 @@ absl::Status ExternalSorter::SpillRun() {
     return s;
   }
   // Hand the full buffer to the sort thread and go on filling the other one.
+  HelpSpill();
   PBGI_RETURN_IF_ERROR(WaitSpiller());
   if (!spiller_.joinable()) {
     spare_.reset(new SortRecord[options_.run_capacity]);
@@ -559,7 +598,8 @@ void ExternalSorter::SpillerLoop() {
       if (spill_quit_) return;
       n = spill_job_;
     }
-    absl::Status s = spill_status_.ok() ? SpillBuffer(spare_.get(), n) : absl::OkStatus();
+    absl::Status s = spill_status_.ok() ? SpillBuffer(spare_.get(), n, options_.compact.has_value())
+                                        : absl::OkStatus();
     {
       std::lock_guard<std::mutex> l(spill_mu_);
       if (spill_status_.ok()) spill_status_ = s;
@@ -579,37 +619,123 @@ void ExternalSorter::StopSpiller() {
   spiller_.join();
 }
 
-absl::Status ExternalSorter::SpillBuffer(const SortRecord* recs, uint64_t n) {
+absl::Status ExternalSorter::SpillBuffer(const SortRecord* recs, uint64_t n, bool share) {
   if (n == 0) return absl::OkStatus();
   SortBuffer(recs, n);
   PBGI_ASSIGN_OR_RETURN(Run run, NewRunFile(!run_dir_.empty()));
   runs_.push_back(run);
   RunWriter writer(run.fd, options_.compact, options_.tmp_dir, options_.packed_input);
-  std::vector<SortRecord> chunk(std::min<uint64_t>(kWriteChunkRecords, n));
-  for (uint64_t i = 0; i < n;) {
-    size_t k = static_cast<size_t>(std::min<uint64_t>(chunk.size(), n - i));
-    for (size_t j = 0; j < k; ++j) {
-      // The gather is random access: fetch a few records ahead.
-      if (i + j + 16 < n) __builtin_prefetch(&recs[sorted_[i + j + 16].index]);
-      chunk[j] = recs[sorted_[i + j].index];
+  absl::Status s;
+  uint64_t front_records = n;
+  if (!share) {
+    s = writer.AppendGathered(recs, sorted_, static_cast<size_t>(n));
+  } else {
+    const uint64_t blocks = (n + kSpillBlockRecords - 1) / kSpillBlockRecords;
+    {
+      std::lock_guard<std::mutex> l(spill_mu_);
+      shared_ = SharedSpill{};
+      shared_.recs = recs;
+      shared_.order = sorted_;
+      shared_.n = n;
+      shared_.blocks = blocks;
+      shared_.split = blocks;
+      shared_.open = true;
     }
-    absl::Status s = writer.Append(chunk.data(), k);
-    if (s.ok() && i + k == n) s = writer.Finish();
-    if (!s.ok()) {
-      return absl::Status(s.code(), absl::StrFormat("sort run %d (input records %d..%d), byte "
-                                                    "offset %d: %s",
-                                                    runs_.size() - 1, total_, total_ + n - 1,
-                                                    writer.bytes(), s.message()));
+    spill_cv_.notify_all();
+    for (;;) {
+      uint64_t b = 0;
+      {
+        std::lock_guard<std::mutex> l(spill_mu_);
+        if (!s.ok() || shared_.front >= shared_.split) {
+          shared_.open = false;
+          front_records = std::min(n, shared_.split * kSpillBlockRecords);
+          break;
+        }
+        b = shared_.front++;
+      }
+      const uint64_t at = b * kSpillBlockRecords;
+      s = writer.AppendGathered(
+          recs, sorted_ + at, static_cast<size_t>(std::min<uint64_t>(kSpillBlockRecords, n - at)));
     }
-    i += k;
+    // The caller reads `recs` until its part is written.
+    std::unique_lock<std::mutex> l(spill_mu_);
+    spill_cv_.wait(l, [&] { return !shared_.claimed || shared_.back_done; });
   }
-  runs_.back().count = n;
-  runs_.back().bytes = writer.bytes();
-  runs_.back().crc = writer.crc();
-  spill_bytes_ += writer.bytes();
-  ++runs_spilled_;
+  if (s.ok()) s = writer.Finish();
+  const size_t front = runs_.size() - 1;
+  runs_[front].count = front_records;
+  runs_[front].bytes = writer.bytes();
+  runs_[front].crc = writer.crc();
+  bool shared = false;
+  if (share) {
+    std::lock_guard<std::mutex> l(spill_mu_);
+    shared = shared_.claimed;
+    // The caller's run holds the sorted records after front_records, so it follows this one
+    // (the merge breaks ties by run order). Kept in runs_ on error too, to be closed.
+    if (shared && shared_.back.fd >= 0) runs_.push_back(shared_.back);
+    if (shared && s.ok()) s = shared_.back_status;
+    shared_ = SharedSpill{};
+  }
+  if (!s.ok()) {
+    return absl::Status(
+        s.code(), absl::StrFormat("sort run %d (input records %d..%d), byte "
+                                  "offset %d: %s",
+                                  front, total_, total_ + n - 1, writer.bytes(), s.message()));
+  }
+  for (size_t r = front; r < runs_.size(); ++r) {
+    spill_bytes_ += runs_[r].bytes;
+    ++runs_spilled_;
+  }
+  if (shared) ++spills_shared_;
   total_ += n;
   return absl::OkStatus();
+}
+
+void ExternalSorter::HelpSpill() {
+  // Fewer blocks than this are not worth a run of their own.
+  constexpr uint64_t kMinSharedBlocks = 16;
+  const SortRecord* recs = nullptr;
+  const KeyIndex* order = nullptr;
+  uint64_t n = 0, from = 0;
+  {
+    std::unique_lock<std::mutex> l(spill_mu_);
+    spill_cv_.wait(l, [&] { return !spill_busy_ || shared_.open; });
+    if (!spill_busy_ || !shared_.open || shared_.claimed) return;
+    const uint64_t left = shared_.split - shared_.front;
+    if (left < 2 * kMinSharedBlocks) return;
+    shared_.split = shared_.front + (left + 1) / 2;
+    shared_.claimed = true;
+    recs = shared_.recs;
+    order = shared_.order;
+    n = shared_.n;
+    from = shared_.split * kSpillBlockRecords;
+  }
+  Run back;
+  absl::Status s;
+  absl::StatusOr<Run> file = NewRunFile(!run_dir_.empty());
+  if (!file.ok()) {
+    s = file.status();
+  } else {
+    back = *file;
+    RunWriter writer(back.fd, options_.compact, options_.tmp_dir, options_.packed_input);
+    s = writer.AppendGathered(recs, order + from, static_cast<size_t>(n - from));
+    if (s.ok()) s = writer.Finish();
+    back.count = n - from;
+    back.bytes = writer.bytes();
+    back.crc = writer.crc();
+    if (!s.ok()) {
+      s = absl::Status(s.code(), absl::StrFormat("the second part of a sort run (its sorted "
+                                                 "records from %d on), byte offset %d: %s",
+                                                 from, writer.bytes(), s.message()));
+    }
+  }
+  {
+    std::lock_guard<std::mutex> l(spill_mu_);
+    shared_.back = back;
+    shared_.back_status = s;
+    shared_.back_done = true;
+  }
+  spill_cv_.notify_all();
 }
 
 void ExternalSorter::FreeBuffers() {
@@ -645,7 +771,10 @@ absl::Status ExternalSorter::MergeRuns(std::vector<Run> in, size_t buffer_record
 absl::Status ExternalSorter::FinishInput() {
   if (finished_) return absl::FailedPreconditionError("ExternalSorter::FinishInput called twice");
   finished_ = true;
-  if (options_.threads > 1) PBGI_RETURN_IF_ERROR(WaitSpiller());
+  if (options_.threads > 1) {
+    HelpSpill();
+    PBGI_RETURN_IF_ERROR(WaitSpiller());
+  }
   if (runs_.empty()) {
     SortBuffer(records_.get(), size_);
     total_ = size_;
@@ -656,8 +785,15 @@ absl::Status ExternalSorter::FinishInput() {
     }
     return absl::OkStatus();
   }
+  if (spiller_.joinable()) {
+    // The last run goes to the sort thread as the others did, and the caller shares its spill.
+    PBGI_RETURN_IF_ERROR(SpillRun());
+    HelpSpill();
+    PBGI_RETURN_IF_ERROR(WaitSpiller());
+  } else {
+    PBGI_RETURN_IF_ERROR(SpillBuffer(records_.get(), size_));
+  }
   StopSpiller();
-  PBGI_RETURN_IF_ERROR(SpillBuffer(records_.get(), size_));
   size_ = 0;
   FreeBuffers();
   if (!run_dir_.empty() && runs_written_) {

@@ -44,10 +44,6 @@
 
 namespace pbgi::internal {
 
-struct KeyIndex {
-  uint64_t key;
-  uint64_t index;
-};
 // Sorts `pairs` by key, stably: MSD radix passes on 8-bit digits of the bits that differ between
 // the keys, the highest first, each bucket split again until it is small enough for an insertion
 // sort. `scratch` has the same size. Returns whichever of the two arrays holds the result.
@@ -185,6 +181,8 @@ class ExternalSorter {
   bool output_packed() const { return options_.compact.has_value() && options_.packed_output; }
 
   uint64_t runs_spilled() const { return runs_spilled_; }
+  // Input runs whose spill the caller shared (HelpSpill): each made two runs.
+  uint64_t spills_shared() const { return spills_shared_; }
   uint64_t merge_passes() const { return merge_passes_; }
   uint64_t spill_bytes() const { return spill_bytes_; }
   uint64_t records() const { return total_; }
@@ -205,8 +203,14 @@ class ExternalSorter {
   // Sorts recs[0, n) into sorted_ (pairs_ / scratch_).
   void SortBuffer(const SortRecord* recs, uint64_t n);
   absl::Status SpillRun();
-  // Sorts and writes recs[0, n) as a new run (caller's thread or the sort thread).
-  absl::Status SpillBuffer(const SortRecord* recs, uint64_t n);
+  // Sorts and writes recs[0, n) as a new run (caller's thread or the sort thread). `share`
+  // (the sort thread, compact runs): the caller may take the second half of the blocks left
+  // (HelpSpill), which it writes as a run of its own right after this one.
+  absl::Status SpillBuffer(const SortRecord* recs, uint64_t n, bool share = false);
+  // The caller, its run buffer full while the sort thread spills: encodes and writes the last
+  // half of the spill's blocks not yet taken, if there are enough, instead of waiting idle
+  // (docs/format.md, "Session 17").
+  void HelpSpill();
   // Sort thread: waits until it is idle and returns its error, if any.
   absl::Status WaitSpiller();
   void SpillerLoop();
@@ -246,6 +250,23 @@ class ExternalSorter {
   bool spill_busy_ = false;    // guarded by spill_mu_
   bool spill_quit_ = false;    // guarded by spill_mu_
   absl::Status spill_status_;  // guarded by spill_mu_
+  // The sort thread's spill that the caller may share, blocks of kSpillBlockRecords in sorted
+  // order: the sort thread takes them from the front up to `split`, the caller [split, blocks).
+  struct SharedSpill {
+    const SortRecord* recs = nullptr;
+    const KeyIndex* order = nullptr;
+    uint64_t n = 0;
+    uint64_t blocks = 0;
+    uint64_t front = 0;  // blocks the sort thread has taken
+    uint64_t split = 0;
+    bool open = false;     // the caller may claim
+    bool claimed = false;  // the caller took [split, blocks)
+    bool back_done = false;
+    Run back;  // the caller's run
+    absl::Status back_status;
+  };
+  SharedSpill shared_;  // guarded by spill_mu_
+  uint64_t spills_shared_ = 0;
   std::unique_ptr<BlockPipe> pipe_;
   absl::Span<const SortRecord> cur_;  // Next() over the pipe: the block being copied out
   size_t cur_pos_ = 0;

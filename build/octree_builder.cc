@@ -36,6 +36,19 @@ absl::Status PointPageWriter::Add(const SortRecord& r, SortRecord* stored) {
   return absl::OkStatus();
 }
 
+absl::Status PointPageWriter::AddPacked(const SortRecord& r) {
+  // Copies of a constant size (two moves, not a call).
+  uint8_t* dst = buf_.data() + size_t{count_} * record_size_;
+  if (record_size_ == kPointRecordRadianceBytes) {
+    std::memcpy(dst, SpillCodec::PackedBytes(&r), kPointRecordRadianceBytes);
+  } else {
+    std::memcpy(dst, SpillCodec::PackedBytes(&r), kPointRecordOcclusionBytes);
+  }
+  ++points_;
+  if (++count_ == per_page_) return Flush();
+  return absl::OkStatus();
+}
+
 absl::Status PointPageWriter::Flush() {
   if (count_ == 0) return absl::OkStatus();
   absl::Status s =
@@ -107,7 +120,13 @@ OctreeBuilder::OctreeBuilder(uint32_t leaf_size, Channels channels, PointPageWri
   stack_.reserve(kMaxSplitDepth + 1);
 }
 
-absl::Status OctreeBuilder::Add(const SortRecord& r) {
+absl::Status OctreeBuilder::Add(const SortRecord& r) { return Push(r, nullptr); }
+
+absl::Status OctreeBuilder::Add(const SortRecord& r, const SortRecord& stored) {
+  return Push(r, &stored);
+}
+
+absl::Status OctreeBuilder::Push(const SortRecord& r, const SortRecord* stored) {
   if (any_ && r.key < last_key_) {
     return absl::InternalError(absl::StrFormat("octree pass: point %d arrived out of Morton order",
                                                next_point_ + window_size_));
@@ -117,12 +136,18 @@ absl::Status OctreeBuilder::Add(const SortRecord& r) {
   last_key_ = r.key;
   last_rank_ = rank;
   const size_t cap = window_.size();
-  window_[(window_head_ + window_size_) % cap] = r;
-  window_rank_[(window_head_ + window_size_) % cap] = rank;
+  const size_t at = (window_head_ + window_size_) % cap;
+  window_[at] = r;
+  window_rank_[at] = rank;
+  if (stored != nullptr) {
+    if (window_stored_.empty()) window_stored_.resize(cap);
+    window_stored_[at] = *stored;
+  }
   if (++window_size_ == cap) {
     // The oldest point is i, the newest i + leaf_size.
-    PBGI_RETURN_IF_ERROR(
-        Process(window_[window_head_], window_rank_[window_head_], true, r.key, rank));
+    PBGI_RETURN_IF_ERROR(Process(window_[window_head_],
+                                 stored != nullptr ? &window_stored_[window_head_] : nullptr,
+                                 window_rank_[window_head_], true, r.key, rank));
     window_head_ = (window_head_ + 1) % cap;
     --window_size_;
   }
@@ -192,16 +217,19 @@ absl::Status OctreeBuilder::CloseTop() {
   ClosedNode c;
   c.node = MakeRecord(n, false);
   PBGI_RETURN_IF_ERROR(packer_->CloseInterior(absl::MakeSpan(n.children), &c));
-  return Deliver(std::move(c), n.agg, n.count);
+  PBGI_RETURN_IF_ERROR(Deliver(std::move(c), n.agg, n.count));
+  n.children.clear();
+  spare_children_.push_back(std::move(n.children));
+  return absl::OkStatus();
 }
 
-absl::Status OctreeBuilder::Process(const SortRecord& r, uint32_t rank, bool have_ahead,
-                                    uint64_t ahead_key, uint32_t ahead_rank) {
+absl::Status OctreeBuilder::Process(const SortRecord& r, const SortRecord* stored, uint32_t rank,
+                                    bool have_ahead, uint64_t ahead_key, uint32_t ahead_rank) {
   if (leaf_open_) {
     if (PrefixAt(r.key, rank, leaf_.depth) == leaf_.prefix) {
       ++leaf_.count;
       ++next_point_;
-      return AddPoint(r);
+      return AddPoint(r, stored);
     }
     PBGI_RETURN_IF_ERROR(CloseLeaf());
   }
@@ -225,24 +253,37 @@ absl::Status OctreeBuilder::Process(const SortRecord& r, uint32_t rank, bool hav
       leaf_open_ = true;
       break;
     }
+    if (spare_children_.empty()) {
+      n.children.reserve(8);
+    } else {
+      n.children = std::move(spare_children_.back());
+      spare_children_.pop_back();
+    }
     stack_.push_back(std::move(n));
   }
   ++leaf_.count;
   ++next_point_;
-  return AddPoint(r);
+  return AddPoint(r, stored);
 }
 
-absl::Status OctreeBuilder::AddPoint(const SortRecord& r) {
-  SortRecord stored;
-  PBGI_RETURN_IF_ERROR(points_->Add(r, &stored));
-  leaf_.agg.AddPoint(stored, HasRadiance(channels_));
+absl::Status OctreeBuilder::AddPoint(const SortRecord& r, const SortRecord* stored) {
+  if (stored != nullptr) {
+    PBGI_RETURN_IF_ERROR(points_->AddPacked(r));
+    leaf_.agg.AddPoint(*stored, HasRadiance(channels_));
+    return absl::OkStatus();
+  }
+  SortRecord as_stored;
+  PBGI_RETURN_IF_ERROR(points_->Add(r, &as_stored));
+  leaf_.agg.AddPoint(as_stored, HasRadiance(channels_));
   return absl::OkStatus();
 }
 
 absl::StatusOr<NodeRef> OctreeBuilder::Finish() {
   const size_t cap = window_.size();
   while (window_size_ > 0) {
-    PBGI_RETURN_IF_ERROR(Process(window_[window_head_], window_rank_[window_head_], false, 0, 0));
+    PBGI_RETURN_IF_ERROR(Process(window_[window_head_],
+                                 window_stored_.empty() ? nullptr : &window_stored_[window_head_],
+                                 window_rank_[window_head_], false, 0, 0));
     window_head_ = (window_head_ + 1) % cap;
     --window_size_;
   }

@@ -44,6 +44,9 @@ class PointPageWriter {
   // already, so Add copies them into the page and decodes them once for *stored, instead of
   // encoding the record (docs/format.md, "Session 13").
   void set_input_packed(bool p) { input_packed_ = p; }
+  // With set_input_packed: appends r's point record, whose decoded form the caller already has
+  // (SpillCodec::UnpackBlock, a block at a time).
+  absl::Status AddPacked(const SortRecord& r);
   absl::Status Flush();
   uint64_t pages() const { return next_page_; }
   uint64_t points() const { return points_; }
@@ -86,6 +89,10 @@ class OctreeBuilder {
   OctreeBuilder(uint32_t leaf_size, Channels channels, PointPageWriter* points, NodePacker* packer);
   // Points must arrive in non-decreasing key order.
   absl::Status Add(const SortRecord& r);
+  // As Add, for a PointPageWriter with set_input_packed, with `stored` = SpillCodec::Unpack(r)
+  // made beforehand (SpillCodec::UnpackBlock), so that AddPoint does not decode r again. Use
+  // either this or Add for all the points of a build.
+  absl::Status Add(const SortRecord& r, const SortRecord& stored);
   // Closes every open node and returns the root's ref. REQUIRES: at least one point.
   absl::StatusOr<NodeRef> Finish();
   const OctreeStats& stats() const { return stats_; }
@@ -102,10 +109,13 @@ class OctreeBuilder {
 
   // `rank`: the point's rank among the points of its key (tree/morton.h, kVirtualLevels); the
   // ahead point is the one leaf_size places later.
-  absl::Status Process(const SortRecord& r, uint32_t rank, bool have_ahead, uint64_t ahead_key,
-                       uint32_t ahead_rank);
+  // `stored`: r as its point page holds it, when known (else null).
+  absl::Status Process(const SortRecord& r, const SortRecord* stored, uint32_t rank,
+                       bool have_ahead, uint64_t ahead_key, uint32_t ahead_rank);
   // Writes r to its point page and adds it, as stored, to the open leaf's aggregate.
-  absl::Status AddPoint(const SortRecord& r);
+  absl::Status AddPoint(const SortRecord& r, const SortRecord* stored);
+  // Puts r (and `stored`, if not null) into the window; processes the oldest point when full.
+  absl::Status Push(const SortRecord& r, const SortRecord* stored);
   PendingNode MakeRecord(const OpenNode& n, bool leaf) const;
   absl::Status CloseLeaf();
   absl::Status CloseTop();
@@ -118,12 +128,16 @@ class OctreeBuilder {
   // Look-ahead window: a ring of leaf_size + 1 records.
   std::vector<SortRecord> window_;
   std::vector<uint32_t> window_rank_;  // each window record's rank (same ring positions)
+  std::vector<SortRecord> window_stored_;  // Add(r, stored): each record's `stored` (same ring)
   size_t window_head_ = 0, window_size_ = 0;
   uint32_t last_rank_ = 0;
   uint64_t next_point_ = 0;  // global index of the next point to place
   uint64_t last_key_ = 0;
   bool any_ = false;
   std::vector<OpenNode> stack_;  // open interior nodes, root first
+  // Children vectors of closed interior nodes, emptied with their capacity kept: an interior
+  // node takes one instead of growing a new one (4 allocations for 8 children).
+  std::vector<std::vector<ClosedNode>> spare_children_;
   bool leaf_open_ = false;
   OpenNode leaf_;
   bool have_root_ = false;

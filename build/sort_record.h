@@ -20,6 +20,12 @@ struct SortRecord {
 };
 static_assert(sizeof(SortRecord) == 48);
 
+// A record's sort key and its index in the run buffer (build/external_sort.h).
+struct KeyIndex {
+  uint64_t key;
+  uint64_t index;
+};
+
 inline SortRecord MakeSortRecord(uint64_t key, const Surfel& s) {
   return SortRecord{key,
                     {s.position.x, s.position.y, s.position.z},

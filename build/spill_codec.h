@@ -56,15 +56,28 @@ struct SpillCodec {
     std::memset(p, 0, sizeof(SortRecord) - sizeof(uint64_t));
     EncodePointRecord(r.position, r.normal, r.radius, r.radiance, channels, grid, p);
   }
+  // Pack(in[i], &out[i]) for i < n, bit for bit, four records at a time with SSE2 where their
+  // fields are finite and their normals not zero (the builder's; the others go to Pack). `out`
+  // may be `in` (packs in place) or not overlap it.
+  void PackBlock(const SortRecord* in, size_t n, SortRecord* out) const;
   SortRecord Unpack(const SortRecord& packed) const {
     return MakeSortRecord(packed.key, DecodePointRecord(PackedBytes(&packed), channels, grid));
   }
+  // out[i] = Unpack(packed[i]) for i < n, bit for bit, four records at a time with SSE2 (the
+  // x86-64 baseline): the octahedral normal's branch on the lower hemisphere mispredicted on
+  // walls, where z is near 0 (docs/format.md, "Session 17"). `out` may not overlap `packed`.
+  void UnpackBlock(const SortRecord* packed, size_t n, SortRecord* out) const;
   static uint8_t* PackedBytes(SortRecord* r) { return reinterpret_cast<uint8_t*>(r->position); }
   static const uint8_t* PackedBytes(const SortRecord* r) {
     return reinterpret_cast<const uint8_t*>(r->position);
   }
 };
 static_assert(sizeof(SortRecord) - sizeof(uint64_t) >= kPointRecordRadianceBytes);
+
+// The depth-21 cell of a Morton key (tree/morton.h), packed as a point record's cell (PackCell):
+// a stored cell is XORed with its key's cell, which leaves a column of mostly zeros (a position's
+// grid cell is its key's cell give or take rounding, GridOfCube). Bit 63 of the key is ignored.
+uint64_t KeyCell(uint64_t key);
 
 class SpillBlockWriter {
  public:
@@ -77,8 +90,20 @@ class SpillBlockWriter {
   // are packed (SpillCodec::Pack), else plain.
   absl::Status Append(absl::Span<const SortRecord> recs, std::vector<uint8_t>* out,
                       bool packed = false);
+  // The same block written at `dst`, which has room for SpillCodec::max_block_bytes(); returns
+  // its size.
+  absl::StatusOr<size_t> Encode(absl::Span<const SortRecord> recs, uint8_t* dst,
+                                bool packed = false);
+  // Encode of the records base[order[i].index], gathered from a run buffer in sorted order
+  // without copying them first (docs/format.md, "Session 17").
+  absl::StatusOr<size_t> EncodeGathered(const SortRecord* base, absl::Span<const KeyIndex> order,
+                                        uint8_t* dst, bool packed = false);
 
  private:
+  // Fills raw_ with the columns of n records, record(i) the i-th, then compresses it at dst.
+  template <typename Record>
+  absl::StatusOr<size_t> EncodeBlock(size_t n, const Record& record, uint8_t* dst, bool packed);
+
   SpillCodec codec_;
   void* cctx_ = nullptr;  // ZSTD_CCtx
   std::vector<uint8_t> raw_;

@@ -7,12 +7,15 @@
 #include "build/spill_codec.h"
 
 #include <algorithm>
+#include <cmath>
 #include <cstring>
 #include <filesystem>
+#include <limits>
 #include <random>
 #include <vector>
 
 #include "build/external_sort.h"
+#include "build/node_packer.h"
 #include "build/octree_builder.h"
 #include "gtest/gtest.h"
 #include "store/mem_page_store.h"
@@ -255,6 +258,204 @@ TEST(SpillCodecTest, PackedRecordsGiveTheSameBlocks) {
   }
 }
 
+// A block encoded straight from a run buffer through a permutation (EncodeGathered, the sort
+// thread's spill) is the block of the records gathered first: the same bytes, packed or plain,
+// for one record, a part block and a full one.
+TEST(SpillCodecTest, GatheredBlocksAreTheBlocksOfTheGatheredRecords) {
+  for (Channels ch : {Channels::kOcclusion, Channels::kRadiance}) {
+    const SpillCodec codec = Codec(ch);
+    const std::vector<SortRecord> in = Records(3000, 31, CloudBounds(), true);
+    std::vector<SortRecord> packed(in.size());
+    for (size_t i = 0; i < in.size(); ++i) codec.Pack(in[i], &packed[i]);
+    std::vector<KeyIndex> order(in.size());
+    for (size_t i = 0; i < in.size(); ++i) order[i] = KeyIndex{in[i].key, i};
+    std::mt19937_64 rng(5);
+    std::shuffle(order.begin(), order.end(), rng);
+    for (bool is_packed : {false, true}) {
+      const std::vector<SortRecord>& base = is_packed ? packed : in;
+      for (size_t n : {size_t{1}, size_t{700}, size_t{kSpillBlockRecords}}) {
+        std::vector<SortRecord> gathered;
+        for (size_t i = 0; i < n; ++i) gathered.push_back(base[order[i].index]);
+        SpillBlockWriter a(codec), b(codec);
+        std::vector<uint8_t> want;
+        ASSERT_TRUE(a.Append(gathered, &want, is_packed).ok());
+        std::vector<uint8_t> got(codec.max_block_bytes());
+        auto size = b.EncodeGathered(base.data(), absl::MakeConstSpan(order).subspan(0, n),
+                                     got.data(), is_packed);
+        ASSERT_TRUE(size.ok()) << size.status();
+        got.resize(*size);
+        EXPECT_EQ(got, want) << n << " packed " << is_packed;
+      }
+    }
+  }
+}
+
+// KeyCell is the key's bits 0, 3, 6, ... (x), 1, 4, 7, ... (y) and 2, 5, 8, ... (z), each in
+// its 21-bit field, bit by bit, for random keys, single bits and all ones.
+TEST(SpillCodecTest, KeyCellDeinterleavesTheKey) {
+  auto slow = [](uint64_t key) {
+    uint64_t cell = 0;
+    for (int b = 0; b < kGridBits; ++b) {
+      for (int axis = 0; axis < 3; ++axis) {
+        cell |= ((key >> (3 * b + axis)) & 1) << (axis * kGridBits + b);
+      }
+    }
+    return cell;
+  };
+  std::mt19937_64 rng(63);
+  std::vector<uint64_t> keys = {0, ~uint64_t{0}, uint64_t{1} << 63};
+  for (int b = 0; b < 64; ++b) keys.push_back(uint64_t{1} << b);
+  for (int i = 0; i < 100000; ++i) keys.push_back(rng());
+  for (uint64_t k : keys) ASSERT_EQ(KeyCell(k), slow(k)) << std::hex << k;
+  const MortonQuantizer quant(CloudBounds());
+  const glm::vec3 p(0.25f, -1.5f, 2.0f);
+  EXPECT_EQ(KeyCell(quant.Key(p)), slow(quant.Key(p)));
+}
+
+// PackBlock is Pack, bit for bit, in place or not: records as the builder makes them (finite,
+// normalized normals) and not (unnormalized, zero and signed-zero normals, normals on the folds,
+// positions on and off the grid, radii and radiance from denormals to 2^100 with either sign,
+// zeros, -0, infinities and NaN in any field), on several grids and on one with a zero step.
+TEST(SpillCodecTest, PackBlockIsPack) {
+  std::mt19937_64 rng(17);
+  std::uniform_real_distribution<float> u(-1.0f, 1.0f);
+  auto wild = [&]() -> float {
+    switch (rng() % 12) {
+      case 0:
+        return 0.0f;
+      case 1:
+        return -0.0f;
+      case 2:
+        return std::numeric_limits<float>::infinity();
+      case 3:
+        return std::numeric_limits<float>::quiet_NaN();
+      case 4:
+        return std::numeric_limits<float>::denorm_min() * float(rng() % 1000);
+      default:
+        return std::ldexp(u(rng), static_cast<int>(rng() % 200) - 100);
+    }
+  };
+  const Bounds b = CloudBounds();
+  std::vector<SortRecord> in = Records(20000, 41, b, true);
+  for (size_t i = 0; i < in.size(); ++i) {
+    SortRecord& r = in[i];
+    if (i % 4 == 1) {  // positions off the grid, unnormalized normals, wide magnitudes
+      for (float& p : r.position) p *= 3.0f * u(rng);
+      for (float& n : r.normal) n *= std::ldexp(1.0f, static_cast<int>(rng() % 60) - 30);
+      r.radius = std::ldexp(u(rng), static_cast<int>(rng() % 80) - 40);
+      for (float& l : r.radiance) l = std::ldexp(u(rng), static_cast<int>(rng() % 80) - 40);
+    } else if (i % 4 == 2) {  // normals on the folds and axes, signed zeros
+      const float a = u(rng);
+      const float cases[6][3] = {{a, 1.0f - std::fabs(a), 0.0f},
+                                 {a, std::fabs(a) - 1.0f, -0.0f},
+                                 {0.0f, -0.0f, -1.0f},
+                                 {-0.0f, 0.0f, 1.0f},
+                                 {a, 0.0f, -0.5f},
+                                 {-0.0f, a, -0.25f}};
+      std::memcpy(r.normal, cases[rng() % 6], sizeof r.normal);
+    } else if (i % 16 == 3) {  // anything in any field
+      float* f = r.position;
+      f[rng() % 10] = wild();
+      f[rng() % 10] = wild();
+    }
+  }
+  std::vector<PositionGrid> grids = {Codec(Channels::kOcclusion).grid};
+  PositionGrid far;
+  for (float& o : far.origin) o = 1e5f * u(rng);
+  far.step = 1e-3f;
+  grids.push_back(far);
+  PositionGrid coarse = grids[0];
+  coarse.step *= 4096.0f;
+  grids.push_back(coarse);
+  PositionGrid flat = grids[0];
+  flat.step = 0.0f;
+  grids.push_back(flat);
+  for (Channels ch : {Channels::kOcclusion, Channels::kRadiance}) {
+    for (const PositionGrid& g : grids) {
+      const SpillCodec codec{ch, g};
+      std::vector<SortRecord> want(in.size()), got(in.size());
+      for (size_t i = 0; i < in.size(); ++i) codec.Pack(in[i], &want[i]);
+      codec.PackBlock(in.data(), in.size(), got.data());
+      for (size_t i = 0; i < in.size(); ++i) {
+        ASSERT_EQ(0, std::memcmp(&got[i], &want[i], sizeof(SortRecord)))
+            << "record " << i << " channels " << static_cast<int>(ch) << " step " << g.step;
+      }
+      std::vector<SortRecord> in_place = in;
+      codec.PackBlock(in_place.data(), in_place.size(), in_place.data());
+      ASSERT_EQ(0, std::memcmp(in_place.data(), want.data(), in.size() * sizeof(SortRecord)));
+      for (size_t n = 0; n <= 9; ++n) {
+        for (size_t at = 0; at < 4; ++at) {
+          std::vector<SortRecord> part(in.begin() + at, in.begin() + at + n);
+          codec.PackBlock(part.data(), n, part.data());
+          for (size_t k = 0; k < n; ++k) {
+            ASSERT_EQ(0, std::memcmp(&part[k], &want[at + k], sizeof(SortRecord))) << n << at;
+          }
+        }
+      }
+    }
+  }
+}
+
+// UnpackBlock is Unpack, bit for bit (its SIMD lanes and its scalar tail), for every field
+// value a packed record can hold: random bytes (any cell, the two-sided bit, every octahedral
+// code including -32768, radius and radiance codes with zero exponents, negative radiance),
+// every octahedral code pair on a lattice through the folds (z = 0, x = 0, y = 0), on the
+// builder's grid and on grids far from the origin with steps from 2^-30 to 2^20.
+TEST(SpillCodecTest, UnpackBlockIsUnpack) {
+  std::mt19937_64 rng(20);
+  std::vector<PositionGrid> grids = {Codec(Channels::kOcclusion).grid};
+  std::uniform_real_distribution<float> origin(-1e6f, 1e6f);
+  for (int e = -30; e <= 20; e += 5) {
+    PositionGrid g;
+    for (float& o : g.origin) o = origin(rng);
+    g.step = std::ldexp(1.0f + float(rng() % 1000) / 1000.0f, e);
+    grids.push_back(g);
+  }
+  std::vector<SortRecord> packed;
+  for (int i = 0; i < 20000; ++i) {
+    SortRecord r;
+    std::memset(&r, 0, sizeof r);
+    r.key = rng();
+    uint64_t words[3] = {rng(), rng(), rng()};
+    std::memcpy(SpillCodec::PackedBytes(&r), words, kPointRecordRadianceBytes);
+    if (i % 7 == 0) {  // zero exponents: zero radius and radiance
+      SpillCodec::PackedBytes(&r)[13] &= 0x03;
+      SpillCodec::PackedBytes(&r)[15] &= 0x81;
+    }
+    packed.push_back(r);
+  }
+  for (int a = -32768; a <= 32767; a += 257) {
+    for (int b : {-32768, -32767, -16384, -1, 0, 1, 16383, 16384, 32767, 32767 - std::abs(a)}) {
+      SortRecord r = packed[packed.size() % 20000];
+      const int16_t oct[2] = {static_cast<int16_t>(a), static_cast<int16_t>(b)};
+      std::memcpy(SpillCodec::PackedBytes(&r) + 8, oct, 4);
+      packed.push_back(r);
+    }
+  }
+  for (Channels ch : {Channels::kOcclusion, Channels::kRadiance}) {
+    for (const PositionGrid& g : grids) {
+      const SpillCodec codec{ch, g};
+      std::vector<SortRecord> got(packed.size());
+      codec.UnpackBlock(packed.data(), packed.size(), got.data());
+      for (size_t i = 0; i < packed.size(); ++i) {
+        const SortRecord want = codec.Unpack(packed[i]);
+        ASSERT_EQ(0, std::memcmp(&got[i], &want, sizeof(SortRecord)))
+            << "record " << i << " channels " << static_cast<int>(ch) << " step " << g.step;
+      }
+      // Every length up to 9 and every start: the scalar tail and the SIMD body agree.
+      for (size_t n = 0; n <= 9; ++n) {
+        for (size_t at = 0; at < 4; ++at) {
+          std::vector<SortRecord> part(n);
+          codec.UnpackBlock(packed.data() + at, n, part.data());
+          for (size_t k = 0; k < n; ++k) {
+            ASSERT_EQ(0, std::memcmp(&part[k], &got[at + k], sizeof(SortRecord))) << n << " " << at;
+          }
+        }
+      }
+    }
+  }
+}
+
 // The external sort over packed input, spilled (with and without threads) or not: the same
 // records in the same order as plain input through compact runs, and quantized either way.
 TEST(SpillCodecTest, ExternalSortOverPackedInput) {
@@ -292,6 +493,49 @@ TEST(SpillCodecTest, ExternalSortOverPackedInput) {
   for (const auto& r : in) ASSERT_TRUE(unspilled.Add(r).ok());
   ASSERT_TRUE(unspilled.FinishInput().ok());
   EXPECT_FALSE(unspilled.output_quantized());
+}
+
+// With threads, the caller shares the sort thread's spill when its next run buffer is full
+// (ExternalSorter::HelpSpill: the last half of the blocks left become a run of its own): the
+// same records in the same stable order, from tmp runs and from named runs, and merged again
+// through a merge pass. Whether the caller arrives in time depends on the scheduler, so the
+// sort is repeated until it shared a spill (it shares about every one on an idle machine).
+TEST(SpillCodecTest, SharedSpillsKeepTheOrder) {
+  testing_build::ScratchDir dir("sort_shared");
+  const SpillCodec codec = Codec(Channels::kRadiance);
+  std::vector<SortRecord> in = Records(250000, 19, CloudBounds(), true);
+  for (size_t i = 0; i < in.size(); ++i) in[i].key %= 100003;  // duplicates across the split
+  std::vector<SortRecord> packed(in.size()), want(in.size());
+  for (size_t i = 0; i < in.size(); ++i) codec.Pack(in[i], &packed[i]);
+  std::transform(packed.begin(), packed.end(), want.begin(),
+                 [&](const SortRecord& r) { return codec.Unpack(r); });
+  std::stable_sort(want.begin(), want.end(),
+                   [](const SortRecord& a, const SortRecord& b) { return a.key < b.key; });
+  for (bool named : {false, true}) {
+    for (uint64_t merge_bytes : {uint64_t{64} << 20, uint64_t{200} << 10}) {
+      SCOPED_TRACE(::testing::Message() << "named " << named << " merge " << merge_bytes);
+      uint64_t shared = 0;
+      for (int attempt = 0; attempt < 20 && shared == 0; ++attempt) {
+        const std::filesystem::path runs = dir.path() / "runs";
+        std::filesystem::remove_all(runs);
+        std::filesystem::create_directories(runs);
+        ExternalSorter::Options o{dir.path().string(), 40960, merge_bytes, 2};
+        o.compact = codec;
+        o.packed_input = true;
+        ExternalSorter s(o);
+        if (named) s.SetRunDirectory(runs.string(), nullptr);
+        for (const auto& p : packed) ASSERT_TRUE(s.Add(p).ok());
+        ASSERT_TRUE(s.FinishInput().ok());
+        shared = s.spills_shared();
+        EXPECT_EQ(s.runs_spilled(), (in.size() + 40959) / 40960 + shared);
+        if (merge_bytes < (uint64_t{8} << 20)) {
+          EXPECT_GT(s.merge_passes(), 0u);
+        }
+        ASSERT_NO_FATAL_FAILURE(ExpectOutput(s, want));
+      }
+      EXPECT_GT(shared, 0u);
+    }
+  }
 }
 
 // Packed output (docs/format.md, "Session 13"): the records in the same stable order as the
@@ -366,6 +610,38 @@ TEST(SpillCodecTest, PackedInputGivesTheSamePagesAndRecords) {
     ASSERT_TRUE(b.Flush().ok());
     EXPECT_GT(encoding.page_count(Section::kPoints), 1u);
     EXPECT_EQ(encoding.pages(Section::kPoints), copying.pages(Section::kPoints));
+  }
+}
+
+// The octree pass over packed records given with their decoded form (OctreeBuilder::Add(r,
+// stored), stored from SpillCodec::UnpackBlock, as the builder does) writes the same node and
+// point pages as the one that decodes each record itself.
+TEST(SpillCodecTest, OctreeOverUnpackedBlocksWritesTheSamePages) {
+  for (Channels ch : {Channels::kOcclusion, Channels::kRadiance}) {
+    const SpillCodec codec = Codec(ch);
+    std::vector<SortRecord> in = Records(20000, 29, CloudBounds(), true);
+    std::stable_sort(in.begin(), in.end(),
+                     [](const SortRecord& a, const SortRecord& b) { return a.key < b.key; });
+    std::vector<SortRecord> packed(in.size()), unpacked(in.size());
+    for (size_t i = 0; i < in.size(); ++i) codec.Pack(in[i], &packed[i]);
+    codec.UnpackBlock(packed.data(), packed.size(), unpacked.data());
+    MemPageStore one(4096), block(4096);
+    for (bool by_block : {false, true}) {
+      MemPageStore* sink = by_block ? &block : &one;
+      NodePacker packer(Layout::kCoherent, ch, sink, 0, codec.grid);
+      PointPageWriter points(ch, sink, codec.grid);
+      points.set_input_quantized(true);
+      points.set_input_packed(true);
+      OctreeBuilder octree(4, ch, &points, &packer);
+      for (size_t i = 0; i < packed.size(); ++i) {
+        ASSERT_TRUE((by_block ? octree.Add(packed[i], unpacked[i]) : octree.Add(packed[i])).ok());
+      }
+      ASSERT_TRUE(octree.Finish().ok());
+    }
+    EXPECT_GT(one.page_count(Section::kNodes), 1u);
+    EXPECT_GT(one.page_count(Section::kPoints), 1u);
+    EXPECT_EQ(one.pages(Section::kNodes), block.pages(Section::kNodes));
+    EXPECT_EQ(one.pages(Section::kPoints), block.pages(Section::kPoints));
   }
 }
 

@@ -138,6 +138,13 @@ TEST(CompactFormatTest, EncodeScaledIsTheScalarFormula) {
       {-0.5f, 0.25f},
       {0.5f, 0.25f, -0.125f},
       {0.5f, 0.25f, -0.125f, 0.1f, 0.2f, 0.3f, 0.4f, -0.5f},
+      {0.5f, 0.25f, -0.125f, 0.1f, kNaN, 0.3f, 0.4f, -0.5f, 0.7f},
+      {0.5f, 0.25f, -0.125f, 0.1f, 0.2f, 0.3f, 0.4f, -0.5f, kNaN},
+      {kNaN, kNaN, kNaN, kNaN, kNaN, kNaN, kNaN, kNaN, -0.75f},
+      {kNaN, kNaN, kNaN, kNaN, kNaN, kNaN, kNaN, kNaN, kNaN},
+      {-kInf, kNaN, 0, 0, 0, 0, 0, 0, 0},
+      {0, 0, 0, 0, 0, 0, 0, 0, kInf},
+      {kDenorm, 0, 0, 0, 0, 0, 0, 0, -2 * kDenorm},
   };
   // Codes next to rounding ties, for both code widths: s * (j + 1/2) / kMax and its neighbours.
   for (float s : {1.0f, 0.001f, 3.7f, 1e20f, 1e-30f}) {
@@ -162,6 +169,8 @@ TEST(CompactFormatTest, EncodeScaledIsTheScalarFormula) {
     const float scale = std::exp2(std::uniform_real_distribution<float>(-40.0f, 40.0f)(rng));
     std::vector<float> c(n);
     for (float& x : c) x = u(rng) * scale;
+    // Now and then a NaN or an infinity anywhere: the largest magnitude skips a NaN.
+    if (rep % 97 == 0) c[rng() % n] = rep % 2 ? kNaN : (rep % 3 ? kInf : -kInf);
     inputs.push_back(c);
   }
   for (const std::vector<float>& c : inputs) {
