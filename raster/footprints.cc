@@ -175,7 +175,8 @@ bool CellHolds(const Bounds& cell, const Bounds& b) {
 constexpr float kEdgeFaceFill = 0.9f;
 int EdgeFaces(const Cluster& c, const Bounds* footprint_box, float spacing, const glm::vec3& origin,
               HitSides sides, Polygon out[3]) {
-  if (!(c.area > 0.0f)) return -1;
+  // With hitsides back the faces' fronts do not occlude: the box's silhouette, as before.
+  if (!(c.area > 0.0f) || sides == HitSides::kBack) return -1;
   // The first moments first: most clusters face one axis or none.
   const sh::FirstMoments f = sh::AreaAndNormalSum(c.sh_area.data());
   const float tol = kBoxFaceTolerance * f.area;
@@ -244,7 +245,7 @@ int EdgeFaces(const Cluster& c, const Bounds* footprint_box, float spacing, cons
     const int b = (a + 1) % 3, d = (a + 2) % 3;
     float lo[3], hi[3];
     for (int e : {b, d}) {
-      lo[e] = face[e] && !to_hi[e] ? box.lo[e] : (face[e] ? edge[e] : box.lo[e]);
+      lo[e] = face[e] && to_hi[e] ? edge[e] : box.lo[e];
       hi[e] = face[e] && !to_hi[e] ? edge[e] : box.hi[e];
     }
     if (!(hi[b] > lo[b]) || !(hi[d] > lo[d])) continue;
