@@ -678,16 +678,18 @@ bool Rasterizer::BuildClusterFootprint(const Cluster& c, PreparedSplat& s) {
         glm::dot(n_, 0.5f * (c.bounds.lo + c.bounds.hi) - origin_) < 0.0f) {
       return false;
     }
-    if (s.flat && !(s.flags & kSplatPorous)) {
+    // A solid cluster that is a box's edge or corner inside its cell: its faces, opaque.
+    auto edge_faces = [&](const Bounds* footprint_box) {
+      if (s.flags & kSplatPorous) return false;
       Polygon faces[3];
-      const int count = EdgeFaces(c, nullptr, spacing, origin_, o_.hitsides, faces);
-      if (count >= 0) {
-        for (int f = 0; f < count; ++f) AddPolygon(faces[f], &s);
-        s.alpha = 1.0f;
-        s.near = 2;
-        return true;
-      }
-    }
+      const int count = EdgeFaces(c, footprint_box, spacing, origin_, o_.hitsides, faces);
+      if (count < 0) return false;
+      for (int f = 0; f < count; ++f) AddPolygon(faces[f], &s);
+      s.alpha = 1.0f;
+      s.near = 2;
+      return true;
+    };
+    if (s.flat && edge_faces(nullptr)) return true;
     if (s.flat) {
       // The mean plane (through the box centre, s.plane in the receiver's frame), cut by the box.
       const float cosw = std::fabs(glm::dot(s.normal, s.dir));
@@ -720,16 +722,7 @@ bool Rasterizer::BuildClusterFootprint(const Cluster& c, PreparedSplat& s) {
         // A face of zero extent subtends nothing and draws nothing.
         if (seen && ext[(k + 1) % 3] > 0.0f && ext[(k + 2) % 3] > 0.0f) drawn |= 1 << k;
       }
-      if (!(s.flags & kSplatPorous)) {
-        Polygon faces[3];
-        const int count = EdgeFaces(c, &box, spacing, origin_, o_.hitsides, faces);
-        if (count >= 0) {
-          for (int f = 0; f < count; ++f) AddPolygon(faces[f], &s);
-          s.alpha = 1.0f;
-          s.near = 2;
-          return true;
-        }
-      }
+      if (edge_faces(&box)) return true;
       Polygon q;
       BoxSilhouette(lo, hi, drawn, &q);
       const float faces = q.n >= 3 ? ConeSolidAngle(q) : 0.0f;
