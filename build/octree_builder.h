@@ -127,7 +127,7 @@ class OctreeBuilder {
   NodePacker* packer_;
   // Look-ahead window: a ring of leaf_size + 1 records.
   std::vector<SortRecord> window_;
-  std::vector<uint32_t> window_rank_;  // each window record's rank (same ring positions)
+  std::vector<uint32_t> window_rank_;      // each window record's rank (same ring positions)
   std::vector<SortRecord> window_stored_;  // Add(r, stored): each record's `stored` (same ring)
   size_t window_head_ = 0, window_size_ = 0;
   uint32_t last_rank_ = 0;
