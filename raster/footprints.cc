@@ -31,6 +31,9 @@ namespace {
 // A flat footprint whose polygon holds at most this many surfels' areas fills its cell whenever
 // it reaches the cell's sides (see FlatFootprint).
 constexpr double kSmallCell = 9.0;
+// Along an axis nearly along its plane's normal a flat footprint's box is its cell, padded by
+// this many spacings past the centres (FootprintBox).
+constexpr float kPlanePad = 0.05f;
 // A co-planar group's surfels lie within this many spacings of its first surfel's plane.
 // Grouped by their normals alone, the surfels of two faces meeting at a crease of 15-20 degrees
 // made one mean plane that passed just above a receiver near the crease: drawn from behind over
@@ -474,12 +477,18 @@ Bounds ContactCell(const Bounds& cell, const SurfelGroup& a, absl::Span<const Su
 }  // namespace
 
 Bounds FootprintBox(const Bounds& centres, const Bounds& cell, float spacing,
-                    const glm::vec3& plane_normal, bool* full, int* snapped) {
+                    const glm::vec3& plane_normal, bool* full, int* snapped, const Bounds* reach) {
   // The three axes in lanes (the fourth repeats the third), each lane the scalar expressions.
   const bool has_cell = CellHolds(cell, centres);
-  V4 clo, chi, slo, shi;
+  V4 clo, chi, slo, shi, rlo, rhi;
   LoadBounds(cell, &clo, &chi);
   LoadBounds(centres, &slo, &shi);
+  if (reach != nullptr) {
+    LoadBounds(*reach, &rlo, &rhi);
+  } else {
+    rlo = clo;
+    rhi = chi;
+  }
   const V4 n = {plane_normal.x, plane_normal.y, plane_normal.z, plane_normal.z};
   // |n| by clearing the sign bit.
   const V4i abs_bits = {0x7fffffff, 0x7fffffff, 0x7fffffff, 0x7fffffff};
@@ -488,10 +497,20 @@ Bounds FootprintBox(const Bounds& centres, const Bounds& cell, float spacing,
   // (bug: sparse_full_cell_leak): its sides always snap.
   const V4i small = chi - clo < 2.0f * spacing;
   const V4i usable = has_cell ? in_plane : V4i{0, 0, 0, 0};
-  const V4i snap_lo = usable & (small | (slo - clo < 1.5f * spacing));
-  const V4i snap_hi = usable & (small | (chi - shi < 1.5f * spacing));
-  const V4 lo = snap_lo ? clo : slo - 0.5f * spacing;
-  const V4 hi = snap_hi ? chi : shi + 0.5f * spacing;
+  const V4i snap_lo = usable & (small | (slo - rlo < 1.5f * spacing));
+  const V4i snap_hi = usable & (small | (rhi - shi < 1.5f * spacing));
+  V4 lo = snap_lo ? clo : slo - 0.5f * spacing;
+  V4 hi = snap_hi ? chi : shi + 0.5f * spacing;
+  if (has_cell) {
+    // Along an axis nearly along the normal, the cell: a plane turned from that axis runs
+    // across it as far as the other axes let it, and ends at the cell's sides, where the
+    // neighbouring cell's footprint takes over; it ran on past them into that footprint
+    // (docs/design.md, "Footprints of a turned plane"). Padded by a twentieth of a spacing
+    // past the centres, so that a plane on the cell's side stays inside the box.
+    const V4i across = ~in_plane;
+    lo = across ? Min4(clo, slo - kPlanePad * spacing) : lo;
+    hi = across ? Max4(chi, shi + kPlanePad * spacing) : hi;
+  }
   Bounds b;
   b.lo = glm::vec3(lo[0], lo[1], lo[2]);
   b.hi = glm::vec3(hi[0], hi[1], hi[2]);
@@ -509,12 +528,36 @@ Bounds FootprintBox(const Bounds& centres, const Bounds& cell, float spacing,
   return b;
 }
 
+bool PlaneReach(const glm::vec3& normal, float offset, const Bounds& cell, float spacing,
+                const glm::vec3& origin, Bounds* reach) {
+  // A plane along the axes reaches the cell's sides across them: the cell serves.
+  const glm::vec3 a = glm::abs(normal);
+  if (std::max({a.x, a.y, a.z}) >= 1.0f - 1e-6f * (a.x + a.y + a.z)) return false;
+  // FootprintBox's box along the axes nearly along the normal.
+  Bounds box = cell;
+  for (int k = 0; k < 3; ++k) {
+    if (std::fabs(normal[k]) < 0.9f) continue;
+    box.lo[k] -= kPlanePad * spacing;
+    box.hi[k] += kPlanePad * spacing;
+  }
+  Polygon q;
+  PlaneBoxPolygon(normal, offset, box.lo - origin, box.hi - origin, &q);
+  if (q.n < 3) return false;
+  *reach = Bounds{};
+  for (int v = 0; v < q.n; ++v) reach->Extend(q.v[v] + origin);
+  return true;
+}
+
 float FlatFootprint(const Bounds& centres, const Bounds& cell, float spacing,
                     const glm::vec3& normal, float offset, const glm::vec3& origin, double area,
-                    Polygon* p) {
+                    Polygon* p, bool solid) {
   bool full = false;
   int snapped = 0;
-  Bounds box = FootprintBox(centres, cell, spacing, normal, &full, &snapped);
+  Bounds reach;
+  const bool has_reach = solid && CellHolds(cell, centres) &&
+                         PlaneReach(normal, offset, cell, spacing, origin, &reach);
+  Bounds box =
+      FootprintBox(centres, cell, spacing, normal, &full, &snapped, has_reach ? &reach : nullptr);
   PlaneBoxPolygon(normal, offset, box.lo - origin, box.hi - origin, p);
   double poly = p->n >= 3 ? PolygonArea(*p) : 0.0;
   if (!(poly > 0.0) || !(area > 0.0)) {
@@ -642,11 +685,17 @@ bool Rasterizer::ClusterHidden(const Cluster& c, const PreparedSplat& s) const {
     const float cosw = std::fabs(glm::dot(s.normal, s.dir));
     if (!(cosw > 0.0f)) return false;  // the cone splat, done
     // FlatFootprint's box: FootprintBox's, grown on its free sides by at most a spacing past
-    // the centres (and PlaneBoxPolygon's pad, 5e-5 of its largest side, at most).
+    // the centres (and PlaneBoxPolygon's pad, 5e-5 of its largest side, at most). Snapped
+    // where the plane leaves the cell (PlaneReach) whether or not FlatFootprint is told the
+    // content is solid: that box holds the other.
     const glm::vec3 mean_world = s.normal.x * t_ + s.normal.y * b_ + s.normal.z * n_;
     bool full = false;
     int snapped = 0;
-    Bounds box = FootprintBox(c.bounds, c.cell, spacing, mean_world, &full, &snapped);
+    Bounds reach;
+    const bool has_reach = CellHolds(c.cell, c.bounds) &&
+                           PlaneReach(mean_world, s.plane, c.cell, spacing, origin_, &reach);
+    Bounds box = FootprintBox(c.bounds, c.cell, spacing, mean_world, &full, &snapped,
+                              has_reach ? &reach : nullptr);
     for (int k = 0; k < 3; ++k) {
       if (!(snapped & (1 << (2 * k)))) box.lo[k] = std::min(box.lo[k], c.bounds.lo[k] - spacing);
       if (!(snapped & (2 << (2 * k)))) box.hi[k] = std::max(box.hi[k], c.bounds.hi[k] + spacing);
@@ -698,8 +747,8 @@ bool Rasterizer::BuildClusterFootprint(const Cluster& c, PreparedSplat& s) {
       const float seen = s.omega * s.depth * s.depth;
       const glm::vec3 mean_world = s.normal.x * t_ + s.normal.y * b_ + s.normal.z * n_;
       Polygon p;
-      const float alpha =
-          FlatFootprint(c.bounds, c.cell, spacing, mean_world, s.plane, origin_, seen / cosw, &p);
+      const float alpha = FlatFootprint(c.bounds, c.cell, spacing, mean_world, s.plane, origin_,
+                                        seen / cosw, &p, !(s.flags & kSplatPorous));
       if (p.n < 3) return true;  // keeps the cone splat
       s.alpha = alpha;
       AddPolygon(p, &s);

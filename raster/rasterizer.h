@@ -40,13 +40,22 @@ inline constexpr float kMinPlaneCos = 1e-3f;
 
 // The footprint box of content whose surfel centres have bounds `centres` and spacing
 // `spacing`, inside its octree cell (raster/footprints.cc): grown to the cell's side where the
-// content comes within a spacing of it, else by half a spacing; along an axis near the plane's
-// normal it always grows by half a spacing (the plane stays inside, even on the cell's side).
-// *full: the plane with `plane_normal` fills the cell (every in-plane side reached it).
-// *snapped: bit 2k (2k+1) set when the low (high) side of axis k reached the cell. Without a
-// usable cell (empty, or not holding `centres`), every side grows by half a spacing.
+// content comes within 1.5 spacings of where it leaves the cell, else by half a spacing; along
+// an axis near the plane's normal it is the cell's extent, padded to hold the centres (the
+// plane, turned from that axis, runs across it to the cell's sides). `reach`: the plane's own
+// extent inside the cell (PlaneReach): a plane turned from the axes leaves the cell through
+// one axis's side before it reaches another's; without it, the cell's sides. *full: the plane
+// with `plane_normal` fills the cell (every in-plane side reached it). *snapped: bit 2k
+// (2k+1) set when the low (high) side of axis k reached the cell. Without a usable cell
+// (empty, or not holding `centres`), every side grows by half a spacing.
 Bounds FootprintBox(const Bounds& centres, const Bounds& cell, float spacing,
-                    const glm::vec3& plane_normal, bool* full, int* snapped = nullptr);
+                    const glm::vec3& plane_normal, bool* full, int* snapped = nullptr,
+                    const Bounds* reach = nullptr);
+// The bounds of the plane {dot(normal, x) = offset} (x relative to `origin`) inside `cell`,
+// padded by kPlanePad spacings along the axes nearly along the normal, in world coordinates;
+// false when it misses the cell or lies along the axes (then the cell's sides serve).
+bool PlaneReach(const glm::vec3& normal, float offset, const Bounds& cell, float spacing,
+                const glm::vec3& origin, Bounds* reach);
 
 // The flat footprint of content of area `area` on the plane {dot(normal, x) = offset} (x
 // relative to `origin`): the plane inside the footprint box, its free in-plane sides moved out
@@ -54,9 +63,11 @@ Bounds FootprintBox(const Bounds& centres, const Bounds& cell, float spacing,
 // its area says, not where the outermost centres say, so that sampling that puts more centres
 // in one cell than its area does not lose the excess). Returns the coverage inside the
 // polygon (1 when the plane fills the cell), or 0 with p->n = 0 when there is no polygon.
+// `solid`: the content is a solid surface, whose sides snap where the plane leaves the cell
+// (PlaneReach); a porous one (leaves) snaps only at the cell's own sides.
 float FlatFootprint(const Bounds& centres, const Bounds& cell, float spacing,
                     const glm::vec3& normal, float offset, const glm::vec3& origin, double area,
-                    Polygon* p);
+                    Polygon* p, bool solid = true);
 
 // Shades one receiver into a MicroBuffer that it borrows. Not thread-safe (neither is the
 // buffer); cheap to construct: everything it keeps lives in the MicroBuffer.
