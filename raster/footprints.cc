@@ -533,31 +533,55 @@ bool PlaneReach(const glm::vec3& normal, float offset, const Bounds& cell, float
   // A plane along the axes reaches the cell's sides across them: the cell serves.
   const glm::vec3 a = glm::abs(normal);
   if (std::max({a.x, a.y, a.z}) >= 1.0f - 1e-6f * (a.x + a.y + a.z)) return false;
-  // FootprintBox's box along the axes nearly along the normal.
-  Bounds box = cell;
+  // FootprintBox's box along the axes nearly along the normal, relative to the origin.
+  glm::vec3 lo = cell.lo - origin, hi = cell.hi - origin;
   for (int k = 0; k < 3; ++k) {
-    if (std::fabs(normal[k]) < 0.9f) continue;
-    box.lo[k] -= kPlanePad * spacing;
-    box.hi[k] += kPlanePad * spacing;
+    if (a[k] < 0.9f) continue;
+    lo[k] -= kPlanePad * spacing;
+    hi[k] += kPlanePad * spacing;
   }
-  Polygon q;
-  PlaneBoxPolygon(normal, offset, box.lo - origin, box.hi - origin, &q);
-  if (q.n < 3) return false;
-  *reach = Bounds{};
-  for (int v = 0; v < q.n; ++v) reach->Extend(q.v[v] + origin);
+  // The plane's polygon in the box has its corners on the box's edges: where the plane meets
+  // each of the twelve, the bounds of those points.
+  Bounds r;
+  for (int k = 0; k < 3; ++k) {
+    if (!(a[k] > 0.0f)) continue;  // edges along k lie parallel to the plane
+    const int i = (k + 1) % 3, j = (k + 2) % 3;
+    for (float u : {lo[i], hi[i]}) {
+      for (float v : {lo[j], hi[j]}) {
+        const float t = (offset - normal[i] * u - normal[j] * v) / normal[k];
+        if (!(t >= lo[k] && t <= hi[k])) continue;
+        glm::vec3 q;
+        q[k] = t;
+        q[i] = u;
+        q[j] = v;
+        r.Extend(q + origin);
+      }
+    }
+  }
+  if (r.Empty()) return false;
+  *reach = r;
   return true;
+}
+
+Bounds FlatBox(const Bounds& centres, const Bounds& cell, float spacing, const glm::vec3& normal,
+               float offset, const glm::vec3& origin, bool* full, int* snapped) {
+  const Bounds box = FootprintBox(centres, cell, spacing, normal, full, snapped);
+  // Where every in-plane side snapped to the cell's, it snaps to the plane's reach as well
+  // (the reach lies inside the cell): only the others ask for it.
+  Bounds reach;
+  if (*full || !CellHolds(cell, centres) ||
+      !PlaneReach(normal, offset, cell, spacing, origin, &reach)) {
+    return box;
+  }
+  return FootprintBox(centres, cell, spacing, normal, full, snapped, &reach);
 }
 
 float FlatFootprint(const Bounds& centres, const Bounds& cell, float spacing,
                     const glm::vec3& normal, float offset, const glm::vec3& origin, double area,
-                    Polygon* p, bool solid) {
+                    Polygon* p) {
   bool full = false;
   int snapped = 0;
-  Bounds reach;
-  const bool has_reach = solid && CellHolds(cell, centres) &&
-                         PlaneReach(normal, offset, cell, spacing, origin, &reach);
-  Bounds box =
-      FootprintBox(centres, cell, spacing, normal, &full, &snapped, has_reach ? &reach : nullptr);
+  Bounds box = FlatBox(centres, cell, spacing, normal, offset, origin, &full, &snapped);
   PlaneBoxPolygon(normal, offset, box.lo - origin, box.hi - origin, p);
   double poly = p->n >= 3 ? PolygonArea(*p) : 0.0;
   if (!(poly > 0.0) || !(area > 0.0)) {
@@ -685,17 +709,12 @@ bool Rasterizer::ClusterHidden(const Cluster& c, const PreparedSplat& s) const {
     const float cosw = std::fabs(glm::dot(s.normal, s.dir));
     if (!(cosw > 0.0f)) return false;  // the cone splat, done
     // FlatFootprint's box: FootprintBox's, grown on its free sides by at most a spacing past
-    // the centres (and PlaneBoxPolygon's pad, 5e-5 of its largest side, at most). Snapped
-    // where the plane leaves the cell (PlaneReach) whether or not FlatFootprint is told the
-    // content is solid: that box holds the other.
+    // the centres (and PlaneBoxPolygon's pad, 5e-5 of its largest side, at most), snapped
+    // where the plane leaves the cell (PlaneReach) as there.
     const glm::vec3 mean_world = s.normal.x * t_ + s.normal.y * b_ + s.normal.z * n_;
     bool full = false;
     int snapped = 0;
-    Bounds reach;
-    const bool has_reach = CellHolds(c.cell, c.bounds) &&
-                           PlaneReach(mean_world, s.plane, c.cell, spacing, origin_, &reach);
-    Bounds box = FootprintBox(c.bounds, c.cell, spacing, mean_world, &full, &snapped,
-                              has_reach ? &reach : nullptr);
+    Bounds box = FlatBox(c.bounds, c.cell, spacing, mean_world, s.plane, origin_, &full, &snapped);
     for (int k = 0; k < 3; ++k) {
       if (!(snapped & (1 << (2 * k)))) box.lo[k] = std::min(box.lo[k], c.bounds.lo[k] - spacing);
       if (!(snapped & (2 << (2 * k)))) box.hi[k] = std::max(box.hi[k], c.bounds.hi[k] + spacing);
@@ -747,8 +766,8 @@ bool Rasterizer::BuildClusterFootprint(const Cluster& c, PreparedSplat& s) {
       const float seen = s.omega * s.depth * s.depth;
       const glm::vec3 mean_world = s.normal.x * t_ + s.normal.y * b_ + s.normal.z * n_;
       Polygon p;
-      const float alpha = FlatFootprint(c.bounds, c.cell, spacing, mean_world, s.plane, origin_,
-                                        seen / cosw, &p, !(s.flags & kSplatPorous));
+      const float alpha =
+          FlatFootprint(c.bounds, c.cell, spacing, mean_world, s.plane, origin_, seen / cosw, &p);
       if (p.n < 3) return true;  // keeps the cone splat
       s.alpha = alpha;
       AddPolygon(p, &s);
