@@ -471,6 +471,91 @@ Bounds ContactCell(const Bounds& cell, const SurfelGroup& a, absl::Span<const Su
   return out;
 }
 
+// A two-sided co-planar group's footprint snaps to the sides of its leaf cell across which its
+// sheet goes on, and ends where its surfels end elsewhere (docs/design.md, "Two-sided sheets
+// across their cells"). A side goes on when a two-sided surfel b of another leaf lies beyond it
+// (within kSheetReach spacings) as the next sample of the sheet of one of the group's surfels
+// a: within kSheetNext spacings of a, facing a's way and lying in a's tangent plane, each to
+// within the 25 degrees that a co-planar group allows (a faceted sheet's next facet goes on
+// too). Returns the cell with every other side moved out of reach, or an empty box when no
+// side goes on. `members`: the group's surfels' indices in g.surfels.
+constexpr float kSheetReach = 1.5f;
+constexpr float kSheetNext = 2.5f;
+constexpr float kSheetCos = 0.9f;     // the co-planar group's normal test
+constexpr float kSheetSlope = 0.43f;  // sin 25.5 degrees
+// A group of fewer surfels keeps the leaf's rule: a piece of a leaf sampled by two surfels
+// (the forest's at 2 M surfels, about two per leaf) says too little of where its leaf ends.
+constexpr int kSheetMinCount = 3;
+Bounds SheetCell(const Bounds& cell, uint32_t leaf, const SurfelGroup& gr, const Gathered& g,
+                 const uint32_t* members) {
+  const float sp = gr.spacing, reach = kSheetReach * sp;
+  bool near_lo[3], near_hi[3], any = false;
+  for (int k = 0; k < 3; ++k) {
+    const bool in_plane = std::fabs(gr.normal[k]) < 0.9f;
+    near_lo[k] = in_plane && gr.centres.lo[k] - cell.lo[k] < reach;
+    near_hi[k] = in_plane && cell.hi[k] - gr.centres.hi[k] < reach;
+    any = any || near_lo[k] || near_hi[k];
+  }
+  if (!any) return Bounds{};
+  bool on_lo[3] = {false, false, false}, on_hi[3] = {false, false, false};
+  // Whether b at x, beyond the cell, lies within reach beyond a side that the group comes near
+  // and that is not known to go on yet (mark = false), or marks every such side (mark = true).
+  auto beyond = [&](const glm::vec3& x, bool mark) {
+    bool found = false;
+    for (int k = 0; k < 3; ++k) {
+      if (near_lo[k] && !on_lo[k] && x[k] < cell.lo[k] && x[k] >= cell.lo[k] - reach) {
+        found = true;
+        if (mark) on_lo[k] = true;
+      }
+      if (near_hi[k] && !on_hi[k] && x[k] > cell.hi[k] && x[k] <= cell.hi[k] + reach) {
+        found = true;
+        if (mark) on_hi[k] = true;
+      }
+    }
+    return found;
+  };
+  const float next2 = kSheetNext * kSheetNext * sp * sp;
+  const size_t n = g.surfels.size();
+  for (size_t j = 0; j < n;) {
+    // A leaf's surfels are consecutive (the gather emits them together).
+    const uint32_t l = g.surfel_leaf[j];
+    size_t end = j + 1;
+    while (end < n && g.surfel_leaf[end] == l) ++end;
+    const Bounds& c = g.leaf_cells[l];
+    bool touches = l != leaf;
+    for (int k = 0; k < 3 && touches; ++k) {
+      touches = c.lo[k] <= cell.hi[k] + reach && c.hi[k] >= cell.lo[k] - reach;
+    }
+    for (; touches && j < end; ++j) {
+      const Surfel& b = g.surfels[j];
+      if (!b.two_sided || !beyond(b.position, false)) continue;
+      const float nb = glm::length(b.normal);
+      for (int m = 0; m < gr.count; ++m) {
+        const Surfel& a = g.surfels[members[m]];
+        const glm::vec3 d = b.position - a.position;
+        const float na = glm::length(a.normal), dd = glm::dot(d, d);
+        if (dd > next2 || std::fabs(glm::dot(a.normal, b.normal)) < kSheetCos * na * nb ||
+            std::fabs(glm::dot(a.normal, d)) >
+                (kSheetSlope * std::sqrt(dd) + kGroupThickness * sp) * na) {
+          continue;
+        }
+        beyond(b.position, true);
+        break;
+      }
+    }
+    j = end;
+  }
+  constexpr float kFar = std::numeric_limits<float>::max();
+  Bounds out = cell;
+  bool snaps = false;
+  for (int k = 0; k < 3; ++k) {
+    snaps = snaps || on_lo[k] || on_hi[k];
+    if (!on_lo[k]) out.lo[k] = -kFar;
+    if (!on_hi[k]) out.hi[k] = kFar;
+  }
+  return snaps ? out : Bounds{};
+}
+
 }  // namespace
 
 Bounds FootprintBox(const Bounds& centres, const Bounds& cell, float spacing,
@@ -932,12 +1017,19 @@ void Rasterizer::PrepareSurfelGroups(const Gathered& g, ShadeResult* out) {
       const glm::vec3 facing = side > 0.0f ? normal : -normal;
       // A piece of a leaf ends where its surfels end, not at its cell's sides: snapped to them,
       // the leaves' groups tiled their cells and over-occluded the forest (+23%, seen once the
-      // cells were the octree's, bug: cells_off_the_key_cube).
+      // cells were the octree's, bug: cells_off_the_key_cube). A sheet that goes on past a side
+      // snaps to it (SheetCell): ended half a spacing past its outermost centres, its cells'
+      // footprints left gaps along every side, and a receiver in a wedge under a thin part of
+      // a mesh looked through them (bug: two_sided_sheet_gaps_between_cells).
       if (!first.two_sided && !have_contact_cell) {
         contact_cell =
             ContactCell(cell, gr, groups, origin_, n_, crease_tol_, &contact, &reach, &on_receiver);
       }
-      const Bounds snap_to = first.two_sided ? Bounds{} : contact_cell;
+      const Bounds snap_to =
+          !first.two_sided ? contact_cell
+          : leaves && count >= kSheetMinCount
+              ? SheetCell(cell, g.surfel_leaf[order[end - 1]], gr, g, &order[end - count])
+              : Bounds{};
       Polygon p;
       float alpha = FlatFootprint(first.two_sided ? centres : reach, snap_to, spacing, facing,
                                   -std::fabs(side), from, area, &p);
