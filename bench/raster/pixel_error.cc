@@ -14,8 +14,7 @@
 // --pixel P lists the gathered surfels on P's central ray; --keep-above/--keep-within shade
 // only the surfels that high above the receiver's plane and that near (no clusters).
 // DATABASE: one built from the same scene (`pbgi eval ... -o DIR` leaves DIR/NAME.pbgi). Meshes
-// are read z-up as the file has them (no --up y: a y-up mesh's database from `pbgi eval --up y`
-// is rotated, and this tool would not match it).
+// are read z-up as the file has them, or with --up y rotated as `pbgi eval --up y` does.
 // docs/eval.md ("Session 8") has what it showed.
 #include <algorithm>
 #include <cmath>
@@ -48,6 +47,7 @@ struct Args {
   int pixel = -1;             // --pixel: the gathered surfels whose disks its central ray crosses
   float keep_above = -1e30f;  // --keep-above H: shade only the surfels at least H above
   float keep_within = 1e30f;  // --keep-within D: and within D of the receiver
+  bool up_y = false;          // --up y: the mesh is y-up (pbgi eval --up y rotates it)
 };
 
 struct Worst {
@@ -262,6 +262,12 @@ int Run(const Args& a) {
   auto scene =
       a.scene.find('.') != std::string::npos ? ImportMesh(a.scene, &report) : MakeScene(a.scene);
   if (!scene.ok()) return Fail(scene.status());
+  if (a.up_y) {
+    // As pbgi eval --up y: (x, y, z) -> (x, -z, y), +90 degrees about x.
+    const glm::mat4 r(glm::vec4(1, 0, 0, 0), glm::vec4(0, 0, 1, 0), glm::vec4(0, -1, 0, 0),
+                      glm::vec4(0, 0, 0, 1));
+    for (Instance& i : scene->instances) i.transform = r * i.transform;
+  }
   auto shared = std::make_shared<const Scene>(std::move(scene).value());
   auto tracer = Tracer::Create(*shared);
   if (!tracer.ok()) return Fail(tracer.status());
@@ -418,7 +424,9 @@ int main(int argc, char** argv) {
         return 2;
       }
       a.one = true;
-    } else if (arg == "--keep-above")
+    } else if (arg == "--up")
+      a.up_y = std::strcmp(value(), "y") == 0;
+    else if (arg == "--keep-above")
       a.keep_above = std::strtof(value(), nullptr);
     else if (arg == "--keep-within")
       a.keep_within = std::strtof(value(), nullptr);
