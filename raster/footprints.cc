@@ -487,7 +487,7 @@ constexpr float kSheetSlope = 0.43f;  // sin 25.5 degrees
 // (the forest's at 2 M surfels, about two per leaf) says too little of where its leaf ends.
 constexpr int kSheetMinCount = 3;
 Bounds SheetCell(const Bounds& cell, uint32_t leaf, const SurfelGroup& gr, const Gathered& g,
-                 const uint32_t* members) {
+                 const uint32_t* members, absl::Span<const uint32_t> runs) {
   const float sp = gr.spacing, reach = kSheetReach * sp;
   bool near_lo[3], near_hi[3], any = false;
   for (int k = 0; k < 3; ++k) {
@@ -516,11 +516,10 @@ Bounds SheetCell(const Bounds& cell, uint32_t leaf, const SurfelGroup& gr, const
   };
   const float next2 = kSheetNext * kSheetNext * sp * sp;
   const size_t n = g.surfels.size();
-  for (size_t j = 0; j < n;) {
-    // A leaf's surfels are consecutive (the gather emits them together).
+  for (size_t r = 0; r < runs.size(); ++r) {
+    size_t j = runs[r];
+    const size_t end = r + 1 < runs.size() ? runs[r + 1] : n;
     const uint32_t l = g.surfel_leaf[j];
-    size_t end = j + 1;
-    while (end < n && g.surfel_leaf[end] == l) ++end;
     const Bounds& c = g.leaf_cells[l];
     bool touches = l != leaf;
     for (int k = 0; k < 3 && touches; ++k) {
@@ -543,7 +542,6 @@ Bounds SheetCell(const Bounds& cell, uint32_t leaf, const SurfelGroup& gr, const
         break;
       }
     }
-    j = end;
   }
   constexpr float kFar = std::numeric_limits<float>::max();
   Bounds out = cell;
@@ -885,6 +883,16 @@ void Rasterizer::PrepareSurfelGroups(const Gathered& g, ShadeResult* out) {
   auto same_cell = [&](uint32_t a, uint32_t b) {
     return leaves ? g.surfel_leaf[a] == g.surfel_leaf[b] : keys[a] == keys[b];
   };
+  // The runs of one leaf's surfels (the gather emits a leaf's surfels together), for
+  // SheetCell's look at the neighbouring leaves.
+  auto& runs = mb_.leaf_runs_;
+  runs.clear();
+  if (leaves) {
+    for (size_t i = 0; i < n; ++i) {
+      if (i == 0 || g.surfel_leaf[i] != g.surfel_leaf[i - 1])
+        runs.push_back(static_cast<uint32_t>(i));
+    }
+  }
   size_t run0 = 0;
   while (run0 < n) {
     size_t run1 = run0 + 1;
@@ -1025,11 +1033,11 @@ void Rasterizer::PrepareSurfelGroups(const Gathered& g, ShadeResult* out) {
         contact_cell =
             ContactCell(cell, gr, groups, origin_, n_, crease_tol_, &contact, &reach, &on_receiver);
       }
-      const Bounds snap_to =
-          !first.two_sided ? contact_cell
-          : leaves && count >= kSheetMinCount
-              ? SheetCell(cell, g.surfel_leaf[order[end - 1]], gr, g, &order[end - count])
-              : Bounds{};
+      const Bounds snap_to = !first.two_sided ? contact_cell
+                             : leaves && count >= kSheetMinCount
+                                 ? SheetCell(cell, g.surfel_leaf[order[end - 1]], gr, g,
+                                             &order[end - count], mb_.leaf_runs_)
+                                 : Bounds{};
       Polygon p;
       float alpha = FlatFootprint(first.two_sided ? centres : reach, snap_to, spacing, facing,
                                   -std::fabs(side), from, area, &p);
