@@ -473,12 +473,16 @@ Bounds ContactCell(const Bounds& cell, const SurfelGroup& a, absl::Span<const Su
 
 // A two-sided co-planar group's footprint snaps to the sides of its leaf cell across which its
 // sheet goes on, and ends where its surfels end elsewhere (docs/design.md, "Two-sided sheets
-// across their cells"). A side goes on when a two-sided surfel b of another leaf lies beyond it
-// (within kSheetReach spacings) as the next sample of the sheet of one of the group's surfels
-// a: within kSheetNext spacings of a, facing a's way and lying in a's tangent plane, each to
-// within the 25 degrees that a co-planar group allows (a faceted sheet's next facet goes on
-// too). Returns the cell with every other side moved out of reach, or an empty box when no
-// side goes on. `members`: the group's surfels' indices in g.surfels.
+// across their cells"). A side goes on when two-sided surfels of other leaves lie beyond it
+// (within kSheetReach spacings) as the next samples of the sheet of the group's surfels, along
+// all of the group's extent beside that side (to within a spacing at either end): a surfel b
+// is the next sample of the group's surfel a when it lies within kSheetNext spacings of a,
+// faces a's way and lies in a's tangent plane, each to within the 25 degrees that a co-planar
+// group allows (a faceted sheet's next facet goes on too). A sheet that goes on along a part of
+// the side only (a rim, a hole or a slot at the side) keeps the leaf's rule there. Returns the
+// cell with every other side moved out of reach, or an empty box when no side goes on.
+// `members`: the group's surfels' indices in g.surfels; `runs`: where each run of one leaf's
+// surfels starts in g.surfels.
 constexpr float kSheetReach = 1.5f;
 constexpr float kSheetNext = 2.5f;
 constexpr float kSheetCos = 0.9f;     // the co-planar group's normal test
@@ -489,30 +493,26 @@ constexpr int kSheetMinCount = 3;
 Bounds SheetCell(const Bounds& cell, uint32_t leaf, const SurfelGroup& gr, const Gathered& g,
                  const uint32_t* members, absl::Span<const uint32_t> runs) {
   const float sp = gr.spacing, reach = kSheetReach * sp;
-  bool near_lo[3], near_hi[3], any = false;
+  bool in_plane[3], near[6], any = false;  // near[2 k] (near[2 k + 1]): the low (high) side of k
   for (int k = 0; k < 3; ++k) {
-    const bool in_plane = std::fabs(gr.normal[k]) < 0.9f;
-    near_lo[k] = in_plane && gr.centres.lo[k] - cell.lo[k] < reach;
-    near_hi[k] = in_plane && cell.hi[k] - gr.centres.hi[k] < reach;
-    any = any || near_lo[k] || near_hi[k];
+    in_plane[k] = std::fabs(gr.normal[k]) < 0.9f;
+    near[2 * k] = in_plane[k] && gr.centres.lo[k] - cell.lo[k] < reach;
+    near[2 * k + 1] = in_plane[k] && cell.hi[k] - gr.centres.hi[k] < reach;
+    any = any || near[2 * k] || near[2 * k + 1];
   }
   if (!any) return Bounds{};
-  bool on_lo[3] = {false, false, false}, on_hi[3] = {false, false, false};
-  // Whether b at x, beyond the cell, lies within reach beyond a side that the group comes near
-  // and that is not known to go on yet (mark = false), or marks every such side (mark = true).
-  auto beyond = [&](const glm::vec3& x, bool mark) {
-    bool found = false;
+  // The next samples found beyond each side, by their box.
+  Bounds seen[6];
+  // The sides that x lies beyond, within reach, that the group comes near: bit 2 k (2 k + 1).
+  auto beyond = [&](const glm::vec3& x) {
+    int sides = 0;
     for (int k = 0; k < 3; ++k) {
-      if (near_lo[k] && !on_lo[k] && x[k] < cell.lo[k] && x[k] >= cell.lo[k] - reach) {
-        found = true;
-        if (mark) on_lo[k] = true;
-      }
-      if (near_hi[k] && !on_hi[k] && x[k] > cell.hi[k] && x[k] <= cell.hi[k] + reach) {
-        found = true;
-        if (mark) on_hi[k] = true;
+      if (near[2 * k] && x[k] < cell.lo[k] && x[k] >= cell.lo[k] - reach) sides |= 1 << (2 * k);
+      if (near[2 * k + 1] && x[k] > cell.hi[k] && x[k] <= cell.hi[k] + reach) {
+        sides |= 1 << (2 * k + 1);
       }
     }
-    return found;
+    return sides;
   };
   const float next2 = kSheetNext * kSheetNext * sp * sp;
   const size_t n = g.surfels.size();
@@ -527,7 +527,8 @@ Bounds SheetCell(const Bounds& cell, uint32_t leaf, const SurfelGroup& gr, const
     }
     for (; touches && j < end; ++j) {
       const Surfel& b = g.surfels[j];
-      if (!b.two_sided || !beyond(b.position, false)) continue;
+      const int sides = b.two_sided ? beyond(b.position) : 0;
+      if (sides == 0) continue;
       const float nb = glm::length(b.normal);
       for (int m = 0; m < gr.count; ++m) {
         const Surfel& a = g.surfels[members[m]];
@@ -538,7 +539,9 @@ Bounds SheetCell(const Bounds& cell, uint32_t leaf, const SurfelGroup& gr, const
                 (kSheetSlope * std::sqrt(dd) + kGroupThickness * sp) * na) {
           continue;
         }
-        beyond(b.position, true);
+        for (int q = 0; q < 6; ++q) {
+          if (sides & (1 << q)) seen[q].Extend(b.position);
+        }
         break;
       }
     }
@@ -546,10 +549,14 @@ Bounds SheetCell(const Bounds& cell, uint32_t leaf, const SurfelGroup& gr, const
   constexpr float kFar = std::numeric_limits<float>::max();
   Bounds out = cell;
   bool snaps = false;
-  for (int k = 0; k < 3; ++k) {
-    snaps = snaps || on_lo[k] || on_hi[k];
-    if (!on_lo[k]) out.lo[k] = -kFar;
-    if (!on_hi[k]) out.hi[k] = kFar;
+  for (int q = 0; q < 6; ++q) {
+    bool on = !seen[q].Empty();
+    for (int k = 0; k < 3 && on; ++k) {
+      if (k == q / 2 || !in_plane[k]) continue;
+      on = seen[q].lo[k] <= gr.centres.lo[k] + sp && seen[q].hi[k] >= gr.centres.hi[k] - sp;
+    }
+    snaps = snaps || on;
+    if (!on) (q % 2 == 0 ? out.lo : out.hi)[q / 2] = q % 2 == 0 ? -kFar : kFar;
   }
   return snaps ? out : Bounds{};
 }
