@@ -501,22 +501,33 @@ Bounds SheetCell(const Bounds& cell, uint32_t leaf, const SurfelGroup& gr, const
     any = any || near[2 * k] || near[2 * k + 1];
   }
   if (!any) return Bounds{};
-  // The next samples found beyond each side, by their box.
+  // The next samples found beyond each side, by their box; a side goes on once they reach
+  // within a spacing of both ends of the group's extent along the side's other in-plane axes.
   Bounds seen[6];
-  // The sides that x lies beyond, within reach, that the group comes near: bit 2 k (2 k + 1).
+  auto goes_on = [&](int q) {
+    if (seen[q].Empty()) return false;
+    for (int k = 0; k < 3; ++k) {
+      if (k == q / 2 || !in_plane[k]) continue;
+      if (seen[q].lo[k] > gr.centres.lo[k] + sp || seen[q].hi[k] < gr.centres.hi[k] - sp) {
+        return false;
+      }
+    }
+    return true;
+  };
+  int open = 0;  // the near sides not known to go on yet: bit q
+  for (int q = 0; q < 6; ++q) open |= near[q] ? 1 << q : 0;
+  // The open sides that x lies beyond, within reach: bit 2 k (2 k + 1) for k's low (high) side.
   auto beyond = [&](const glm::vec3& x) {
     int sides = 0;
     for (int k = 0; k < 3; ++k) {
-      if (near[2 * k] && x[k] < cell.lo[k] && x[k] >= cell.lo[k] - reach) sides |= 1 << (2 * k);
-      if (near[2 * k + 1] && x[k] > cell.hi[k] && x[k] <= cell.hi[k] + reach) {
-        sides |= 1 << (2 * k + 1);
-      }
+      if (x[k] < cell.lo[k] && x[k] >= cell.lo[k] - reach) sides |= 1 << (2 * k);
+      if (x[k] > cell.hi[k] && x[k] <= cell.hi[k] + reach) sides |= 1 << (2 * k + 1);
     }
-    return sides;
+    return sides & open;
   };
-  const float next2 = kSheetNext * kSheetNext * sp * sp;
+  const float next2 = kSheetNext * kSheetNext * sp * sp, cos2 = kSheetCos * kSheetCos;
   const size_t n = g.surfels.size();
-  for (size_t r = 0; r < runs.size(); ++r) {
+  for (size_t r = 0; r < runs.size() && open != 0; ++r) {
     size_t j = runs[r];
     const size_t end = r + 1 < runs.size() ? runs[r + 1] : n;
     const uint32_t l = g.surfel_leaf[j];
@@ -525,22 +536,25 @@ Bounds SheetCell(const Bounds& cell, uint32_t leaf, const SurfelGroup& gr, const
     for (int k = 0; k < 3 && touches; ++k) {
       touches = c.lo[k] <= cell.hi[k] + reach && c.hi[k] >= cell.lo[k] - reach;
     }
-    for (; touches && j < end; ++j) {
+    for (; touches && j < end && open != 0; ++j) {
       const Surfel& b = g.surfels[j];
       const int sides = b.two_sided ? beyond(b.position) : 0;
       if (sides == 0) continue;
-      const float nb = glm::length(b.normal);
+      const float nb2 = glm::dot(b.normal, b.normal);
       for (int m = 0; m < gr.count; ++m) {
         const Surfel& a = g.surfels[members[m]];
         const glm::vec3 d = b.position - a.position;
-        const float na = glm::length(a.normal), dd = glm::dot(d, d);
-        if (dd > next2 || std::fabs(glm::dot(a.normal, b.normal)) < kSheetCos * na * nb ||
-            std::fabs(glm::dot(a.normal, d)) >
-                (kSheetSlope * std::sqrt(dd) + kGroupThickness * sp) * na) {
-          continue;
-        }
+        const float dd = glm::dot(d, d);
+        if (dd > next2) continue;
+        const float na2 = glm::dot(a.normal, a.normal), ab = glm::dot(a.normal, b.normal);
+        if (ab * ab < cos2 * na2 * nb2) continue;
+        const float off = kSheetSlope * std::sqrt(dd) + kGroupThickness * sp;
+        const float ad = glm::dot(a.normal, d);
+        if (ad * ad > off * off * na2) continue;
         for (int q = 0; q < 6; ++q) {
-          if (sides & (1 << q)) seen[q].Extend(b.position);
+          if (!(sides & (1 << q))) continue;
+          seen[q].Extend(b.position);
+          if (goes_on(q)) open &= ~(1 << q);
         }
         break;
       }
@@ -550,11 +564,7 @@ Bounds SheetCell(const Bounds& cell, uint32_t leaf, const SurfelGroup& gr, const
   Bounds out = cell;
   bool snaps = false;
   for (int q = 0; q < 6; ++q) {
-    bool on = !seen[q].Empty();
-    for (int k = 0; k < 3 && on; ++k) {
-      if (k == q / 2 || !in_plane[k]) continue;
-      on = seen[q].lo[k] <= gr.centres.lo[k] + sp && seen[q].hi[k] >= gr.centres.hi[k] - sp;
-    }
+    const bool on = near[q] && goes_on(q);
     snaps = snaps || on;
     if (!on) (q % 2 == 0 ? out.lo : out.hi)[q / 2] = q % 2 == 0 ? -kFar : kFar;
   }
