@@ -474,6 +474,106 @@ Bounds ContactCell(const Bounds& cell, const SurfelGroup& a, absl::Span<const Su
   return out;
 }
 
+// A two-sided co-planar group's footprint snaps to the sides of its leaf cell across which its
+// sheet goes on, and ends where its surfels end elsewhere (docs/design.md, "Two-sided sheets
+// across their cells"). A side goes on when two-sided surfels of other leaves lie beyond it
+// (within kSheetReach spacings) as the next samples of the sheet of the group's surfels, along
+// all of the group's extent beside that side (to within a spacing at either end): a surfel b
+// is the next sample of the group's surfel a when it lies within kSheetNext spacings of a,
+// faces a's way and lies in a's tangent plane, each to within the 25 degrees that a co-planar
+// group allows (a faceted sheet's next facet goes on too). A sheet that goes on along a part of
+// the side only (a rim, a hole or a slot at the side) keeps the leaf's rule there. Returns the
+// cell with every other side moved out of reach, or an empty box when no side goes on.
+// `members`: the group's surfels' indices in g.surfels; `runs`: where each run of one leaf's
+// surfels starts in g.surfels.
+constexpr float kSheetReach = 1.5f;
+constexpr float kSheetNext = 2.5f;
+constexpr float kSheetCos = 0.9f;     // the co-planar group's normal test
+constexpr float kSheetSlope = 0.43f;  // sin 25.5 degrees
+// A group of fewer surfels keeps the leaf's rule: a piece of a leaf sampled by two surfels
+// (the forest's at 2 M surfels, about two per leaf) says too little of where its leaf ends.
+constexpr int kSheetMinCount = 3;
+Bounds SheetCell(const Bounds& cell, uint32_t leaf, const SurfelGroup& gr, const Gathered& g,
+                 const uint32_t* members, absl::Span<const uint32_t> runs) {
+  const float sp = gr.spacing, reach = kSheetReach * sp;
+  bool in_plane[3], near[6], any = false;  // near[2 k] (near[2 k + 1]): the low (high) side of k
+  for (int k = 0; k < 3; ++k) {
+    in_plane[k] = std::fabs(gr.normal[k]) < 0.9f;
+    near[2 * k] = in_plane[k] && gr.centres.lo[k] - cell.lo[k] < reach;
+    near[2 * k + 1] = in_plane[k] && cell.hi[k] - gr.centres.hi[k] < reach;
+    any = any || near[2 * k] || near[2 * k + 1];
+  }
+  if (!any) return Bounds{};
+  // The next samples found beyond each side, by their box; a side goes on once they reach
+  // within a spacing of both ends of the group's extent along the side's other in-plane axes.
+  Bounds seen[6];
+  auto goes_on = [&](int q) {
+    if (seen[q].Empty()) return false;
+    for (int k = 0; k < 3; ++k) {
+      if (k == q / 2 || !in_plane[k]) continue;
+      if (seen[q].lo[k] > gr.centres.lo[k] + sp || seen[q].hi[k] < gr.centres.hi[k] - sp) {
+        return false;
+      }
+    }
+    return true;
+  };
+  int open = 0;  // the near sides not known to go on yet: bit q
+  for (int q = 0; q < 6; ++q) open |= near[q] ? 1 << q : 0;
+  // The open sides that x lies beyond, within reach: bit 2 k (2 k + 1) for k's low (high) side.
+  auto beyond = [&](const glm::vec3& x) {
+    int sides = 0;
+    for (int k = 0; k < 3; ++k) {
+      if (x[k] < cell.lo[k] && x[k] >= cell.lo[k] - reach) sides |= 1 << (2 * k);
+      if (x[k] > cell.hi[k] && x[k] <= cell.hi[k] + reach) sides |= 1 << (2 * k + 1);
+    }
+    return sides & open;
+  };
+  const float next2 = kSheetNext * kSheetNext * sp * sp, cos2 = kSheetCos * kSheetCos;
+  const size_t n = g.surfels.size();
+  for (size_t r = 0; r < runs.size() && open != 0; ++r) {
+    size_t j = runs[r];
+    const size_t end = r + 1 < runs.size() ? runs[r + 1] : n;
+    const uint32_t l = g.surfel_leaf[j];
+    const Bounds& c = g.leaf_cells[l];
+    bool touches = l != leaf;
+    for (int k = 0; k < 3 && touches; ++k) {
+      touches = c.lo[k] <= cell.hi[k] + reach && c.hi[k] >= cell.lo[k] - reach;
+    }
+    for (; touches && j < end && open != 0; ++j) {
+      const Surfel& b = g.surfels[j];
+      const int sides = b.two_sided ? beyond(b.position) : 0;
+      if (sides == 0) continue;
+      const float nb2 = glm::dot(b.normal, b.normal);
+      for (int m = 0; m < gr.count; ++m) {
+        const Surfel& a = g.surfels[members[m]];
+        const glm::vec3 d = b.position - a.position;
+        const float dd = glm::dot(d, d);
+        if (dd > next2) continue;
+        const float na2 = glm::dot(a.normal, a.normal), ab = glm::dot(a.normal, b.normal);
+        if (ab * ab < cos2 * na2 * nb2) continue;
+        const float off = kSheetSlope * std::sqrt(dd) + kGroupThickness * sp;
+        const float ad = glm::dot(a.normal, d);
+        if (ad * ad > off * off * na2) continue;
+        for (int q = 0; q < 6; ++q) {
+          if (!(sides & (1 << q))) continue;
+          seen[q].Extend(b.position);
+          if (goes_on(q)) open &= ~(1 << q);
+        }
+        break;
+      }
+    }
+  }
+  constexpr float kFar = std::numeric_limits<float>::max();
+  Bounds out = cell;
+  bool snaps = false;
+  for (int q = 0; q < 6; ++q) {
+    const bool on = near[q] && goes_on(q);
+    snaps = snaps || on;
+    if (!on) (q % 2 == 0 ? out.lo : out.hi)[q / 2] = q % 2 == 0 ? -kFar : kFar;
+  }
+  return snaps ? out : Bounds{};
+}
+
 }  // namespace
 
 Bounds FootprintBox(const Bounds& centres, const Bounds& cell, float spacing,
@@ -868,6 +968,16 @@ void Rasterizer::PrepareSurfelGroups(const Gathered& g, ShadeResult* out) {
   auto same_cell = [&](uint32_t a, uint32_t b) {
     return leaves ? g.surfel_leaf[a] == g.surfel_leaf[b] : keys[a] == keys[b];
   };
+  // The runs of one leaf's surfels (the gather emits a leaf's surfels together), for
+  // SheetCell's look at the neighbouring leaves.
+  auto& runs = mb_.leaf_runs_;
+  runs.clear();
+  if (leaves) {
+    for (size_t i = 0; i < n; ++i) {
+      if (i == 0 || g.surfel_leaf[i] != g.surfel_leaf[i - 1])
+        runs.push_back(static_cast<uint32_t>(i));
+    }
+  }
   size_t run0 = 0;
   while (run0 < n) {
     size_t run1 = run0 + 1;
@@ -1000,12 +1110,19 @@ void Rasterizer::PrepareSurfelGroups(const Gathered& g, ShadeResult* out) {
       const glm::vec3 facing = side > 0.0f ? normal : -normal;
       // A piece of a leaf ends where its surfels end, not at its cell's sides: snapped to them,
       // the leaves' groups tiled their cells and over-occluded the forest (+23%, seen once the
-      // cells were the octree's, bug: cells_off_the_key_cube).
+      // cells were the octree's, bug: cells_off_the_key_cube). A sheet that goes on past a side
+      // snaps to it (SheetCell): ended half a spacing past its outermost centres, its cells'
+      // footprints left gaps along every side, and a receiver in a wedge under a thin part of
+      // a mesh looked through them (bug: two_sided_sheet_gaps_between_cells).
       if (!first.two_sided && !have_contact_cell) {
         contact_cell =
             ContactCell(cell, gr, groups, origin_, n_, crease_tol_, &contact, &reach, &on_receiver);
       }
-      const Bounds snap_to = first.two_sided ? Bounds{} : contact_cell;
+      const Bounds snap_to = !first.two_sided ? contact_cell
+                             : leaves && count >= kSheetMinCount
+                                 ? SheetCell(cell, g.surfel_leaf[order[end - 1]], gr, g,
+                                             &order[end - count], mb_.leaf_runs_)
+                                 : Bounds{};
       Polygon p;
       float alpha = FlatFootprint(first.two_sided ? centres : reach, snap_to, spacing, facing,
                                   -std::fabs(side), from, area, &p);
