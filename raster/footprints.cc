@@ -34,6 +34,9 @@ constexpr double kSmallCell = 9.0;
 // Along an axis nearly along its plane's normal a flat footprint's box is its cell, padded by
 // this many spacings past the centres (FootprintBox).
 constexpr float kPlanePad = 0.05f;
+// A cell side beyond this is no side (SheetCell moves the sides a sheet does not go on across
+// to the largest float).
+constexpr float kNoSide = 1e37f;
 // A co-planar group's surfels lie within this many spacings of its first surfel's plane.
 // Grouped by their normals alone, the surfels of two faces meeting at a crease of 15-20 degrees
 // made one mean plane that passed just above a receiver near the crease: drawn from behind over
@@ -576,10 +579,12 @@ Bounds SheetCell(const Bounds& cell, uint32_t leaf, const SurfelGroup& gr, const
 
 }  // namespace
 
-Bounds FootprintBox(const Bounds& centres, const Bounds& cell, float spacing,
-                    const glm::vec3& plane_normal, bool* full, int* snapped, const Bounds* reach) {
+namespace {
+// FootprintBox with CellHolds(cell, centres) given.
+Bounds FootprintBoxIn(const Bounds& centres, const Bounds& cell, bool has_cell, float spacing,
+                      const glm::vec3& plane_normal, bool* full, int* snapped,
+                      const Bounds* reach) {
   // The three axes in lanes (the fourth repeats the third), each lane the scalar expressions.
-  const bool has_cell = CellHolds(cell, centres);
   V4 clo, chi, slo, shi, rlo, rhi;
   LoadBounds(cell, &clo, &chi);
   LoadBounds(centres, &slo, &shi);
@@ -607,9 +612,10 @@ Bounds FootprintBox(const Bounds& centres, const Bounds& cell, float spacing,
     // neighbouring cell's footprint takes over; it ran on past them into that footprint
     // (docs/design.md, "Footprints of a turned plane"). Padded by a twentieth of a spacing
     // past the centres, so that a plane on the cell's side stays inside the box.
+    // A side moved out of reach (SheetCell) is not a side: half a spacing past the centres.
     const V4i across = ~in_plane;
-    lo = across ? Min4(clo, slo - kPlanePad * spacing) : lo;
-    hi = across ? Max4(chi, shi + kPlanePad * spacing) : hi;
+    lo = across ? (clo > -kNoSide ? Min4(clo, slo - kPlanePad * spacing) : lo) : lo;
+    hi = across ? (chi < kNoSide ? Max4(chi, shi + kPlanePad * spacing) : hi) : hi;
   }
   Bounds b;
   b.lo = glm::vec3(lo[0], lo[1], lo[2]);
@@ -627,12 +633,23 @@ Bounds FootprintBox(const Bounds& centres, const Bounds& cell, float spacing,
   }
   return b;
 }
+}  // namespace
+
+Bounds FootprintBox(const Bounds& centres, const Bounds& cell, float spacing,
+                    const glm::vec3& plane_normal, bool* full, int* snapped, const Bounds* reach) {
+  return FootprintBoxIn(centres, cell, CellHolds(cell, centres), spacing, plane_normal, full,
+                        snapped, reach);
+}
 
 bool PlaneReach(const glm::vec3& normal, float offset, const Bounds& cell, float spacing,
                 const glm::vec3& origin, Bounds* reach) {
-  // A plane along the axes reaches the cell's sides across them: the cell serves.
+  // A plane along the axes reaches the cell's sides across them: the cell serves. So it does
+  // for a cell with sides moved out of reach (SheetCell): those never snap.
   const glm::vec3 a = glm::abs(normal);
   if (std::max({a.x, a.y, a.z}) >= 1.0f - 1e-6f * (a.x + a.y + a.z)) return false;
+  for (int k = 0; k < 3; ++k) {
+    if (!(cell.lo[k] > -kNoSide) || !(cell.hi[k] < kNoSide)) return false;
+  }
   // FootprintBox's box along the axes nearly along the normal, relative to the origin.
   glm::vec3 lo = cell.lo - origin, hi = cell.hi - origin;
   for (int k = 0; k < 3; ++k) {
@@ -665,15 +682,16 @@ bool PlaneReach(const glm::vec3& normal, float offset, const Bounds& cell, float
 
 Bounds FlatBox(const Bounds& centres, const Bounds& cell, float spacing, const glm::vec3& normal,
                float offset, const glm::vec3& origin, bool* full, int* snapped) {
-  const Bounds box = FootprintBox(centres, cell, spacing, normal, full, snapped);
+  const bool has_cell = CellHolds(cell, centres);
+  const Bounds box =
+      FootprintBoxIn(centres, cell, has_cell, spacing, normal, full, snapped, nullptr);
   // Where every in-plane side snapped to the cell's, it snaps to the plane's reach as well
   // (the reach lies inside the cell): only the others ask for it.
   Bounds reach;
-  if (*full || !CellHolds(cell, centres) ||
-      !PlaneReach(normal, offset, cell, spacing, origin, &reach)) {
+  if (*full || !has_cell || !PlaneReach(normal, offset, cell, spacing, origin, &reach)) {
     return box;
   }
-  return FootprintBox(centres, cell, spacing, normal, full, snapped, &reach);
+  return FootprintBoxIn(centres, cell, has_cell, spacing, normal, full, snapped, &reach);
 }
 
 float FlatFootprint(const Bounds& centres, const Bounds& cell, float spacing,

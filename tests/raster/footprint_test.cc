@@ -86,8 +86,8 @@ Bounds FootprintBoxOneAxisAtATime(const Bounds& centres, const Bounds& cell, flo
     b.lo[k] = snap_lo ? cell.lo[k] : centres.lo[k] - 0.5f * spacing;
     b.hi[k] = snap_hi ? cell.hi[k] : centres.hi[k] + 0.5f * spacing;
     if (has_cell && !in_plane) {  // the cell along an axis nearly along the normal, padded
-      b.lo[k] = std::min(cell.lo[k], centres.lo[k] - 0.05f * spacing);
-      b.hi[k] = std::max(cell.hi[k], centres.hi[k] + 0.05f * spacing);
+      if (cell.lo[k] > -1e37f) b.lo[k] = std::min(cell.lo[k], centres.lo[k] - 0.05f * spacing);
+      if (cell.hi[k] < 1e37f) b.hi[k] = std::max(cell.hi[k], centres.hi[k] + 0.05f * spacing);
     }
     mask |= (snap_lo ? 1 : 0) << (2 * k);
     mask |= (snap_hi ? 2 : 0) << (2 * k);
