@@ -133,6 +133,41 @@ void Detail(const Worst& w, Reader& reader, const Tracer& tracer, const Cut& cut
   }
 }
 
+// The unit direction `u` (receiver frame) of sub-sample (i, j) of `sub` x `sub` in pixel (col,
+// row) of cube face `face` (pixels `step` wide on the face's plane at distance 1), and its
+// weight: cosine times solid angle per plane area. False below the horizon.
+bool SubPixelRay(const internal::FaceAxes& face, int col, int row, int i, int j, int sub,
+                 double step, glm::dvec3* u, double* wt) {
+  glm::dvec3 v(0.0);
+  v[face.k] = face.sign;
+  v[face.k1] = -1.0 + (col + (i + 0.5) / sub) * step;
+  v[face.k2] = -1.0 + (row + (j + 0.5) / sub) * step;
+  const double len = glm::length(v);
+  *u = v / len;
+  if (u->z <= 0.0) return false;
+  *wt = u->z / (len * len * len);
+  return true;
+}
+
+// The tools' default cut and raster options (`pbgi shade`), at the sweep's msa, resolution and
+// hitsides.
+Cut ToolCut(const Args& a) {
+  Cut cut;
+  cut.max_solid_angle = a.msa;
+  cut.cosine_weighted = true;
+  cut.curved_scale = 0.3f;
+  cut.curved_box_scale = 1.0f;
+  return cut;
+}
+RasterOptions ToolRaster(const Args& a) {
+  RasterOptions ro;
+  ro.resolution = a.res;
+  ro.footprint = Footprint::kPolygons;
+  ro.compute_radiance = false;
+  ro.hitsides = a.sides;
+  return ro;
+}
+
 // One receiver, pixel by pixel: every pixel whose coverage differs from the rays' by more than
 // `a.pixel_diff`, with its direction in the receiver's frame, what PBGI drew there (coverage,
 // nearest depth) and what its central rays hit first (distance, side, normals' cosine,
@@ -140,16 +175,8 @@ void Detail(const Worst& w, Reader& reader, const Tracer& tracer, const Cut& cut
 int RunOne(const Args& a, Reader& reader, const Tracer& tracer) {
   const glm::vec3 n = glm::normalize(a.normal);
   const glm::vec3 p = a.at;
-  Cut cut;
-  cut.max_solid_angle = a.msa;
-  cut.cosine_weighted = true;
-  cut.curved_scale = 0.3f;
-  cut.curved_box_scale = 1.0f;
-  RasterOptions ro;
-  ro.resolution = a.res;
-  ro.footprint = Footprint::kPolygons;
-  ro.compute_radiance = false;
-  ro.hitsides = a.sides;
+  const Cut cut = ToolCut(a);
+  const RasterOptions ro = ToolRaster(a);
   MicroBuffer mb;
   if (absl::Status s = mb.Prepare(a.res); !s.ok()) return Fail(s);
   Gathered g;
@@ -192,14 +219,9 @@ int RunOne(const Args& a, Reader& reader, const Tracer& tracer) {
         uint32_t tri = 0;
         for (int i = 0; i < a.sub; ++i) {
           for (int j = 0; j < a.sub; ++j) {
-            glm::dvec3 v(0.0);
-            v[face.k] = face.sign;
-            v[face.k1] = -1.0 + (col + (i + 0.5) / a.sub) * step;
-            v[face.k2] = -1.0 + (row + (j + 0.5) / a.sub) * step;
-            const double len = glm::length(v);
-            const glm::dvec3 u = v / len;
-            if (u.z <= 0.0) continue;
-            const double wt = u.z / (len * len * len);
+            glm::dvec3 u;
+            double wt;
+            if (!SubPixelRay(face, col, row, i, j, a.sub, step, &u, &wt)) continue;
             all += wt;
             const glm::vec3 d = float(u.x) * t + float(u.y) * b + float(u.z) * n;
             const Hit h = tracer.Intersect(p, d, 1e30f);
@@ -289,16 +311,8 @@ int Run(const Args& a) {
     if (*got == 0) break;
     samples.insert(samples.end(), buf.begin(), buf.begin() + *got);
   }
-  Cut cut;
-  cut.max_solid_angle = a.msa;
-  cut.cosine_weighted = true;
-  cut.curved_scale = 0.3f;
-  cut.curved_box_scale = 1.0f;
-  RasterOptions ro;
-  ro.resolution = a.res;
-  ro.footprint = Footprint::kPolygons;
-  ro.compute_radiance = false;
-  ro.hitsides = a.sides;
+  const Cut cut = ToolCut(a);
+  const RasterOptions ro = ToolRaster(a);
   MicroBuffer mb;
   if (absl::Status s = mb.Prepare(a.res); !s.ok()) return Fail(s);
   double cls[3][3] = {}, cls_w[3][3] = {}, elev[6] = {}, elev_w[6] = {}, all_w = 0;
@@ -325,14 +339,9 @@ int Run(const Args& a) {
           double hit = 0, all = 0;
           for (int i = 0; i < a.sub; ++i) {
             for (int j = 0; j < a.sub; ++j) {
-              glm::dvec3 v(0.0);
-              v[face.k] = face.sign;
-              v[face.k1] = -1.0 + (col + (i + 0.5) / a.sub) * step;
-              v[face.k2] = -1.0 + (row + (j + 0.5) / a.sub) * step;
-              const double len = glm::length(v);
-              const glm::dvec3 u = v / len;
-              if (u.z <= 0.0) continue;
-              const double wt = u.z / (len * len * len);  // cosine x solid angle per plane area
+              glm::dvec3 u;
+              double wt;
+              if (!SubPixelRay(face, col, row, i, j, a.sub, step, &u, &wt)) continue;
               all += wt;
               const glm::vec3 d = float(u.x) * t + float(u.y) * b + float(u.z) * n;
               if ((*tracer)->Occluded(p, d, 1e30f)) hit += wt;
