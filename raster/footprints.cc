@@ -31,6 +31,12 @@ namespace {
 // A flat footprint whose polygon holds at most this many surfels' areas fills its cell whenever
 // it reaches the cell's sides (see FlatFootprint).
 constexpr double kSmallCell = 9.0;
+// Along an axis nearly along its plane's normal a flat footprint's box is its cell, padded by
+// this many spacings past the centres (FootprintBox).
+constexpr float kPlanePad = 0.05f;
+// A cell side beyond this is no side (SheetCell moves the sides a sheet does not go on across
+// to the largest float).
+constexpr float kNoSide = 1e37f;
 // A co-planar group's surfels lie within this many spacings of its first surfel's plane.
 // Grouped by their normals alone, the surfels of two faces meeting at a crease of 15-20 degrees
 // made one mean plane that passed just above a receiver near the crease: drawn from behind over
@@ -471,15 +477,123 @@ Bounds ContactCell(const Bounds& cell, const SurfelGroup& a, absl::Span<const Su
   return out;
 }
 
+// A two-sided co-planar group's footprint snaps to the sides of its leaf cell across which its
+// sheet goes on, and ends where its surfels end elsewhere (docs/design.md, "Two-sided sheets
+// across their cells"). A side goes on when two-sided surfels of other leaves lie beyond it
+// (within kSheetReach spacings) as the next samples of the sheet of the group's surfels, along
+// all of the group's extent beside that side (to within a spacing at either end): a surfel b
+// is the next sample of the group's surfel a when it lies within kSheetNext spacings of a,
+// faces a's way and lies in a's tangent plane, each to within the 25 degrees that a co-planar
+// group allows (a faceted sheet's next facet goes on too). A sheet that goes on along a part of
+// the side only (a rim, a hole or a slot at the side) keeps the leaf's rule there. Returns the
+// cell with every other side moved out of reach, or an empty box when no side goes on.
+// `members`: the group's surfels' indices in g.surfels; `runs`: where each run of one leaf's
+// surfels starts in g.surfels.
+constexpr float kSheetReach = 1.5f;
+constexpr float kSheetNext = 2.5f;
+constexpr float kSheetCos = 0.9f;     // the co-planar group's normal test
+constexpr float kSheetSlope = 0.43f;  // sin 25.5 degrees
+// A group of fewer surfels keeps the leaf's rule: a piece of a leaf sampled by two surfels
+// (the forest's at 2 M surfels, about two per leaf) says too little of where its leaf ends.
+constexpr int kSheetMinCount = 3;
+Bounds SheetCell(const Bounds& cell, uint32_t leaf, const SurfelGroup& gr, const Gathered& g,
+                 const uint32_t* members, absl::Span<const uint32_t> runs) {
+  const float sp = gr.spacing, reach = kSheetReach * sp;
+  bool in_plane[3], near[6], any = false;  // near[2 k] (near[2 k + 1]): the low (high) side of k
+  for (int k = 0; k < 3; ++k) {
+    in_plane[k] = std::fabs(gr.normal[k]) < 0.9f;
+    near[2 * k] = in_plane[k] && gr.centres.lo[k] - cell.lo[k] < reach;
+    near[2 * k + 1] = in_plane[k] && cell.hi[k] - gr.centres.hi[k] < reach;
+    any = any || near[2 * k] || near[2 * k + 1];
+  }
+  if (!any) return Bounds{};
+  // The next samples found beyond each side, by their box; a side goes on once they reach
+  // within a spacing of both ends of the group's extent along the side's other in-plane axes.
+  Bounds seen[6];
+  auto goes_on = [&](int q) {
+    if (seen[q].Empty()) return false;
+    for (int k = 0; k < 3; ++k) {
+      if (k == q / 2 || !in_plane[k]) continue;
+      if (seen[q].lo[k] > gr.centres.lo[k] + sp || seen[q].hi[k] < gr.centres.hi[k] - sp) {
+        return false;
+      }
+    }
+    return true;
+  };
+  int open = 0;  // the near sides not known to go on yet: bit q
+  for (int q = 0; q < 6; ++q) open |= near[q] ? 1 << q : 0;
+  // The open sides that x lies beyond, within reach: bit 2 k (2 k + 1) for k's low (high) side.
+  auto beyond = [&](const glm::vec3& x) {
+    int sides = 0;
+    for (int k = 0; k < 3; ++k) {
+      if (x[k] < cell.lo[k] && x[k] >= cell.lo[k] - reach) sides |= 1 << (2 * k);
+      if (x[k] > cell.hi[k] && x[k] <= cell.hi[k] + reach) sides |= 1 << (2 * k + 1);
+    }
+    return sides & open;
+  };
+  const float next2 = kSheetNext * kSheetNext * sp * sp, cos2 = kSheetCos * kSheetCos;
+  const size_t n = g.surfels.size();
+  for (size_t r = 0; r < runs.size() && open != 0; ++r) {
+    size_t j = runs[r];
+    const size_t end = r + 1 < runs.size() ? runs[r + 1] : n;
+    const uint32_t l = g.surfel_leaf[j];
+    const Bounds& c = g.leaf_cells[l];
+    bool touches = l != leaf;
+    for (int k = 0; k < 3 && touches; ++k) {
+      touches = c.lo[k] <= cell.hi[k] + reach && c.hi[k] >= cell.lo[k] - reach;
+    }
+    for (; touches && j < end && open != 0; ++j) {
+      const Surfel& b = g.surfels[j];
+      const int sides = b.two_sided ? beyond(b.position) : 0;
+      if (sides == 0) continue;
+      const float nb2 = glm::dot(b.normal, b.normal);
+      for (int m = 0; m < gr.count; ++m) {
+        const Surfel& a = g.surfels[members[m]];
+        const glm::vec3 d = b.position - a.position;
+        const float dd = glm::dot(d, d);
+        if (dd > next2) continue;
+        const float na2 = glm::dot(a.normal, a.normal), ab = glm::dot(a.normal, b.normal);
+        if (ab * ab < cos2 * na2 * nb2) continue;
+        const float off = kSheetSlope * std::sqrt(dd) + kGroupThickness * sp;
+        const float ad = glm::dot(a.normal, d);
+        if (ad * ad > off * off * na2) continue;
+        for (int q = 0; q < 6; ++q) {
+          if (!(sides & (1 << q))) continue;
+          seen[q].Extend(b.position);
+          if (goes_on(q)) open &= ~(1 << q);
+        }
+        break;
+      }
+    }
+  }
+  constexpr float kFar = std::numeric_limits<float>::max();
+  Bounds out = cell;
+  bool snaps = false;
+  for (int q = 0; q < 6; ++q) {
+    const bool on = near[q] && goes_on(q);
+    snaps = snaps || on;
+    if (!on) (q % 2 == 0 ? out.lo : out.hi)[q / 2] = q % 2 == 0 ? -kFar : kFar;
+  }
+  return snaps ? out : Bounds{};
+}
+
 }  // namespace
 
-Bounds FootprintBox(const Bounds& centres, const Bounds& cell, float spacing,
-                    const glm::vec3& plane_normal, bool* full, int* snapped) {
+namespace {
+// FootprintBox with CellHolds(cell, centres) given.
+Bounds FootprintBoxIn(const Bounds& centres, const Bounds& cell, bool has_cell, float spacing,
+                      const glm::vec3& plane_normal, bool* full, int* snapped,
+                      const Bounds* reach) {
   // The three axes in lanes (the fourth repeats the third), each lane the scalar expressions.
-  const bool has_cell = CellHolds(cell, centres);
-  V4 clo, chi, slo, shi;
+  V4 clo, chi, slo, shi, rlo, rhi;
   LoadBounds(cell, &clo, &chi);
   LoadBounds(centres, &slo, &shi);
+  if (reach != nullptr) {
+    LoadBounds(*reach, &rlo, &rhi);
+  } else {
+    rlo = clo;
+    rhi = chi;
+  }
   const V4 n = {plane_normal.x, plane_normal.y, plane_normal.z, plane_normal.z};
   // |n| by clearing the sign bit.
   const V4i abs_bits = {0x7fffffff, 0x7fffffff, 0x7fffffff, 0x7fffffff};
@@ -488,10 +602,21 @@ Bounds FootprintBox(const Bounds& centres, const Bounds& cell, float spacing,
   // (bug: sparse_full_cell_leak): its sides always snap.
   const V4i small = chi - clo < 2.0f * spacing;
   const V4i usable = has_cell ? in_plane : V4i{0, 0, 0, 0};
-  const V4i snap_lo = usable & (small | (slo - clo < 1.5f * spacing));
-  const V4i snap_hi = usable & (small | (chi - shi < 1.5f * spacing));
-  const V4 lo = snap_lo ? clo : slo - 0.5f * spacing;
-  const V4 hi = snap_hi ? chi : shi + 0.5f * spacing;
+  const V4i snap_lo = usable & (small | (slo - rlo < 1.5f * spacing));
+  const V4i snap_hi = usable & (small | (rhi - shi < 1.5f * spacing));
+  V4 lo = snap_lo ? clo : slo - 0.5f * spacing;
+  V4 hi = snap_hi ? chi : shi + 0.5f * spacing;
+  if (has_cell) {
+    // Along an axis nearly along the normal, the cell: a plane turned from that axis runs
+    // across it as far as the other axes let it, and ends at the cell's sides, where the
+    // neighbouring cell's footprint takes over; it ran on past them into that footprint
+    // (docs/design.md, "Footprints of a turned plane"). Padded by a twentieth of a spacing
+    // past the centres, so that a plane on the cell's side stays inside the box.
+    // A side moved out of reach (SheetCell) is not a side: half a spacing past the centres.
+    const V4i across = ~in_plane;
+    lo = across ? (clo > -kNoSide ? Min4(clo, slo - kPlanePad * spacing) : lo) : lo;
+    hi = across ? (chi < kNoSide ? Max4(chi, shi + kPlanePad * spacing) : hi) : hi;
+  }
   Bounds b;
   b.lo = glm::vec3(lo[0], lo[1], lo[2]);
   b.hi = glm::vec3(hi[0], hi[1], hi[2]);
@@ -508,13 +633,73 @@ Bounds FootprintBox(const Bounds& centres, const Bounds& cell, float spacing,
   }
   return b;
 }
+}  // namespace
+
+Bounds FootprintBox(const Bounds& centres, const Bounds& cell, float spacing,
+                    const glm::vec3& plane_normal, bool* full, int* snapped, const Bounds* reach) {
+  return FootprintBoxIn(centres, cell, CellHolds(cell, centres), spacing, plane_normal, full,
+                        snapped, reach);
+}
+
+bool PlaneReach(const glm::vec3& normal, float offset, const Bounds& cell, float spacing,
+                const glm::vec3& origin, Bounds* reach) {
+  // A plane along the axes reaches the cell's sides across them: the cell serves. So it does
+  // for a cell with sides moved out of reach (SheetCell): those never snap.
+  const glm::vec3 a = glm::abs(normal);
+  if (std::max({a.x, a.y, a.z}) >= 1.0f - 1e-6f * (a.x + a.y + a.z)) return false;
+  for (int k = 0; k < 3; ++k) {
+    if (!(cell.lo[k] > -kNoSide) || !(cell.hi[k] < kNoSide)) return false;
+  }
+  // FootprintBox's box along the axes nearly along the normal, relative to the origin.
+  glm::vec3 lo = cell.lo - origin, hi = cell.hi - origin;
+  for (int k = 0; k < 3; ++k) {
+    if (a[k] < 0.9f) continue;
+    lo[k] -= kPlanePad * spacing;
+    hi[k] += kPlanePad * spacing;
+  }
+  // The plane's polygon in the box has its corners on the box's edges: where the plane meets
+  // each of the twelve, the bounds of those points.
+  Bounds r;
+  for (int k = 0; k < 3; ++k) {
+    if (!(a[k] > 0.0f)) continue;  // edges along k lie parallel to the plane
+    const int i = (k + 1) % 3, j = (k + 2) % 3;
+    for (float u : {lo[i], hi[i]}) {
+      for (float v : {lo[j], hi[j]}) {
+        const float t = (offset - normal[i] * u - normal[j] * v) / normal[k];
+        if (!(t >= lo[k] && t <= hi[k])) continue;
+        glm::vec3 q;
+        q[k] = t;
+        q[i] = u;
+        q[j] = v;
+        r.Extend(q + origin);
+      }
+    }
+  }
+  if (r.Empty()) return false;
+  *reach = r;
+  return true;
+}
+
+Bounds FlatBox(const Bounds& centres, const Bounds& cell, float spacing, const glm::vec3& normal,
+               float offset, const glm::vec3& origin, bool* full, int* snapped) {
+  const bool has_cell = CellHolds(cell, centres);
+  const Bounds box =
+      FootprintBoxIn(centres, cell, has_cell, spacing, normal, full, snapped, nullptr);
+  // Where every in-plane side snapped to the cell's, it snaps to the plane's reach as well
+  // (the reach lies inside the cell): only the others ask for it.
+  Bounds reach;
+  if (*full || !has_cell || !PlaneReach(normal, offset, cell, spacing, origin, &reach)) {
+    return box;
+  }
+  return FootprintBoxIn(centres, cell, has_cell, spacing, normal, full, snapped, &reach);
+}
 
 float FlatFootprint(const Bounds& centres, const Bounds& cell, float spacing,
                     const glm::vec3& normal, float offset, const glm::vec3& origin, double area,
                     Polygon* p) {
   bool full = false;
   int snapped = 0;
-  Bounds box = FootprintBox(centres, cell, spacing, normal, &full, &snapped);
+  Bounds box = FlatBox(centres, cell, spacing, normal, offset, origin, &full, &snapped);
   PlaneBoxPolygon(normal, offset, box.lo - origin, box.hi - origin, p);
   double poly = p->n >= 3 ? PolygonArea(*p) : 0.0;
   if (!(poly > 0.0) || !(area > 0.0)) {
@@ -642,11 +827,12 @@ bool Rasterizer::ClusterHidden(const Cluster& c, const PreparedSplat& s) const {
     const float cosw = std::fabs(glm::dot(s.normal, s.dir));
     if (!(cosw > 0.0f)) return false;  // the cone splat, done
     // FlatFootprint's box: FootprintBox's, grown on its free sides by at most a spacing past
-    // the centres (and PlaneBoxPolygon's pad, 5e-5 of its largest side, at most).
+    // the centres (and PlaneBoxPolygon's pad, 5e-5 of its largest side, at most), snapped
+    // where the plane leaves the cell (PlaneReach) as there.
     const glm::vec3 mean_world = s.normal.x * t_ + s.normal.y * b_ + s.normal.z * n_;
     bool full = false;
     int snapped = 0;
-    Bounds box = FootprintBox(c.bounds, c.cell, spacing, mean_world, &full, &snapped);
+    Bounds box = FlatBox(c.bounds, c.cell, spacing, mean_world, s.plane, origin_, &full, &snapped);
     for (int k = 0; k < 3; ++k) {
       if (!(snapped & (1 << (2 * k)))) box.lo[k] = std::min(box.lo[k], c.bounds.lo[k] - spacing);
       if (!(snapped & (2 << (2 * k)))) box.hi[k] = std::max(box.hi[k], c.bounds.hi[k] + spacing);
@@ -800,6 +986,16 @@ void Rasterizer::PrepareSurfelGroups(const Gathered& g, ShadeResult* out) {
   auto same_cell = [&](uint32_t a, uint32_t b) {
     return leaves ? g.surfel_leaf[a] == g.surfel_leaf[b] : keys[a] == keys[b];
   };
+  // The runs of one leaf's surfels (the gather emits a leaf's surfels together), for
+  // SheetCell's look at the neighbouring leaves.
+  auto& runs = mb_.leaf_runs_;
+  runs.clear();
+  if (leaves) {
+    for (size_t i = 0; i < n; ++i) {
+      if (i == 0 || g.surfel_leaf[i] != g.surfel_leaf[i - 1])
+        runs.push_back(static_cast<uint32_t>(i));
+    }
+  }
   size_t run0 = 0;
   while (run0 < n) {
     size_t run1 = run0 + 1;
@@ -932,12 +1128,19 @@ void Rasterizer::PrepareSurfelGroups(const Gathered& g, ShadeResult* out) {
       const glm::vec3 facing = side > 0.0f ? normal : -normal;
       // A piece of a leaf ends where its surfels end, not at its cell's sides: snapped to them,
       // the leaves' groups tiled their cells and over-occluded the forest (+23%, seen once the
-      // cells were the octree's, bug: cells_off_the_key_cube).
+      // cells were the octree's, bug: cells_off_the_key_cube). A sheet that goes on past a side
+      // snaps to it (SheetCell): ended half a spacing past its outermost centres, its cells'
+      // footprints left gaps along every side, and a receiver in a wedge under a thin part of
+      // a mesh looked through them (bug: two_sided_sheet_gaps_between_cells).
       if (!first.two_sided && !have_contact_cell) {
         contact_cell =
             ContactCell(cell, gr, groups, origin_, n_, crease_tol_, &contact, &reach, &on_receiver);
       }
-      const Bounds snap_to = first.two_sided ? Bounds{} : contact_cell;
+      const Bounds snap_to = !first.two_sided ? contact_cell
+                             : leaves && count >= kSheetMinCount
+                                 ? SheetCell(cell, g.surfel_leaf[order[end - 1]], gr, g,
+                                             &order[end - count], mb_.leaf_runs_)
+                                 : Bounds{};
       Polygon p;
       float alpha = FlatFootprint(first.two_sided ? centres : reach, snap_to, spacing, facing,
                                   -std::fabs(side), from, area, &p);

@@ -7,9 +7,14 @@
 // cluster and each leaf's surfels shaded alone) and what rays along its normal hit.
 // Usage: pixel_error SCENE|MESH DATABASE [--receivers N] [--msa A] [--res R] [--sub S]
 //        [--seed K] [--hitsides front|both] [--detail]
+//        pixel_error SCENE|MESH DATABASE --at X,Y,Z --normal X,Y,Z [--msa A] [--res R] [--sub S]
+//        [--hitsides front|both] [--pixel-diff D] [--pixel P] [--keep-above H] [--keep-within D]
+// The second form is one receiver pixel by pixel (a `pbgi eval --dump-receivers` row): the
+// pixels whose coverage differs from the rays' by more than D, with what the rays hit there;
+// --pixel P lists the gathered surfels on P's central ray; --keep-above/--keep-within shade
+// only the surfels that high above the receiver's plane and that near (no clusters).
 // DATABASE: one built from the same scene (`pbgi eval ... -o DIR` leaves DIR/NAME.pbgi). Meshes
-// are read z-up as the file has them (no --up y: a y-up mesh's database from `pbgi eval --up y`
-// is rotated, and this tool would not match it).
+// are read z-up as the file has them, or with --up y rotated as `pbgi eval --up y` does.
 // docs/eval.md ("Session 8") has what it showed.
 #include <algorithm>
 #include <cmath>
@@ -36,6 +41,13 @@ struct Args {
   uint64_t seed = 7920;  // pbgi eval's receivers for --seed 1
   HitSides sides = HitSides::kFront;
   bool detail = false;
+  bool one = false;  // --at/--normal: one receiver, pixel by pixel
+  glm::vec3 at{0.0f}, normal{0.0f, 0.0f, 1.0f};
+  float pixel_diff = 0.05f;
+  int pixel = -1;             // --pixel: the gathered surfels whose disks its central ray crosses
+  float keep_above = -1e30f;  // --keep-above H: shade only the surfels at least H above
+  float keep_within = 1e30f;  // --keep-within D: and within D of the receiver
+  bool up_y = false;          // --up y: the mesh is y-up (pbgi eval --up y rotates it)
 };
 
 struct Worst {
@@ -121,11 +133,163 @@ void Detail(const Worst& w, Reader& reader, const Tracer& tracer, const Cut& cut
   }
 }
 
+// The unit direction `u` (receiver frame) of sub-sample (i, j) of `sub` x `sub` in pixel (col,
+// row) of cube face `face` (pixels `step` wide on the face's plane at distance 1), and its
+// weight: cosine times solid angle per plane area. False below the horizon.
+bool SubPixelRay(const internal::FaceAxes& face, int col, int row, int i, int j, int sub,
+                 double step, glm::dvec3* u, double* wt) {
+  glm::dvec3 v(0.0);
+  v[face.k] = face.sign;
+  v[face.k1] = -1.0 + (col + (i + 0.5) / sub) * step;
+  v[face.k2] = -1.0 + (row + (j + 0.5) / sub) * step;
+  const double len = glm::length(v);
+  *u = v / len;
+  if (u->z <= 0.0) return false;
+  *wt = u->z / (len * len * len);
+  return true;
+}
+
+// The tools' default cut and raster options (`pbgi shade`), at the sweep's msa, resolution and
+// hitsides.
+Cut ToolCut(const Args& a) {
+  Cut cut;
+  cut.max_solid_angle = a.msa;
+  cut.cosine_weighted = true;
+  cut.curved_scale = 0.3f;
+  cut.curved_box_scale = 1.0f;
+  return cut;
+}
+RasterOptions ToolRaster(const Args& a) {
+  RasterOptions ro;
+  ro.resolution = a.res;
+  ro.footprint = Footprint::kPolygons;
+  ro.compute_radiance = false;
+  ro.hitsides = a.sides;
+  return ro;
+}
+
+// One receiver, pixel by pixel: every pixel whose coverage differs from the rays' by more than
+// `a.pixel_diff`, with its direction in the receiver's frame, what PBGI drew there (coverage,
+// nearest depth) and what its central rays hit first (distance, side, normals' cosine,
+// triangle).
+int RunOne(const Args& a, Reader& reader, const Tracer& tracer) {
+  const glm::vec3 n = glm::normalize(a.normal);
+  const glm::vec3 p = a.at;
+  const Cut cut = ToolCut(a);
+  const RasterOptions ro = ToolRaster(a);
+  MicroBuffer mb;
+  if (absl::Status s = mb.Prepare(a.res); !s.ok()) return Fail(s);
+  Gathered g;
+  if (absl::Status st = reader.Gather({p, n}, cut, &g); !st.ok()) return Fail(st);
+  if (a.keep_above > -1e29f || a.keep_within < 1e29f) {
+    Gathered k;
+    k.position_tolerance = g.position_tolerance;
+    k.leaf_cells = g.leaf_cells;
+    for (size_t i = 0; i < g.surfels.size(); ++i) {
+      const glm::vec3 rel = g.surfels[i].position - p;
+      if (glm::dot(rel, n) < a.keep_above || glm::length(rel) > a.keep_within) continue;
+      k.surfels.push_back(g.surfels[i]);
+      k.surfel_ids.push_back(g.surfel_ids[i]);
+      k.surfel_leaf.push_back(g.surfel_leaf[i]);
+    }
+    g = std::move(k);
+  }
+  ShadeResult r;
+  if (absl::Status st = Shade(g, {p, n, n}, ro, &mb, &r); !st.ok()) return Fail(st);
+  glm::vec3 t, b;
+  internal::OrthonormalBasis(n, &t, &b);
+  const double step = 2.0 / a.res;
+  double got = 0, want = 0, weight = 0;
+  std::printf(
+      "receiver %.6f,%.6f,%.6f normal %.4f,%.4f,%.4f: shade %.5f (%zu clusters, %zu "
+      "surfels)\n",
+      p.x, p.y, p.z, n.x, n.y, n.z, r.occlusion, g.clusters.size(), g.surfels.size());
+  std::printf(
+      "   px  elev   azim    w*1e3  pbgi  rays  diff*w  depth  | rays' first hit: dist "
+      "back cos tri\n");
+  for (int f = 0; f < 6; ++f) {
+    const internal::FaceAxes face = internal::Face(f);
+    for (int row = 0; row < a.res; ++row) {
+      for (int col = 0; col < a.res; ++col) {
+        const int q = (f * a.res + row) * a.res + col;
+        const double w = mb.PixelCosineWeight(q);
+        if (!(w > 0.0)) continue;
+        double hit = 0, all = 0, dist = 0, back = 0, cosn = 0;
+        int hits = 0;
+        uint32_t tri = 0;
+        for (int i = 0; i < a.sub; ++i) {
+          for (int j = 0; j < a.sub; ++j) {
+            glm::dvec3 u;
+            double wt;
+            if (!SubPixelRay(face, col, row, i, j, a.sub, step, &u, &wt)) continue;
+            all += wt;
+            const glm::vec3 d = float(u.x) * t + float(u.y) * b + float(u.z) * n;
+            const Hit h = tracer.Intersect(p, d, 1e30f);
+            if (!h.hit) continue;
+            hit += wt;
+            ++hits;
+            dist += h.distance;
+            back += h.front ? 0.0 : 1.0;
+            cosn += glm::dot(h.normal, n);
+            tri = h.triangle;
+          }
+        }
+        const double truth = all > 0.0 ? hit / all : 0.0;
+        const double c = std::min(1.0f, mb.PixelCoverage(q));
+        got += w * c, want += w * truth, weight += w;
+        if (std::fabs(c - truth) <= a.pixel_diff) continue;
+        const glm::vec3 dir = glm::normalize(mb.PixelDirection(q));
+        std::printf("%5d %5.1f %6.1f %8.3f %5.3f %5.3f %+8.5f %7.4f | ", q,
+                    std::asin(std::min(1.0f, dir.z)) * 180.0 / sh::kPi,
+                    std::atan2(dir.y, dir.x) * 180.0 / sh::kPi, w * 1e3, c, truth, w * (c - truth),
+                    mb.PixelDepth(q));
+        if (hits > 0) {
+          std::printf("%.4f %.2f %+.3f %u\n", dist / hits, back / hits, cosn / hits, tri);
+        } else {
+          std::printf("-\n");
+        }
+      }
+    }
+  }
+  std::printf("pixels: PBGI %.5f, rays %.5f (diff %+.5f)\n", got / weight, want / weight,
+              (got - want) / weight);
+  if (a.pixel >= 0 && a.pixel < mb.pixel_count()) {
+    const glm::vec3 l = glm::normalize(mb.PixelDirection(a.pixel));
+    const glm::vec3 d = l.x * t + l.y * b + l.z * n;
+    std::printf("pixel %d: direction %.4f,%.4f,%.4f (world)\n", a.pixel, d.x, d.y, d.z);
+    for (size_t i = 0; i < g.surfels.size(); ++i) {
+      const Surfel& s = g.surfels[i];
+      const float dn = glm::dot(d, s.normal);
+      if (std::fabs(dn) < 1e-6f) continue;
+      const float tt = glm::dot(s.position - p, s.normal) / dn;
+      if (!(tt > 0.0f)) continue;
+      const glm::vec3 x = p + tt * d - s.position;
+      const float off = glm::length(x);
+      if (off > 2.0f * s.radius) continue;
+      const Bounds& cell = g.leaf_cells[g.surfel_leaf[i]];
+      std::printf(
+          "  t %.4f off/r %.2f surfel %llu at %.5f,%.5f,%.5f n %.3f,%.3f,%.3f r %.5f%s "
+          "leaf %u cell %.4f,%.4f,%.4f-%.4f,%.4f,%.4f\n",
+          tt, off / s.radius, static_cast<unsigned long long>(g.surfel_ids[i]), s.position.x,
+          s.position.y, s.position.z, s.normal.x, s.normal.y, s.normal.z, s.radius,
+          s.two_sided ? " 2s" : "", g.surfel_leaf[i], cell.lo.x, cell.lo.y, cell.lo.z, cell.hi.x,
+          cell.hi.y, cell.hi.z);
+    }
+  }
+  return 0;
+}
+
 int Run(const Args& a) {
   ImportReport report;
   auto scene =
       a.scene.find('.') != std::string::npos ? ImportMesh(a.scene, &report) : MakeScene(a.scene);
   if (!scene.ok()) return Fail(scene.status());
+  if (a.up_y) {
+    // As pbgi eval --up y: (x, y, z) -> (x, -z, y), +90 degrees about x.
+    const glm::mat4 r(glm::vec4(1, 0, 0, 0), glm::vec4(0, 0, 1, 0), glm::vec4(0, -1, 0, 0),
+                      glm::vec4(0, 0, 0, 1));
+    for (Instance& i : scene->instances) i.transform = r * i.transform;
+  }
   auto shared = std::make_shared<const Scene>(std::move(scene).value());
   auto tracer = Tracer::Create(*shared);
   if (!tracer.ok()) return Fail(tracer.status());
@@ -133,6 +297,7 @@ int Run(const Args& a) {
   if (!db.ok()) return Fail(db.status());
   auto reader = (*db)->NewReader();
   if (!reader.ok()) return Fail(reader.status());
+  if (a.one) return RunOne(a, **reader, **tracer);
   SamplerOptions rs;
   rs.count = a.receivers;
   rs.seed = a.seed;
@@ -146,16 +311,8 @@ int Run(const Args& a) {
     if (*got == 0) break;
     samples.insert(samples.end(), buf.begin(), buf.begin() + *got);
   }
-  Cut cut;
-  cut.max_solid_angle = a.msa;
-  cut.cosine_weighted = true;
-  cut.curved_scale = 0.3f;
-  cut.curved_box_scale = 1.0f;
-  RasterOptions ro;
-  ro.resolution = a.res;
-  ro.footprint = Footprint::kPolygons;
-  ro.compute_radiance = false;
-  ro.hitsides = a.sides;
+  const Cut cut = ToolCut(a);
+  const RasterOptions ro = ToolRaster(a);
   MicroBuffer mb;
   if (absl::Status s = mb.Prepare(a.res); !s.ok()) return Fail(s);
   double cls[3][3] = {}, cls_w[3][3] = {}, elev[6] = {}, elev_w[6] = {}, all_w = 0;
@@ -182,14 +339,9 @@ int Run(const Args& a) {
           double hit = 0, all = 0;
           for (int i = 0; i < a.sub; ++i) {
             for (int j = 0; j < a.sub; ++j) {
-              glm::dvec3 v(0.0);
-              v[face.k] = face.sign;
-              v[face.k1] = -1.0 + (col + (i + 0.5) / a.sub) * step;
-              v[face.k2] = -1.0 + (row + (j + 0.5) / a.sub) * step;
-              const double len = glm::length(v);
-              const glm::dvec3 u = v / len;
-              if (u.z <= 0.0) continue;
-              const double wt = u.z / (len * len * len);  // cosine x solid angle per plane area
+              glm::dvec3 u;
+              double wt;
+              if (!SubPixelRay(face, col, row, i, j, a.sub, step, &u, &wt)) continue;
               all += wt;
               const glm::vec3 d = float(u.x) * t + float(u.y) * b + float(u.z) * n;
               if ((*tracer)->Occluded(p, d, 1e30f)) hit += wt;
@@ -274,6 +426,23 @@ int main(int argc, char** argv) {
       a.sides = std::strcmp(value(), "both") == 0 ? pbgi::HitSides::kBoth : pbgi::HitSides::kFront;
     else if (arg == "--detail")
       a.detail = true;
+    else if (arg == "--at" || arg == "--normal") {
+      glm::vec3& v = arg == "--at" ? a.at : a.normal;
+      if (std::sscanf(value(), "%f,%f,%f", &v.x, &v.y, &v.z) != 3) {
+        std::fprintf(stderr, "pixel_error: %s needs X,Y,Z\n", arg.c_str());
+        return 2;
+      }
+      a.one = true;
+    } else if (arg == "--up")
+      a.up_y = std::strcmp(value(), "y") == 0;
+    else if (arg == "--keep-above")
+      a.keep_above = std::strtof(value(), nullptr);
+    else if (arg == "--keep-within")
+      a.keep_within = std::strtof(value(), nullptr);
+    else if (arg == "--pixel")
+      a.pixel = std::atoi(value());
+    else if (arg == "--pixel-diff")
+      a.pixel_diff = std::strtof(value(), nullptr);
     else if (positional == 0)
       a.scene = arg, ++positional;
     else if (positional == 1)

@@ -285,6 +285,7 @@ class MicroBuffer {
   std::vector<internal::PixelCoverage> coverage_;      // one polygon's pixels
   std::vector<uint32_t> groups_;                       // scratch of the surfel groups
   std::vector<uint64_t> group_keys_;                   // their grid cells
+  std::vector<uint32_t> leaf_runs_;  // where each run of one leaf's surfels starts (SheetCell)
   bool free_layer_ = true;  // the last Shade()'s first layer summed freely (kSplats)
 };
 
