@@ -31,6 +31,9 @@ namespace {
 // A flat footprint whose polygon holds at most this many surfels' areas fills its cell whenever
 // it reaches the cell's sides (see FlatFootprint).
 constexpr double kSmallCell = 9.0;
+// An axis k lies in a plane with unit normal n when |n_k| < kInPlaneAxis: a footprint box snaps
+// to its cell only along such axes, and along the others it spans the cell (FootprintBox).
+constexpr float kInPlaneAxis = 0.9f;
 // Along an axis nearly along its plane's normal a flat footprint's box is its cell, padded by
 // this many spacings past the centres (FootprintBox).
 constexpr float kPlanePad = 0.05f;
@@ -356,7 +359,7 @@ Bounds ContactCell(const Bounds& cell, const SurfelGroup& a, absl::Span<const Su
     const float h = a.hmin;
     if (h > -0.25f * sa && h < kContactReach * sa) {
       for (int k = 0; k < 3; ++k) {
-        if (std::fabs(na[k]) > 0.9f || std::fabs(nr[k]) < 0.5f) continue;
+        if (std::fabs(na[k]) > kInPlaneAxis || std::fabs(nr[k]) < 0.5f) continue;
         // The box's side facing the plane, across the cell (the centres' box without one: the
         // surface goes on along the contact to the cell's sides, below), as a box flat along
         // k: its highest point decides how far the side moves.
@@ -400,7 +403,7 @@ Bounds ContactCell(const Bounds& cell, const SurfelGroup& a, absl::Span<const Su
     for (int j = 1; j < 3; ++j) {
       if (std::fabs(nb[j]) > std::fabs(nb[k])) k = j;
     }
-    if (std::fabs(nb[k]) < 0.99f || std::fabs(na[k]) > 0.9f) continue;
+    if (std::fabs(nb[k]) < 0.99f || std::fabs(na[k]) > kInPlaneAxis) continue;
     bool overlap = true;
     for (int j = 0; j < 3; ++j) {
       overlap = overlap && a.centres.lo[j] - 1.5f * sa <= b.centres.hi[j] + 1.5f * sb &&
@@ -460,7 +463,7 @@ Bounds ContactCell(const Bounds& cell, const SurfelGroup& a, absl::Span<const Su
   // another way): the receiver's own surface aside, whose plane is the contact's other side.
   if (raised && reach && oblique) {
     for (int k = 0; k < 3; ++k) {
-      if (std::fabs(na[k]) > 0.9f || (raised >> k) & 1) continue;
+      if (std::fabs(na[k]) > kInPlaneAxis || (raised >> k) & 1) continue;
       bool lo_free = a.centres.lo[k] - out.lo[k] < kContactAlong * sa;
       bool hi_free = out.hi[k] - a.centres.hi[k] < kContactAlong * sa;
       for (const SurfelGroup& b : groups) {
@@ -501,7 +504,7 @@ Bounds SheetCell(const Bounds& cell, uint32_t leaf, const SurfelGroup& gr, const
   const float sp = gr.spacing, reach = kSheetReach * sp;
   bool in_plane[3], near[6], any = false;  // near[2 k] (near[2 k + 1]): the low (high) side of k
   for (int k = 0; k < 3; ++k) {
-    in_plane[k] = std::fabs(gr.normal[k]) < 0.9f;
+    in_plane[k] = std::fabs(gr.normal[k]) < kInPlaneAxis;
     near[2 * k] = in_plane[k] && gr.centres.lo[k] - cell.lo[k] < reach;
     near[2 * k + 1] = in_plane[k] && cell.hi[k] - gr.centres.hi[k] < reach;
     any = any || near[2 * k] || near[2 * k + 1];
@@ -597,7 +600,7 @@ Bounds FootprintBoxIn(const Bounds& centres, const Bounds& cell, bool has_cell, 
   const V4 n = {plane_normal.x, plane_normal.y, plane_normal.z, plane_normal.z};
   // |n| by clearing the sign bit.
   const V4i abs_bits = {0x7fffffff, 0x7fffffff, 0x7fffffff, 0x7fffffff};
-  const V4i in_plane = (V4)((V4i)n & abs_bits) < 0.9f;
+  const V4i in_plane = (V4)((V4i)n & abs_bits) < kInPlaneAxis;
   // A cell less than two spacings across cannot tell a surface's edge from sampling noise
   // (bug: sparse_full_cell_leak): its sides always snap.
   const V4i small = chi - clo < 2.0f * spacing;
@@ -653,7 +656,7 @@ bool PlaneReach(const glm::vec3& normal, float offset, const Bounds& cell, float
   // FootprintBox's box along the axes nearly along the normal, relative to the origin.
   glm::vec3 lo = cell.lo - origin, hi = cell.hi - origin;
   for (int k = 0; k < 3; ++k) {
-    if (a[k] < 0.9f) continue;
+    if (a[k] < kInPlaneAxis) continue;
     lo[k] -= kPlanePad * spacing;
     hi[k] += kPlanePad * spacing;
   }
@@ -722,13 +725,13 @@ float FlatFootprint(const Bounds& centres, const Bounds& cell, float spacing,
     int free_axes = 0;
     for (int k = 0; k < 3; ++k) {
       const int sides = (snapped >> (2 * k)) & 3;
-      if (std::fabs(normal[k]) < 0.9f && sides != 3) ++free_axes;
+      if (std::fabs(normal[k]) < kInPlaneAxis && sides != 3) ++free_axes;
     }
     if (free_axes == 0) break;
     const double f = std::pow(area / poly, 1.0 / free_axes);
     for (int k = 0; k < 3; ++k) {
       const int sides = (snapped >> (2 * k)) & 3;
-      if (!(std::fabs(normal[k]) < 0.9f) || sides == 3) continue;
+      if (!(std::fabs(normal[k]) < kInPlaneAxis) || sides == 3) continue;
       const float grow = static_cast<float>((f - 1.0) * (box.hi[k] - box.lo[k]));
       const bool lo_free = !(sides & 1), hi_free = !(sides & 2);
       const float share = lo_free && hi_free ? 0.5f * grow : grow;
@@ -987,15 +990,20 @@ void Rasterizer::PrepareSurfelGroups(const Gathered& g, ShadeResult* out) {
     return leaves ? g.surfel_leaf[a] == g.surfel_leaf[b] : keys[a] == keys[b];
   };
   // The runs of one leaf's surfels (the gather emits a leaf's surfels together), for
-  // SheetCell's look at the neighbouring leaves.
+  // SheetCell's look at the neighbouring leaves: found when a two-sided group first asks, not
+  // for every receiver (most see no two-sided surfels).
   auto& runs = mb_.leaf_runs_;
   runs.clear();
-  if (leaves) {
-    for (size_t i = 0; i < n; ++i) {
-      if (i == 0 || g.surfel_leaf[i] != g.surfel_leaf[i - 1])
-        runs.push_back(static_cast<uint32_t>(i));
+  auto leaf_runs = [&]() -> absl::Span<const uint32_t> {
+    if (runs.empty()) {
+      for (size_t i = 0; i < n; ++i) {
+        if (i == 0 || g.surfel_leaf[i] != g.surfel_leaf[i - 1]) {
+          runs.push_back(static_cast<uint32_t>(i));
+        }
+      }
     }
-  }
+    return runs;
+  };
   size_t run0 = 0;
   while (run0 < n) {
     size_t run1 = run0 + 1;
@@ -1139,7 +1147,7 @@ void Rasterizer::PrepareSurfelGroups(const Gathered& g, ShadeResult* out) {
       const Bounds snap_to = !first.two_sided ? contact_cell
                              : leaves && count >= kSheetMinCount
                                  ? SheetCell(cell, g.surfel_leaf[order[end - 1]], gr, g,
-                                             &order[end - count], mb_.leaf_runs_)
+                                             &order[end - count], leaf_runs())
                                  : Bounds{};
       Polygon p;
       float alpha = FlatFootprint(first.two_sided ? centres : reach, snap_to, spacing, facing,

@@ -286,7 +286,7 @@ class MicroBuffer {
   std::vector<uint32_t> groups_;                       // scratch of the surfel groups
   std::vector<uint64_t> group_keys_;                   // their grid cells
   std::vector<uint32_t> leaf_runs_;  // where each run of one leaf's surfels starts (SheetCell)
-  bool free_layer_ = true;  // the last Shade()'s first layer summed freely (kSplats)
+  bool free_layer_ = true;           // the last Shade()'s first layer summed freely (kSplats)
 };
 
 // The far field of a group of receivers that share it (pbgi/query.h, FarCut; docs/shade.md,
