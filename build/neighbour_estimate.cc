@@ -110,7 +110,7 @@ absl::Status NeighbourEstimator::EstimateRange(size_t begin, size_t end, Sink si
       const double kk = double(n - 1);
       float radius = kk > 0 ? float(std::sqrt(2.0 * sum / (kk * (kk + 1)))) : 0.0f;
       if (!(radius >= min_radius_)) radius = last_radius_ > 0 ? last_radius_ : min_radius_;
-      r.radius = std::copysign(radius, r.radius);  // keeps the two-sided bit
+      r.radius = EncodeRadius(radius, RadiusTwoSided(r.radius), RadiusSheet(r.radius));
       last_radius_ = radius;
     }
     if (options_.normals) {

@@ -174,6 +174,7 @@ enum Field {
   kRy,
   kRz,
   kTwoSided,
+  kSheet,
   kNumFields,
   kSkip = -1
 };
@@ -198,7 +199,8 @@ int FieldOf(absl::string_view name) {
                                                        {"rx", kRx},
                                                        {"ry", kRy},
                                                        {"rz", kRz},
-                                                       {"two_sided", kTwoSided}};
+                                                       {"two_sided", kTwoSided},
+                                                       {"sheet", kSheet}};
   for (const auto& [n, f] : kNames) {
     if (name == n) return f;
   }
@@ -679,6 +681,10 @@ class PlyFileReader final : public PlySource {
     s->radiance = has_color_ ? glm::vec3(v[kR], v[kG], v[kB]) : glm::vec3(0.0f);
     *reflection = glm::vec3(v[kRx], v[kRy], v[kRz]);
     s->two_sided = v[kTwoSided] != 0.0;
+    // A sheet tag means something on a two-sided surfel only (Surfel::sheet).
+    s->sheet = s->two_sided && v[kSheet] >= 1.0 && v[kSheet] <= 255.0
+                   ? static_cast<uint8_t>(v[kSheet])
+                   : uint8_t{0};
   }
 
   absl::Status ReadBinaryRecord(Surfel* s, glm::vec3* reflection) {
@@ -719,6 +725,7 @@ class PlyFileReader final : public PlySource {
         std::memcpy(static_cast<void*>(&s), p + j * stride, float_prefix_bytes_);
         if (!has_color_) s.radiance = glm::vec3(0.0f);
         s.two_sided = false;
+        s.sheet = 0;
       }
       buf_pos_ += k * stride;
       file_pos_ += static_cast<long>(k * stride);
@@ -907,7 +914,7 @@ absl::StatusOr<std::unique_ptr<PlyWriter>> PlyWriter::Create(const std::string& 
   w->colors_ = options.colors == PlyColors::kGiven ||
                (options.colors == PlyColors::kRadiance && options.radiance);
   if (w->colors_) h += "property uchar red\nproperty uchar green\nproperty uchar blue\n";
-  if (options.two_sided) h += "property uchar two_sided\n";
+  if (options.two_sided) h += "property uchar two_sided\nproperty uchar sheet\n";
   h += "end_header\n";
   if (std::fwrite(h.data(), 1, h.size(), w->file_) != h.size()) {
     return absl::InternalError(
@@ -955,12 +962,15 @@ absl::Status PlyWriter::Write(absl::Span<const Surfel> surfels, absl::Span<const
         absl::StrAppendFormat(&buf_, "%.9g", v[k]);
       }
       if (colors_) absl::StrAppendFormat(&buf_, " %d %d %d", c[0], c[1], c[2]);
-      if (options_.two_sided) absl::StrAppend(&buf_, s.two_sided ? " 1" : " 0");
+      if (options_.two_sided) absl::StrAppend(&buf_, s.two_sided ? " 1 " : " 0 ", s.sheet);
       buf_ += '\n';
     } else {
       buf_.append(reinterpret_cast<const char*>(v.data()), v.size() * sizeof(float));
       if (colors_) buf_.append(reinterpret_cast<const char*>(c), 3);
-      if (options_.two_sided) buf_ += static_cast<char>(s.two_sided ? 1 : 0);
+      if (options_.two_sided) {
+        buf_ += static_cast<char>(s.two_sided ? 1 : 0);
+        buf_ += static_cast<char>(s.sheet);
+      }
     }
   }
   if (std::fwrite(buf_.data(), 1, buf_.size(), file_) != buf_.size()) {

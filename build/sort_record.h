@@ -1,5 +1,6 @@
 // The record that the external sort moves around: a Morton key and the surfel it belongs to,
-// its two-sided flag in the radius's sign bit as in the point records (tree/format.h).
+// its two-sided flag in the radius's sign bit and its sheet tag in that radius's low bits
+// (tree/format.h, EncodeRadius).
 #ifndef PBGI_BUILD_SORT_RECORD_H_
 #define PBGI_BUILD_SORT_RECORD_H_
 
@@ -30,7 +31,7 @@ inline SortRecord MakeSortRecord(uint64_t key, const Surfel& s) {
   return SortRecord{key,
                     {s.position.x, s.position.y, s.position.z},
                     {s.normal.x, s.normal.y, s.normal.z},
-                    EncodeRadius(s.radius, s.two_sided),
+                    EncodeRadius(s.radius, s.two_sided, s.sheet),
                     {s.radiance.x, s.radiance.y, s.radiance.z}};
 }
 

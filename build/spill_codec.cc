@@ -155,7 +155,8 @@ void SpillCodec::PackBlock(const SortRecord* in, size_t n, SortRecord* out) cons
           _mm_and_ps(_mm_and_ps(finite(px), finite(py)), _mm_and_ps(finite(pz), finite(rad)));
       ok = _mm_and_ps(ok, _mm_and_ps(finite(l1n), _mm_cmpgt_ps(l1n, zero)));
       if (radiance) ok = _mm_and_ps(ok, _mm_and_ps(finite(l0), _mm_and_ps(finite(l1), finite(l2))));
-      if (_mm_movemask_ps(ok) != 0xf) {
+      // Two-sided records (their normal holds the sheet tag: EncodeOctahedralSheet) go to Pack.
+      if (_mm_movemask_ps(ok) != 0xf || _mm_movemask_ps(rad) != 0) {
         for (int k = 0; k < 4; ++k) {
           const SortRecord copy = in[i + k];
           Pack(copy, &out[i + k]);
@@ -320,6 +321,12 @@ void SpillCodec::UnpackBlock(const SortRecord* packed, size_t n, SortRecord* out
     _mm_storeh_pi(reinterpret_cast<__m64*>(reinterpret_cast<uint8_t*>(&out[i + 1]) + 40), c01);
     _mm_storel_pi(reinterpret_cast<__m64*>(reinterpret_cast<uint8_t*>(&out[i + 2]) + 40), c23);
     _mm_storeh_pi(reinterpret_cast<__m64*>(reinterpret_cast<uint8_t*>(&out[i + 3]) + 40), c23);
+    // Two-sided records (cell bit 63) hold a sheet tag in their normal: decoded one at a time.
+    if (const int two_sided = _mm_movemask_ps(_mm_castsi128_ps(cell_hi)); two_sided != 0) {
+      for (int k = 0; k < 4; ++k) {
+        if (two_sided & (1 << k)) out[i + k] = Unpack(packed[i + k]);
+      }
+    }
   }
 #endif
   for (; i < n; ++i) out[i] = Unpack(packed[i]);

@@ -249,6 +249,7 @@ py::dtype SurfelDtype() {
       .Field("radius", "f4", offsetof(Surfel, radius))
       .Field("radiance", "(3,)f4", offsetof(Surfel, radiance))
       .Field("two_sided", "?", offsetof(Surfel, two_sided))
+      .Field("sheet", "u1", offsetof(Surfel, sheet))
       .Make(sizeof(Surfel));
 }
 

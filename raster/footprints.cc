@@ -1122,13 +1122,15 @@ void Rasterizer::PrepareSurfelGroups(const Gathered& g, ShadeResult* out) {
       // Drawn, the receiver's own surface seen from behind covered up to half the hemisphere
       // (+0.03 of the +0.055 excess on Wuson.ply; bug: own_surface_seen_from_behind).
       float thickness = 0.0f;
+      uint8_t sheet = first.sheet;  // the members' common tag, 0 when they differ
       if (first.two_sided) {
         for (size_t j = end - count; j < end; ++j) {
-          thickness = std::max(
-              thickness, std::fabs(glm::dot(normal, g.surfels[order[j]].position - centroid)));
+          const Surfel& m = g.surfels[order[j]];
+          thickness = std::max(thickness, std::fabs(glm::dot(normal, m.position - centroid)));
+          if (m.sheet != sheet) sheet = 0;
         }
       }
-      if (OwnSurfaceFromBehind(first.two_sided, normal, rel, spacing) ||
+      if (OwnSurfaceFromBehind(first.two_sided, sheet, normal, rel, spacing) ||
           (first.two_sided && InsideOwnSheet(normal, rel, thickness, spacing))) {
         out->culled += count;
         continue;

@@ -78,6 +78,7 @@ inline void Rasterizer::Reset() {
 
 void Rasterizer::SetFrame(const ShadeReceiver& r) {
   n_ = glm::normalize(r.normal);
+  sheet_ = r.sheet;
   OrthonormalBasis(n_, &t_, &b_);
   origin_ = r.position + o_.bias * n_;
   world_x_ = ToLocal(glm::vec3(1.0f, 0.0f, 0.0f));
@@ -120,7 +121,7 @@ void Rasterizer::PrepareSurfel(const Surfel& sf, ShadeResult* out) {
   const bool visible = (sides == HitSides::kFront && side > 0.0f) ||
                        (sides == HitSides::kBack && side < 0.0f) ||
                        (sides == HitSides::kBoth && side != 0.0f);
-  if (!(top > 0.0f) || !visible || OwnSurfaceFromBehind(sf.two_sided, normal, rel, r) ||
+  if (!(top > 0.0f) || !visible || OwnSurfaceFromBehind(sf.two_sided, sf.sheet, normal, rel, r) ||
       !std::isfinite(d2) || d > o_.max_distance) {
     ++out->culled;
     return;

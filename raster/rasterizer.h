@@ -282,12 +282,18 @@ class Rasterizer {
   //   shows both) it covered up to the whole hemisphere (bug:
   //   convex_thin_sheet_covers_its_receiver). A separate sheet over the receiver (a decal over
   //   a panel, a leaf over the ground) has its centre in front and still occludes.
-  bool OwnSurfaceFromBehind(bool two_sided, const glm::vec3& normal, const glm::vec3& rel,
-                            float reach) const {
+  // - Either way, not when `sheet` and the receiver's sheet tag (Surfel::sheet) are both known
+  //   and differ: then it is another sheet crossing the receiver's (a leaf through a leaf),
+  //   whatever its place (docs/design.md, "Sheet tags").
+  bool OwnSurfaceFromBehind(bool two_sided, uint8_t sheet, const glm::vec3& normal,
+                            const glm::vec3& rel, float reach) const {
     const float side = -glm::dot(normal, rel);  // > 0: the receiver is in front
     if (!two_sided) return o_.hitsides == HitSides::kBoth && side < 0.0f && -side < reach;
+    if (OtherSheet(sheet)) return false;
     return std::fabs(side) < reach && glm::dot(n_, rel) < 0.0f;
   }
+  // Whether a two-sided element's sheet tag says it is not the receiver's sheet.
+  bool OtherSheet(uint8_t sheet) const { return sheet != 0 && sheet_ != 0 && sheet != sheet_; }
   // Whether a two-sided co-planar group (unit `normal`, centre at `rel`, its surfel centres
   // within `thickness` of its plane) is the receiver's own sheet bent concavely: the receiver
   // lies behind the sheet turned its way (normal towards the receiver's normal), no farther
@@ -298,6 +304,10 @@ class Rasterizer {
   // separate sheet above the receiver is flat within its own group, so lies farther than its
   // thickness (at least kOwnSheetReach of a spacing) and still occludes.
   static constexpr float kOwnSheetReach = 0.075f;
+  // Sheet tags do not enter: a group of another sheet whose plane passes within its own
+  // thickness of the receiver (sampling noise) is drawn through the receiver's place and covers
+  // far more of its hemisphere than the crossing does, so it is culled as well (docs/design.md,
+  // "Sheet tags").
   bool InsideOwnSheet(const glm::vec3& normal, const glm::vec3& rel, float thickness,
                       float spacing) const {
     const float side = -glm::dot(normal, rel);
@@ -601,6 +611,7 @@ class Rasterizer {
   const float max_width_;  // the largest pixel's angular width
   const bool avx2_;        // run the AVX2 builds (UseAvx2())
   glm::vec3 origin_, t_, b_, n_;
+  uint8_t sheet_ = 0;                      // the receiver's sheet tag (ShadeReceiver::sheet)
   float crease_tol_ = 0.0f;                // see CreaseShift()
   glm::vec3 world_x_, world_y_, world_z_;  // the world axes x, y, z in the receiver's frame
   // ToLocal()'s matrix by columns, {t_[k], b_[k], n_[k], 0} for k = x, y, z (ToLocal4()).

@@ -6,6 +6,7 @@
 #include <deque>
 #include <numeric>
 #include <unordered_map>
+#include <utility>
 #include <vector>
 
 #include "glm/geometric.hpp"
@@ -343,6 +344,49 @@ std::vector<bool> OrientMesh(Mesh& mesh, bool mirrored, OrientReport& r) {
 }
 
 }  // namespace
+
+namespace internal {
+
+std::vector<uint32_t> MeshPieces(const Mesh& mesh) {
+  const size_t nt = mesh.triangles.size();
+  std::vector<uint32_t> piece(nt);
+  std::iota(piece.begin(), piece.end(), 0u);
+  if (nt == 0) return piece;
+  glm::dvec3 lo(HUGE_VAL), hi(-HUGE_VAL);
+  for (const glm::vec3& p : mesh.positions) {
+    lo = glm::min(lo, glm::dvec3(p));
+    hi = glm::max(hi, glm::dvec3(p));
+  }
+  // The welding tolerance of OrientMesh: a millionth of the diagonal.
+  const double tol = std::max(1e-6 * glm::length(hi - lo), 1e-30);
+  int64_t merged = 0;
+  const std::vector<uint32_t> id = WeldVertices(mesh.positions, tol, &merged);
+  auto find = [&](uint32_t t) {
+    while (piece[t] != t) t = piece[t] = piece[piece[t]];
+    return t;
+  };
+  // Triangles that share a welded edge (however many use it) are one piece.
+  std::vector<std::pair<uint64_t, uint32_t>> edges;
+  edges.reserve(3 * nt);
+  for (uint32_t t = 0; t < nt; ++t) {
+    for (int k = 0; k < 3; ++k) {
+      const uint32_t a = id[mesh.triangles[t][k]], b = id[mesh.triangles[t][(k + 1) % 3]];
+      if (a != b) {
+        edges.push_back({(static_cast<uint64_t>(std::min(a, b)) << 32) | std::max(a, b), t});
+      }
+    }
+  }
+  std::sort(edges.begin(), edges.end());
+  for (size_t i = 1; i < edges.size(); ++i) {
+    if (edges[i].first != edges[i - 1].first) continue;
+    const uint32_t a = find(edges[i - 1].second), b = find(edges[i].second);
+    if (a != b) piece[std::max(a, b)] = std::min(a, b);
+  }
+  for (uint32_t t = 0; t < nt; ++t) piece[t] = find(t);
+  return piece;
+}
+
+}  // namespace internal
 
 OrientReport OrientScene(Scene* scene) {
   OrientReport r;

@@ -290,6 +290,7 @@ class SceneSurfelSource final : public SurfelSource {
     glm::vec3 normal(0.0f);
     uint32_t material = 0;
     bool thin = false;
+    uint8_t sheet = 0;
     float r0 = 0.0f, r1 = 0.0f;
     for (int64_t s = begin; s < end; ++s) {
       if (s >= tri_end) {
@@ -308,6 +309,7 @@ class SceneSurfelSource final : public SurfelSource {
         material = index_.MaterialOf(inst, t);
         // A thin sheet's surfels are two-sided: its back is the sheet's other side.
         thin = material < scene_->materials.size() && scene_->materials[material].thin;
+        sheet = thin ? index_.SheetOf(inst, t) : uint8_t{0};
         const uint64_t tk = HashCombine(l.seed, static_cast<uint64_t>(g));
         r0 = internal::Random(tk, 0);
         r1 = internal::Random(tk, 1);
@@ -321,6 +323,7 @@ class SceneSurfelSource final : public SurfelSource {
       sf.radius = radius_;
       sf.radiance = glm::vec3(0.0f);
       sf.two_sided = thin;
+      sf.sheet = sheet;
       materials[s - begin] = material;
     }
   }

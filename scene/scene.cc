@@ -124,6 +124,24 @@ SceneIndex::SceneIndex(const Scene& scene) : scene_(&scene) {
     instance_first_.push_back(instance_first_.back() +
                               static_cast<int64_t>(scene.meshes[in.mesh].triangles.size()));
   }
+  // Sheet tags: pieces only of the meshes that some instance draws with a thin material.
+  std::vector<bool> thin(scene.meshes.size(), false);
+  for (const Instance& in : scene.instances) {
+    if (in.material >= 0) {
+      thin[in.mesh] = thin[in.mesh] || scene.materials[static_cast<size_t>(in.material)].thin;
+      continue;
+    }
+    for (uint32_t m : scene.meshes[in.mesh].materials) {
+      if (scene.materials[m].thin) {
+        thin[in.mesh] = true;
+        break;
+      }
+    }
+  }
+  mesh_pieces_.resize(scene.meshes.size());
+  for (size_t m = 0; m < scene.meshes.size(); ++m) {
+    if (thin[m]) mesh_pieces_[m] = MeshPieces(scene.meshes[m]);
+  }
   emitter_cdf_.push_back(0.0);
   for (uint32_t i = 0; i < scene.instances.size(); ++i) {
     const Instance& in = scene.instances[i];

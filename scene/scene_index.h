@@ -12,6 +12,11 @@
 
 namespace pbgi::internal {
 
+// The connected pieces of a mesh: triangles that share an edge (vertices welded within a
+// millionth of the mesh's diagonal, as OrientMesh welds them) get the same number, the least
+// triangle index of the piece (scene/orient.cc).
+std::vector<uint32_t> MeshPieces(const Mesh& mesh);
+
 class SceneIndex {
  public:
   // REQUIRES: scene.Validate() is OK; `scene` outlives the index.
@@ -39,6 +44,15 @@ class SceneIndex {
     return scene_->meshes[in.mesh].materials[tri];
   }
 
+  // The sheet tag (Surfel::sheet) of a triangle of a thin material: 1-255, a hash of the instance
+  // and the triangle's piece of its mesh (MeshPieces), so that separate sheets (two crossing
+  // leaves) differ and the triangles of one sheet agree; 0 for other materials.
+  uint8_t SheetOf(uint32_t instance, uint32_t tri) const {
+    const std::vector<uint32_t>& pieces = mesh_pieces_[scene_->instances[instance].mesh];
+    if (pieces.empty() || !scene_->materials[MaterialOf(instance, tri)].thin) return 0;
+    return static_cast<uint8_t>(1 + HashCombine(instance, pieces[tri]) % 255);
+  }
+
   // Area lights: every front-emitting triangle with non-zero emission and area.
   struct Emitter {
     WorldTriangle tri;
@@ -59,6 +73,7 @@ class SceneIndex {
  private:
   const Scene* scene_;
   std::vector<int64_t> instance_first_;
+  std::vector<std::vector<uint32_t>> mesh_pieces_;  // per mesh; empty where nothing is thin
   std::vector<Emitter> emitters_;
   std::vector<double> emitter_cdf_;
   Bounds bounds_;

@@ -311,6 +311,7 @@ std::vector<CameraHit> Tracer::TraceCamera(const Camera& camera) const {
         c.position = camera.eye + d * std::max(0.0f, h.distance - impl_->eps);
         c.normal = h.front ? h.normal : -h.normal;
         c.material = h.material;
+        c.sheet = impl_->index.SheetOf(h.instance, h.triangle);
       }
     }
   });

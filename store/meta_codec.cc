@@ -113,8 +113,8 @@ absl::StatusOr<DecodedMeta> DecodeMeta(absl::string_view bytes, absl::string_vie
   }
   if (version < kOldestReadableStoreFormatVersion) {
     return absl::FailedPreconditionError(absl::StrFormat(
-        "%s: store format version %d is too old: this library reads version %d (compact pages) "
-        "only; rebuild the database from its points with this version of pbgi",
+        "%s: store format version %d is too old: this library reads version %d (compact pages, "
+        "sheet tags) only; rebuild the database from its points with this version of pbgi",
         where, version, kStoreFormatVersion));
   }
   if (bytes.size() < kMetaHeaderBytes) {

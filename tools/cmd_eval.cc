@@ -283,7 +283,7 @@ absl::StatusOr<std::vector<Receiver>> MakeEvalReceivers(const EvalArgs& a, const
     const std::vector<CameraHit> hits = tracer.TraceCamera(DefaultCamera(*e.scene, 2 * w, 2 * h));
     std::vector<Receiver> all;
     for (const CameraHit& c : hits) {
-      if (c.hit) all.push_back({c.position + tracer.epsilon() * c.normal, c.normal});
+      if (c.hit) all.push_back({c.position + tracer.epsilon() * c.normal, c.normal, c.sheet});
     }
     const size_t want = std::min(all.size(), static_cast<size_t>(a.receivers));
     for (size_t i = 0; i < want; ++i) receivers.push_back(all[i * all.size() / want]);
@@ -302,7 +302,8 @@ absl::StatusOr<std::vector<Receiver>> MakeEvalReceivers(const EvalArgs& a, const
       PBGI_ASSIGN_OR_RETURN(size_t got, rsrc->Next(absl::MakeSpan(buf)));
       if (got == 0) break;
       for (size_t i = 0; i < got; ++i) {
-        receivers.push_back({buf[i].position + tracer.epsilon() * buf[i].normal, buf[i].normal});
+        receivers.push_back(
+            {buf[i].position + tracer.epsilon() * buf[i].normal, buf[i].normal, buf[i].sheet});
       }
     }
   }

@@ -44,6 +44,7 @@ struct Args {
   std::string db;
   std::string at;
   std::string normal;
+  int sheet = 0;
   float max_solid_angle = 0.03f;
   float max_distance = std::numeric_limits<float>::infinity();
   std::string cache = "auto";
@@ -312,7 +313,7 @@ absl::Status Run(const Args& a) {
                 : a.hitsides == "both" ? HitSides::kBoth
                                        : HitSides::kFront;
   MicroBuffer buffer;
-  const ShadeReceiver sr{p, receiver.normal, receiver.normal};
+  const ShadeReceiver sr{p, receiver.normal, receiver.normal, static_cast<uint8_t>(a.sheet)};
   PBGI_RETURN_IF_ERROR(Shade(q.gathered, sr, ro, &buffer, &q.shaded));
   if (a.json) {
     std::fputs(DumpJson(QueryJson(a, q)).c_str(), stdout);
@@ -329,6 +330,12 @@ CommandSetup Setup() {
     app->add_option("db", args->db, "Database directory")->required();
     app->add_option("--at", args->at, "Receiver position X,Y,Z")->required();
     app->add_option("--normal", args->normal, "Receiver normal X,Y,Z")->required();
+    app->add_option(
+           "--sheet", args->sheet,
+           "The receiver's sheet tag, 1-255, 0 unknown (a thin surface's Surfel::sheet, as "
+           "`pbgi export` writes it): another sheet crossing it is not taken for its fold")
+        ->check(CLI::Range(0, 255))
+        ->capture_default_str();
     app->add_option("--max-solid-angle", args->max_solid_angle,
                     "Accept a node as a cluster below this solid angle (sr)")
         ->capture_default_str();

@@ -176,7 +176,7 @@ absl::Status ShadePoints(const ShadeArgs& a, Database& db, const ShadeOptions& b
     index_of.clear();
     for (size_t i = 0; i < n; ++i) {
       const glm::vec3 r = reflections && glm::dot(refl[i], refl[i]) > 0 ? refl[i] : chunk[i].normal;
-      const ShadeReceiver sr{chunk[i].position, chunk[i].normal, r};
+      const ShadeReceiver sr{chunk[i].position, chunk[i].normal, r, chunk[i].sheet};
       if (const char* why = InvalidReceiver(sr)) {
         if (a.invalid == "fail") {
           progress.Abandon();

@@ -337,7 +337,7 @@ absl::StatusOr<glm::vec3> ParseVec3(const std::string& text) {
 std::vector<ShadeReceiver> ShadeReceiversOf(absl::Span<const Receiver> receivers) {
   std::vector<ShadeReceiver> out(receivers.size());
   for (size_t i = 0; i < receivers.size(); ++i) {
-    out[i] = {receivers[i].position, receivers[i].normal, receivers[i].normal};
+    out[i] = {receivers[i].position, receivers[i].normal, receivers[i].normal, receivers[i].sheet};
   }
   return out;
 }
@@ -363,8 +363,8 @@ CameraReceivers MakeCameraReceivers(const Tracer& tracer, const Camera& camera) 
     if (glm::dot(n, d) > 0.0f) n = -n;  // shade the side the camera sees
     // A hair above the surface, so that the receiver's own surfels are behind its plane.
     const glm::vec3 p_lifted = out.hits[p].position + tracer.epsilon() * n;
-    out.receivers.push_back({p_lifted, n});
-    out.shade.push_back({p_lifted, n, glm::reflect(d, n)});
+    out.receivers.push_back({p_lifted, n, out.hits[p].sheet});
+    out.shade.push_back({p_lifted, n, glm::reflect(d, n), out.hits[p].sheet});
     out.pixel_of.push_back(static_cast<uint32_t>(p));
     out.surface.push_back(out.hits[p].material);
   }

@@ -73,13 +73,6 @@ struct NodeRecordRadiance {
 };
 static_assert(sizeof(NodeRecordRadiance) == 216);
 
-// The builder's two-sided flag travels in the radius's sign bit of its sort records
-// (build/sort_record.h): a radius is always > 0 otherwise (the builder refuses the rest).
-inline float EncodeRadius(float radius, bool two_sided) {
-  return two_sided ? -std::fabs(radius) : std::fabs(radius);
-}
-inline bool RadiusTwoSided(float stored) { return std::signbit(stored); }
-
 // ---- Format version 3: compact records (docs/format.md, "Format version 3") ----
 //
 // The builder and the query layer call the same decoders, and the builder aggregates what
@@ -175,6 +168,38 @@ inline uint16_t EncodeRadius16(float r) {
   return static_cast<uint16_t>(EncodeSmallFloat<6, 10>(std::fabs(r), /*flush_to_min=*/true));
 }
 inline float DecodeRadius16(uint16_t c) { return DecodeSmallFloat<6, 10>(c); }
+
+// The builder's two-sided flag travels in the radius's sign bit of its sort records
+// (build/sort_record.h): a radius is always > 0 otherwise (the builder refuses the rest). A
+// two-sided surfel's radius is its stored value (DecodeRadius16(EncodeRadius16(r)), whose 13
+// low mantissa bits are zero) with its sheet tag (Surfel::sheet) in the 8 lowest, so the tag
+// rides along without a field of its own and the stored radius is the same.
+inline float EncodeRadius(float radius, bool two_sided, uint8_t sheet = 0) {
+  if (!two_sided) return std::fabs(radius);
+  uint32_t bits;
+  const float stored = DecodeRadius16(EncodeRadius16(radius));
+  std::memcpy(&bits, &stored, 4);
+  bits |= 0x80000000u | sheet;
+  float out;
+  std::memcpy(&out, &bits, 4);
+  return out;
+}
+inline bool RadiusTwoSided(float stored) { return std::signbit(stored); }
+// The radius itself (> 0), without the sign and, on a two-sided radius, the tag's bits.
+inline float RadiusValue(float stored) {
+  uint32_t bits;
+  std::memcpy(&bits, &stored, 4);
+  bits = std::signbit(stored) ? (bits & 0x7fffff00u) : bits;
+  float out;
+  std::memcpy(&out, &bits, 4);
+  return out;
+}
+inline uint8_t RadiusSheet(float stored) {
+  if (!std::signbit(stored)) return 0;
+  uint32_t bits;
+  std::memcpy(&bits, &stored, 4);
+  return static_cast<uint8_t>(bits & 0xffu);
+}
 // Radiance: a sign bit, 6 exponent bits, 9 mantissa bits: |v| in 2^-31 .. 2^32 (smaller is 0),
 // relative error <= 2^-10.
 inline uint16_t EncodeRadiance16(float v) {
@@ -188,22 +213,47 @@ inline float DecodeRadiance16(uint16_t c) {
 
 // Octahedral unit vectors (Meyer et al. 2010, "On Floating-Point Normal Vectors"), two signed
 // 16-bit coordinates: angular error below 1e-4 rad.
-inline void EncodeOctahedral(const float n[3], int16_t out[2]) {
+inline void OctahedralCoords(const float n[3], float* ox, float* oy) {
   const float l1 = std::fabs(n[0]) + std::fabs(n[1]) + std::fabs(n[2]);
   float x = l1 > 0.0f ? n[0] / l1 : 0.0f;
   float y = l1 > 0.0f ? n[1] / l1 : 0.0f;
   if (n[2] < 0.0f) {
-    const float ox = (1.0f - std::fabs(y)) * (x >= 0.0f ? 1.0f : -1.0f);
-    const float oy = (1.0f - std::fabs(x)) * (y >= 0.0f ? 1.0f : -1.0f);
-    x = ox;
-    y = oy;
+    const float fx = (1.0f - std::fabs(y)) * (x >= 0.0f ? 1.0f : -1.0f);
+    const float fy = (1.0f - std::fabs(x)) * (y >= 0.0f ? 1.0f : -1.0f);
+    x = fx;
+    y = fy;
   }
-  out[0] = static_cast<int16_t>(RoundHalfAway(std::clamp(x, -1.0f, 1.0f) * 32767.0f));
-  out[1] = static_cast<int16_t>(RoundHalfAway(std::clamp(y, -1.0f, 1.0f) * 32767.0f));
+  *ox = std::clamp(x, -1.0f, 1.0f);
+  *oy = std::clamp(y, -1.0f, 1.0f);
+}
+inline glm::vec3 OctahedralVector(float x, float y);
+inline void EncodeOctahedral(const float n[3], int16_t out[2]) {
+  float x, y;
+  OctahedralCoords(n, &x, &y);
+  out[0] = static_cast<int16_t>(RoundHalfAway(x * 32767.0f));
+  out[1] = static_cast<int16_t>(RoundHalfAway(y * 32767.0f));
 }
 inline glm::vec3 DecodeOctahedral(const int16_t in[2]) {
-  float x = static_cast<float>(in[0]) * (1.0f / 32767.0f);
-  float y = static_cast<float>(in[1]) * (1.0f / 32767.0f);
+  return OctahedralVector(static_cast<float>(in[0]) * (1.0f / 32767.0f),
+                          static_cast<float>(in[1]) * (1.0f / 32767.0f));
+}
+// A two-sided point record's normal (format version 4): 12-bit octahedral coordinates (angular
+// error below 1e-3 rad) in the high bits of each i16, the sheet tag's high and low nibbles in
+// their low 4 bits.
+inline void EncodeOctahedralSheet(const float n[3], uint8_t sheet, int16_t out[2]) {
+  float x, y;
+  OctahedralCoords(n, &x, &y);
+  const int qx = static_cast<int>(RoundHalfAway(x * 2047.0f));
+  const int qy = static_cast<int>(RoundHalfAway(y * 2047.0f));
+  out[0] = static_cast<int16_t>(qx * 16 + (sheet >> 4));
+  out[1] = static_cast<int16_t>(qy * 16 + (sheet & 15));
+}
+inline glm::vec3 DecodeOctahedralSheet(const int16_t in[2], uint8_t* sheet) {
+  *sheet = static_cast<uint8_t>(((in[0] & 15) << 4) | (in[1] & 15));
+  return OctahedralVector(static_cast<float>(in[0] >> 4) * (1.0f / 2047.0f),
+                          static_cast<float>(in[1] >> 4) * (1.0f / 2047.0f));
+}
+inline glm::vec3 OctahedralVector(float x, float y) {
   const float z = 1.0f - std::fabs(x) - std::fabs(y);
   if (z < 0.0f) {
     const float ox = (1.0f - std::fabs(y)) * (x >= 0.0f ? 1.0f : -1.0f);
@@ -215,9 +265,9 @@ inline glm::vec3 DecodeOctahedral(const int16_t in[2]) {
   return {x * inv, y * inv, z * inv};
 }
 
-// Point records, version 3. Little-endian, packed, no alignment:
+// Point records, version 4. Little-endian, packed, no alignment:
 //   0  u64    cell (x | y << 21 | z << 42) of the position; bit 63: two-sided
-//   8  i16[2] octahedral normal
+//   8  i16[2] octahedral normal (two-sided: EncodeOctahedralSheet, the sheet tag in its low bits)
 //   12 u16    radius (EncodeRadius16)
 //   14 u16[3] radiance (EncodeRadiance16), radiance databases only
 inline constexpr uint32_t kPointRecordOcclusionBytes = 14;
@@ -227,16 +277,21 @@ inline uint32_t PointRecordSize(Channels c) {
   return HasRadiance(c) ? kPointRecordRadianceBytes : kPointRecordOcclusionBytes;
 }
 
-// Encodes one surfel (radius sign = two-sided, as in the builder's sort records) at `dst`.
+// Encodes one surfel (radius sign = two-sided, as in the builder's sort records, and the sheet
+// tag in a two-sided radius's low bits: EncodeRadius) at `dst`.
 inline void EncodePointRecord(const float position[3], const float normal[3], float radius,
                               const float radiance[3], Channels c, const PositionGrid& grid,
                               uint8_t* dst) {
   uint64_t cell = PackCell(grid.Nearest(0, position[0]), grid.Nearest(1, position[1]),
                            grid.Nearest(2, position[2]));
-  if (RadiusTwoSided(radius)) cell |= uint64_t{1} << 63;
-  std::memcpy(dst, &cell, 8);
   int16_t oct[2];
-  EncodeOctahedral(normal, oct);
+  if (RadiusTwoSided(radius)) {
+    cell |= uint64_t{1} << 63;
+    EncodeOctahedralSheet(normal, RadiusSheet(radius), oct);
+  } else {
+    EncodeOctahedral(normal, oct);
+  }
+  std::memcpy(dst, &cell, 8);
   std::memcpy(dst + 8, oct, 4);
   const uint16_t r = EncodeRadius16(radius);
   std::memcpy(dst + 12, &r, 2);
@@ -256,7 +311,7 @@ inline Surfel DecodePointRecord(const uint8_t* src, Channels c, const PositionGr
   s.two_sided = (cell >> 63) != 0;
   int16_t oct[2];
   std::memcpy(oct, src + 8, 4);
-  s.normal = DecodeOctahedral(oct);
+  s.normal = s.two_sided ? DecodeOctahedralSheet(oct, &s.sheet) : DecodeOctahedral(oct);
   uint16_t r;
   std::memcpy(&r, src + 12, 2);
   s.radius = DecodeRadius16(r);

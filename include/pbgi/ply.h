@@ -6,7 +6,8 @@
 // scaled to 0..1; when a file has both, as pbgi's own outputs do, the floats are read). A
 // receiver may also carry its reflection direction (the centre of the glossy lobe) as `rx ry rz`.
 // A surfel is two-sided (Surfel::two_sided) when it has a nonzero `two_sided` property (any
-// numeric type); files without one hold one-sided surfels.
+// numeric type); files without one hold one-sided surfels. A two-sided surfel's `sheet`
+// property (1-255) is its Surfel::sheet; absent, out of range or on a one-sided surfel, 0.
 // Files from scanners and point tools (Open3D, PCL) often lack `radius`, or normals:
 // PlyReadOptions says whether to accept them (the builder then estimates what is missing, see
 // BuildOptions::estimate). Other properties are skipped; the vertex element must come first;
@@ -125,7 +126,8 @@ struct PlyWriterOptions {
   std::vector<std::string> extra;
   // Header comments, one line each (e.g. "pbgi scene.name cornell": see PlyHeader::Provenance).
   std::vector<std::string> comments;
-  // Write each surfel's Surfel::two_sided as a last property `uchar two_sided` (0 or 1).
+  // Write each surfel's Surfel::two_sided and Surfel::sheet as the last properties `uchar
+  // two_sided` (0 or 1) and `uchar sheet`.
   bool two_sided = false;
   // When not empty: a `comment pbgi bounds ...` line (PlyHeader::bounds), floats written exactly.
   // REQUIRES: every written position inside (the writer does not check; the builder does).
@@ -137,9 +139,9 @@ struct PlyWriterOptions {
 };
 
 // Streams surfels to a PLY file with float properties x y z nx ny nz radius [r g b] [extra...]
-// [uchar red green blue] [uchar two_sided]. The vertex count is patched into the header by Close(),
-// so the count need not be known in advance, except for path "-": standard output, written in
-// place, with PlyWriterOptions::vertex_count. REQUIRES: Close() to finish the file; a writer
+// [uchar red green blue] [uchar two_sided sheet]. The vertex count is patched into the header by
+// Close(), so the count need not be known in advance, except for path "-": standard output, written
+// in place, with PlyWriterOptions::vertex_count. REQUIRES: Close() to finish the file; a writer
 // destroyed without Close() removes its temporary file and leaves `path` as it was.
 class PlyWriter {
  public:

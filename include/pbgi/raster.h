@@ -134,6 +134,9 @@ struct ShadeReceiver {
   glm::vec3 position{0.0f};
   glm::vec3 normal{0.0f, 0.0f, 1.0f};      // need not be unit length, must not be zero
   glm::vec3 reflection{0.0f, 0.0f, 1.0f};  // centre of the glossy lobe (world space)
+  // The sheet tag of a receiver on a thin sheet (Surfel::sheet), 0: unknown. A two-sided
+  // element with another non-zero tag is never taken for the receiver's own sheet.
+  uint8_t sheet = 0;
 };
 
 struct ShadeResult {

@@ -162,6 +162,7 @@ struct CameraHit {
   glm::vec3 position{0.0f};
   glm::vec3 normal{0.0f};
   uint32_t material = 0;
+  uint8_t sheet = 0;  // the sheet tag of a thin surface hit (Surfel::sheet), else 0
 };
 
 // A point that receives light: a shading point and its unit normal.

@@ -57,9 +57,11 @@ inline constexpr uint64_t kStoreMagic = 0x3130424447425050ull;  // "PPBGDB01" li
 // are cells of a grid of 2^21 per axis (StoreMeta::grid_origin, grid_step), normals octahedral,
 // radius and radiance small floats, node SH fixed point scaled per node (tree/format.h). The
 // records of versions 1 and 2 (plain floats) are not read: open refuses them, naming both
-// versions, and says to rebuild.
-inline constexpr uint32_t kStoreFormatVersion = 3;
-inline constexpr uint32_t kOldestReadableStoreFormatVersion = 3;
+// versions, and says to rebuild. Version 4: a two-sided point record carries its sheet tag
+// (Surfel::sheet) in the low bits of its normal (tree/format.h); a version-3 store, whose
+// two-sided normals have no tag there, is refused the same way.
+inline constexpr uint32_t kStoreFormatVersion = 4;
+inline constexpr uint32_t kOldestReadableStoreFormatVersion = 4;
 
 // The efficient page sizes are k*4096 - 16: LMDB stores a large value in a run of 4 KiB overflow
 // pages behind a 16-byte page header.

@@ -29,6 +29,12 @@ struct Surfel {
   float radius = 0.0f;
   glm::vec3 radiance{0.0f};
   bool two_sided = false;
+  // Which thin sheet a two-sided surfel lies on: 1-255, a hash of its connected piece of mesh
+  // (two crossing leaves differ, the two faces of a fold agree), or 0, unknown. A receiver on
+  // a sheet culls a two-sided element that looks like its own sheet folded over a convex edge
+  // only when the tags do not tell them apart (docs/design.md, "Sheet tags"). One-sided
+  // surfels carry 0. Stored since format version 4.
+  uint8_t sheet = 0;
 
   float Area() const { return 3.14159265358979f * radius * radius; }
 };
@@ -107,6 +113,7 @@ class VectorSurfelSource final : public SurfelSource {
 struct Receiver {
   glm::vec3 position{0.0f};
   glm::vec3 normal{0.0f, 0.0f, 1.0f};
+  uint8_t sheet = 0;  // the sheet tag of the surface it lies on (Surfel::sheet), 0: unknown
 };
 
 // Order-2 spherical harmonics: 9 real coefficients (see sh.h for the basis).

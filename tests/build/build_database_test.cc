@@ -32,19 +32,27 @@ using testing_build::ScratchDir;
 // Two-sided surfels (their flag in the radius's sign bit) build a store that verifies (leaf SH
 // recomputed from the points with each two-sided one as the pair n, -n), whose root holds
 // band 1 of the one-sided surfels only and the even bands of both sides, and whose points read
-// back with their flags; also with an estimated radius, which must keep the flag.
+// back with their flags and sheet tags (Surfel::sheet); also with an estimated radius, which
+// must keep both, and through spilled runs (a memory budget of a byte).
 TEST(BuildDatabaseTest, TwoSidedSurfelsBuildAVerifiableStore) {
   ScratchDir dir("db_two_sided");
   auto cloud = testing_build::SurfaceCloud(6000, 11);
-  for (size_t i = 0; i < cloud.size(); ++i) cloud[i].two_sided = i % 3 == 1;
-  for (bool estimate : {false, true}) {
+  for (size_t i = 0; i < cloud.size(); ++i) {
+    cloud[i].two_sided = i % 3 == 1;
+    cloud[i].sheet = cloud[i].two_sided ? static_cast<uint8_t>(1 + i % 255) : 0;
+  }
+  for (const auto [estimate, memory] :
+       {std::pair{false, 64 << 20}, std::pair{true, 64 << 20}, std::pair{false, 1}}) {
     SCOPED_TRACE(estimate ? "estimated radius" : "given radius");
+    SCOPED_TRACE(memory);
     BuildOptions o;
-    o.memory_bytes = 64 << 20;
+    o.memory_bytes = memory;
+    o.tmp_dir = dir.Sub("tmp");
+    std::filesystem::create_directories(o.tmp_dir);
     o.channels = Channels::kOcclusion;
     o.estimate.radius = estimate;
     VectorSurfelSource src(cloud, /*has_radiance=*/false);
-    const std::string db = dir.Sub(estimate ? "db_est" : "db");
+    const std::string db = dir.Sub(estimate ? "db_est" : memory == 1 ? "db_spill" : "db");
     auto stats = BuildDatabase(src, db, o);
     ASSERT_TRUE(stats.ok()) << stats.status();
     auto store = PageStore::Open(db);
@@ -60,7 +68,8 @@ TEST(BuildDatabaseTest, TwoSidedSurfelsBuildAVerifiableStore) {
                                              grid.Coord(2, grid.Nearest(2, p.z)));
     };
     std::map<std::tuple<float, float, float>, int> want;
-    for (const Surfel& s : cloud) want[on_grid(s.position)] += s.two_sided ? 1 : 0x100;
+    for (const Surfel& s : cloud)
+      want[on_grid(s.position)] += s.two_sided ? 1 + 2 * s.sheet : 0x1000;
     std::map<std::tuple<float, float, float>, int> got;
     auto txn = (*store)->BeginRead();
     ASSERT_TRUE(txn.ok()) << txn.status();
@@ -72,7 +81,7 @@ TEST(BuildDatabaseTest, TwoSidedSurfelsBuildAVerifiableStore) {
       for (uint32_t i = 0; i < view->header->record_count; ++i, ++seen) {
         const Surfel s = internal::DecodePoint(view->payload.data(), i, m.channels, grid);
         EXPECT_GT(s.radius, 0.0f);
-        got[{s.position.x, s.position.y, s.position.z}] += s.two_sided ? 1 : 0x100;
+        got[{s.position.x, s.position.y, s.position.z}] += s.two_sided ? 1 + 2 * s.sheet : 0x1000;
       }
     }
     EXPECT_EQ(seen, cloud.size());

@@ -71,13 +71,17 @@ TEST(PlyTest, RoundTripsBinaryAndAsciiWithAndWithoutColour) {
   }
 }
 
-// Surfel::two_sided round-trips through the optional `uchar two_sided` property (binary and
-// ASCII, with and without colour and extras); files without it read as one-sided, and any
-// nonzero value of another type counts as two-sided.
+// Surfel::two_sided and Surfel::sheet round-trip through the optional `uchar two_sided` and
+// `uchar sheet` properties (binary and ASCII, with and without colour and extras); files
+// without them read as one-sided, any nonzero value of another type counts as two-sided, and a
+// tag means something on two-sided surfels only.
 TEST(PlyTest, TwoSidedFlagRoundTrips) {
   ScratchDir dir("ply_two_sided");
   auto cloud = testing_build::UniformCloud(1500, 4, 2.0f, glm::vec3(0.0f));
-  for (size_t i = 0; i < cloud.size(); ++i) cloud[i].two_sided = (i * 7) % 3 == 0;
+  for (size_t i = 0; i < cloud.size(); ++i) {
+    cloud[i].two_sided = (i * 7) % 3 == 0;
+    cloud[i].sheet = cloud[i].two_sided ? static_cast<uint8_t>(i % 256) : 0;
+  }
   for (bool ascii : {false, true}) {
     for (bool colour : {true, false}) {
       for (bool flag : {true, false}) {
@@ -103,6 +107,7 @@ TEST(PlyTest, TwoSidedFlagRoundTrips) {
           ASSERT_EQ(got[i].position, cloud[i].position) << i;
           ASSERT_EQ(got[i].radius, cloud[i].radius) << i;
           ASSERT_EQ(got[i].two_sided, flag && cloud[i].two_sided) << i;
+          ASSERT_EQ(got[i].sheet, flag ? cloud[i].sheet : 0) << i;
         }
       }
     }
@@ -111,8 +116,8 @@ TEST(PlyTest, TwoSidedFlagRoundTrips) {
   WriteFile(path,
             "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
             "property float z\nproperty float nx\nproperty float ny\nproperty float nz\n"
-            "property float radius\nproperty float two_sided\nend_header\n"
-            "0 0 0 0 0 1 1 0\n1 0 0 0 0 1 1 0.5\n2 0 0 0 0 1 1 1\n");
+            "property float radius\nproperty float two_sided\nproperty int sheet\nend_header\n"
+            "0 0 0 0 0 1 1 0 4\n1 0 0 0 0 1 1 0.5 300\n2 0 0 0 0 1 1 1 17\n");
   auto src = OpenPly(path);
   ASSERT_TRUE(src.ok()) << src.status();
   const auto got = ReadAll(**src);
@@ -120,6 +125,9 @@ TEST(PlyTest, TwoSidedFlagRoundTrips) {
   EXPECT_FALSE(got[0].two_sided);
   EXPECT_TRUE(got[1].two_sided);
   EXPECT_TRUE(got[2].two_sided);
+  EXPECT_EQ(got[0].sheet, 0);  // one-sided
+  EXPECT_EQ(got[1].sheet, 0);  // out of range
+  EXPECT_EQ(got[2].sheet, 17);
 }
 
 TEST(PlyTest, ReadsUcharColoursExtraPropertiesAndOtherTypes) {

@@ -34,6 +34,7 @@ std::vector<SortRecord> Records(size_t n, uint64_t seed, const Bounds& b, bool t
   for (size_t i = 0; i < cloud.size(); ++i) {
     Surfel s = cloud[i];
     s.two_sided = two_sided_some && i % 3 == 0;
+    s.sheet = s.two_sided ? static_cast<uint8_t>(i % 256) : 0;
     if (i % 5 == 0) s.radiance = -s.radiance;  // negative radiance keeps its sign
     out.push_back(MakeSortRecord(quant.Key(s.position), s));
   }

@@ -1,5 +1,6 @@
 // The scene sampler: exact counts, area, normals, stratification and determinism (per seed,
 // per chunk size, per thread count).
+#include <algorithm>
 #include <cmath>
 #include <memory>
 #include <vector>
@@ -180,6 +181,83 @@ TEST(SamplerTest, ForestIsOcclusionOnly) {
   ASSERT_TRUE(source.ok()) << source.status();
   EXPECT_FALSE((*source)->HasRadiance());
   for (const Surfel& s : Drain(**source)) EXPECT_EQ(s.radiance, glm::vec3(0.0f));
+}
+
+// Sheet tags (Surfel::sheet): the surfels of one piece of a thin mesh (triangles joined by
+// edges, vertices welded) share a tag; two leaves that cross each other, the same leaf in two
+// instances, differ; a sheet folded over an edge is one piece; one-sided surfaces carry 0.
+TEST(SamplerTest, SheetTagsFollowTheMeshesPieces) {
+  Scene scene;
+  scene.name = "sheets";
+  scene.materials.push_back(Material{});  // 0: solid
+  Material leaf;
+  leaf.thin = true;
+  scene.materials.push_back(leaf);  // 1: thin
+  Mesh m;
+  auto quad = [&m](glm::vec3 a, glm::vec3 b, glm::vec3 c, glm::vec3 d, uint32_t mat, bool shared) {
+    const uint32_t k = static_cast<uint32_t>(m.positions.size());
+    if (shared) {
+      m.positions.insert(m.positions.end(), {a, b, c, d});
+      m.triangles.push_back({k, k + 1, k + 2});
+      m.triangles.push_back({k, k + 2, k + 3});
+    } else {  // each triangle its own vertices: joined only once welded
+      m.positions.insert(m.positions.end(), {a, b, c, a, c, d});
+      m.triangles.push_back({k, k + 1, k + 2});
+      m.triangles.push_back({k + 3, k + 4, k + 5});
+    }
+    m.materials.insert(m.materials.end(), {mat, mat});
+  };
+  quad({0, 0, 0}, {1, 0, 0}, {1, 1, 0}, {0, 1, 0}, 1, false);                           // A: z = 0
+  quad({0.5f, 0, -0.5f}, {0.5f, 1, -0.5f}, {0.5f, 1, 0.5f}, {0.5f, 0, 0.5f}, 1, true);  // B
+  quad({0, 0, 2}, {1, 0, 2}, {1, 1, 2}, {0, 1, 2}, 1, true);   // C: z = 2, folded down into D
+  quad({1, 0, 2}, {1, 0, 1}, {1, 1, 1}, {1, 1, 2}, 1, false);  // D: x = 1, z in [1, 2]
+  quad({3, 0, 5}, {4, 0, 5}, {4, 1, 5}, {3, 1, 5}, 0, true);   // E: solid, above nothing
+  scene.meshes.push_back(m);
+  for (float x : {0.0f, 10.0f}) {
+    Instance in;
+    in.mesh = 0;
+    in.transform = glm::mat4(1.0f);
+    in.transform[3] = glm::vec4(x, 0.0f, 0.0f, 1.0f);
+    scene.instances.push_back(in);
+  }
+  SamplerOptions o;
+  o.count = 20000;
+  o.bake = false;
+  // tag[instance][piece]: A, B, C, D, E; -1 until seen.
+  int tag[2][5];
+  for (auto& t : tag) std::fill(std::begin(t), std::end(t), -1);
+  int seen = 0;
+  for (const Surfel& sf : Sample(scene, o)) {
+    const int inst = sf.position.x >= 5.0f ? 1 : 0;
+    const glm::vec3 p = sf.position - glm::vec3(10.0f * static_cast<float>(inst), 0.0f, 0.0f);
+    auto on = [](float v, float at) { return std::fabs(v - at) < 1e-5f; };
+    int piece = -1;
+    if (on(p.z, 5.0f)) {
+      piece = 4;
+    } else if (on(p.z, 2.0f)) {
+      piece = 2;
+    } else if (on(p.x, 1.0f) && p.z > 1.0f) {
+      piece = 3;
+    } else if (on(p.z, 0.0f)) {
+      piece = 0;
+    } else if (on(p.x, 0.5f)) {
+      piece = 1;
+    }
+    ASSERT_GE(piece, 0) << p.x << " " << p.y << " " << p.z;
+    ASSERT_EQ(sf.two_sided, piece != 4);
+    if (tag[inst][piece] < 0) tag[inst][piece] = sf.sheet;
+    ASSERT_EQ(sf.sheet, tag[inst][piece]) << "instance " << inst << " piece " << piece;
+    ++seen;
+  }
+  ASSERT_GT(seen, 19000);
+  for (int inst = 0; inst < 2; ++inst) {
+    EXPECT_EQ(tag[inst][4], 0);
+    for (int piece = 0; piece < 4; ++piece) EXPECT_GT(tag[inst][piece], 0) << piece;
+    EXPECT_NE(tag[inst][0], tag[inst][1]);  // crossing leaves
+    EXPECT_EQ(tag[inst][2], tag[inst][3]);  // one sheet, folded
+    EXPECT_NE(tag[inst][0], tag[inst][2]);
+  }
+  EXPECT_NE(tag[0][0], tag[1][0]);  // the same leaf, instanced twice
 }
 
 TEST(SamplerTest, RefusesBadRequests) {

@@ -73,10 +73,11 @@ TEST(MetaCodecTest, FutureVersionIsRefusedWithBothNumbers) {
   EXPECT_THAT(d.status().message(), HasSubstr("store X"));
 }
 
-// Versions 1 and 2 stored plain float records; version 3 stores compact ones (tree/format.h)
-// and does not read the old: the message names both versions and says to rebuild.
+// Versions 1 and 2 stored plain float records, version 3 compact ones without sheet tags;
+// version 4 (tree/format.h) does not read them: the message names both versions and says to
+// rebuild.
 TEST(MetaCodecTest, OldVersionsAreRefusedWithBothNumbersAndRebuild) {
-  for (uint32_t old : {1u, 2u}) {
+  for (uint32_t old : {1u, 2u, 3u}) {
     std::string bytes = EncodeMeta(SampleMeta(), true);
     std::memcpy(&bytes[8], &old, 4);
     absl::StatusOr<DecodedMeta> d = DecodeMeta(bytes, "store Y");

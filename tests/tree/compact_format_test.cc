@@ -1,6 +1,6 @@
-// Format version 3's compact records (tree/format.h): every field within its stated bound, node
-// bounds that hold their points after quantization, the two-sided flag, and damaged pages as
-// DataLoss naming the page (tree/decoded_page.h).
+// Format version 4's compact records (tree/format.h): every field within its stated bound, node
+// bounds that hold their points after quantization, the two-sided flag and sheet tag, and damaged
+// pages as DataLoss naming the page (tree/decoded_page.h).
 #include <algorithm>
 #include <cmath>
 #include <cstring>
@@ -49,7 +49,7 @@ Encoded EncodeSurfel(const Surfel& s, Channels c, const PositionGrid& g) {
   const float pos[3] = {s.position.x, s.position.y, s.position.z};
   const float nrm[3] = {s.normal.x, s.normal.y, s.normal.z};
   const float rad[3] = {s.radiance.x, s.radiance.y, s.radiance.z};
-  EncodePointRecord(pos, nrm, EncodeRadius(s.radius, s.two_sided), rad, c, g, e.bytes);
+  EncodePointRecord(pos, nrm, EncodeRadius(s.radius, s.two_sided, s.sheet), rad, c, g, e.bytes);
   return e;
 }
 
@@ -201,6 +201,7 @@ TEST(CompactFormatTest, PointFieldsRoundTripWithinTheirBounds) {
       s.radiance[k] = (u(rng) < 0.1f ? -1.0f : 1.0f) * LogUniform(rng, -30.0f, 30.0f);
     }
     s.two_sided = u(rng) < 0.5f;
+    s.sheet = static_cast<uint8_t>(rng() % 256);
     for (Channels c : {Channels::kOcclusion, Channels::kRadiance}) {
       const Encoded e = EncodeSurfel(s, c, g);
       const Surfel d = DecodePointRecord(e.bytes, c, g);
@@ -209,9 +210,12 @@ TEST(CompactFormatTest, PointFieldsRoundTripWithinTheirBounds) {
         ASSERT_LE(std::fabs(d.position[k] - s.position[k]), tol) << i << " axis " << k;
       }
       ASSERT_NEAR(glm::length(d.normal), 1.0f, 1e-6f);
-      ASSERT_LE(glm::length(d.normal - s.normal), 1e-4f) << i;  // the chord: the angle, nearly
+      // The chord: the angle, nearly. Two-sided normals have 12-bit coordinates (the sheet
+      // tag takes the rest).
+      ASSERT_LE(glm::length(d.normal - s.normal), s.two_sided ? 1e-3f : 1e-4f) << i;
       ASSERT_LE(std::fabs(d.radius - s.radius), s.radius * 0x1p-11f * 1.0001f) << s.radius;
       ASSERT_EQ(d.two_sided, s.two_sided);
+      ASSERT_EQ(d.sheet, s.two_sided ? s.sheet : 0) << i;
       for (int k = 0; k < 3; ++k) {
         if (c == Channels::kOcclusion) {
           ASSERT_EQ(d.radiance[k], 0.0f);
@@ -225,8 +229,10 @@ TEST(CompactFormatTest, PointFieldsRoundTripWithinTheirBounds) {
       const Encoded again = EncodeSurfel(d, c, g);
       const Surfel d2 = DecodePointRecord(again.bytes, c, g);
       ASSERT_EQ(d2.position, d.position);
+      ASSERT_EQ(d2.normal, d.normal);
       ASSERT_EQ(d2.radius, d.radius);
       ASSERT_EQ(d2.radiance, d.radiance);
+      ASSERT_EQ(d2.sheet, d.sheet);
     }
   }
 }
@@ -262,6 +268,43 @@ TEST(CompactFormatTest, TwoSidedFlagRoundTripsAtEveryCorner) {
       }
     }
   }
+}
+
+// A two-sided surfel's sheet tag (Surfel::sheet) travels in its sort record's radius
+// (EncodeRadius: the stored radius, the tag in the low mantissa bits) and in its point record's
+// normal (EncodeOctahedralSheet): every tag, on normals at the octahedron's folds and edges,
+// with radii across the range; the radius it carries is the one stored, and a one-sided
+// surfel's radius and tag are as before (the radius unrounded, the tag 0).
+TEST(CompactFormatTest, SheetTagsRoundTripOnTwoSidedRecords) {
+  const PositionGrid g = TestGrid();
+  const glm::vec3 normals[] = {{0, 0, 1}, {0, 0, -1},  {1, 0, 0},         {0, -1, 0},
+                               {1, 1, 0}, {-1, 1, -1}, {0.3f, -0.2f, -5}, {1e-7f, 0, -1}};
+  for (int sheet = 0; sheet < 256; ++sheet) {
+    for (const glm::vec3& n : normals) {
+      for (float radius : {0x1p-31f, 1e-3f, 0.1234567f, 3.0f, 1e9f}) {
+        Surfel s;
+        s.position = glm::vec3(1.0f, 2.0f, 0.5f);
+        s.normal = glm::normalize(n);
+        s.radius = radius;
+        s.two_sided = true;
+        s.sheet = static_cast<uint8_t>(sheet);
+        const float r = EncodeRadius(s.radius, true, s.sheet);
+        ASSERT_TRUE(RadiusTwoSided(r));
+        ASSERT_EQ(RadiusSheet(r), sheet);
+        ASSERT_EQ(EncodeRadius16(r), EncodeRadius16(radius)) << radius;
+        ASSERT_EQ(RadiusValue(r), DecodeRadius16(EncodeRadius16(radius))) << radius;
+        for (Channels c : {Channels::kOcclusion, Channels::kRadiance}) {
+          const Surfel d = DecodePointRecord(EncodeSurfel(s, c, g).bytes, c, g);
+          ASSERT_TRUE(d.two_sided);
+          ASSERT_EQ(d.sheet, sheet) << n.x << " " << n.y << " " << n.z;
+          ASSERT_LE(glm::length(d.normal - s.normal), 1e-3f) << n.x << " " << n.y << " " << n.z;
+          ASSERT_EQ(d.radius, DecodeRadius16(EncodeRadius16(radius)));
+        }
+      }
+    }
+  }
+  EXPECT_EQ(EncodeRadius(0.1234567f, false, 7), 0.1234567f);
+  EXPECT_EQ(RadiusSheet(EncodeRadius(0.1234567f, false, 7)), 0);
 }
 
 NodeRecordRadiance RandomNode(std::mt19937& rng) {
