@@ -126,18 +126,43 @@ inline void Split(const Poly2& p, int coord, float at, Poly2* below, Poly2* abov
   above->n = na;
 }
 
+// Eight sample rows, or eight vertices, at a time.
+typedef float SpanV8f __attribute__((vector_size(32)));
+typedef int32_t SpanV8i __attribute__((vector_size(32)));
+inline constexpr SpanV8i kSpanLane = {0, 1, 2, 3, 4, 5, 6, 7};
+
+// Whether every lane of a comparison's mask is true.
+inline bool MaskAll(const SpanV8i& m) {
+  return Movemask4(__builtin_shufflevector(m, m, 0, 1, 2, 3) &
+                   __builtin_shufflevector(m, m, 4, 5, 6, 7)) == 0xf;
+}
+
 // Clips the homogeneous polygon (a, b, w) of a face to |a| <= w, |b| <= w (its pyramid),
 // ping-ponging between two buffers; returns the vertex count (0 when nothing is left).
+// kLanes: a, b and w hold eight lanes of defined values (RasterizePolygonTo's lanes), and a
+// polygon of at most eight vertices has its planes' sides found in lanes, the same expressions.
+template <bool kLanes>
 inline int ClipToPyramid(float* a, float* b, float* w, int n, float* ta, float* tb, float* tw) {
+  static_assert(kMaxPolygonVertices >= 8);
   // Plane i: s = w + sa * a (i = 0, 1) or w + sb * b (i = 2, 3).
   for (int plane = 0; plane < 4 && n >= 3; ++plane) {
     const float sa = plane == 0 ? 1.0f : plane == 1 ? -1.0f : 0.0f;
     const float sb = plane == 2 ? 1.0f : plane == 3 ? -1.0f : 0.0f;
     float s[kMaxPolygonVertices + 2];
     bool all_in = true;
-    for (int i = 0; i < n; ++i) {
-      s[i] = w[i] + sa * a[i] + sb * b[i];
-      all_in &= s[i] >= 0.0f;
+    if (kLanes && n <= 8) {
+      SpanV8f la, lb, lw;
+      std::memcpy(&la, a, sizeof la);
+      std::memcpy(&lb, b, sizeof lb);
+      std::memcpy(&lw, w, sizeof lw);
+      const SpanV8f ls = lw + sa * la + sb * lb;
+      std::memcpy(s, &ls, sizeof ls);
+      all_in = MaskAll((ls >= 0.0f) | (kSpanLane >= n));
+    } else {
+      for (int i = 0; i < n; ++i) {
+        s[i] = w[i] + sa * a[i] + sb * b[i];
+        all_in &= s[i] >= 0.0f;
+      }
     }
     if (all_in) continue;
     int m = 0;
@@ -170,11 +195,6 @@ struct MaskSpans {
   // (xl > xr: none).
   float xl[kMaxMaskRows], xr[kMaxMaskRows];
 };
-
-// Eight sample rows at a time (the spans' rows are a multiple of kMaskSide, from row0).
-typedef float SpanV8f __attribute__((vector_size(32)));
-typedef int32_t SpanV8i __attribute__((vector_size(32)));
-inline constexpr SpanV8i kSpanLane = {0, 1, 2, 3, 4, 5, 6, 7};
 
 // Sets every row's crossings to none.
 inline void ClearSpans(int y0, int y1, MaskSpans* s) {
@@ -441,14 +461,10 @@ inline void VertexFaces(const VertexLanes& v, SpanV8i* faces) {
   *faces = ax >= ay ? (ax >= az ? fx : fz) : (ay >= az ? fy : fz);
 }
 
-// Whether any (every) lane of a comparison's mask is true.
+// Whether any lane of a comparison's mask is true.
 inline bool MaskAny(const SpanV8i& m) {
   return Movemask4(__builtin_shufflevector(m, m, 0, 1, 2, 3) |
                    __builtin_shufflevector(m, m, 4, 5, 6, 7)) != 0;
-}
-inline bool MaskAll(const SpanV8i& m) {
-  return Movemask4(__builtin_shufflevector(m, m, 0, 1, 2, 3) &
-                   __builtin_shufflevector(m, m, 4, 5, 6, 7)) == 0xf;
 }
 
 // The least and greatest of eight lanes.
@@ -590,7 +606,7 @@ inline void RasterizePolygonIn(const Polygon& p, int res, std::vector<float>* ac
         std::memcpy(b, &lb, sizeof lb);
         std::memcpy(w, &lw, sizeof lw);
         float ta[kMaxPolygonVertices], tb[kMaxPolygonVertices], tw[kMaxPolygonVertices];
-        n = ClipToPyramid(a, b, w, n, ta, tb, tw);
+        n = ClipToPyramid<true>(a, b, w, n, ta, tb, tw);
         if (n < 3 || !Project(a, b, w, n, res, &face)) continue;
       }
     } else {
@@ -616,7 +632,7 @@ inline void RasterizePolygonIn(const Polygon& p, int res, std::vector<float>* ac
         }
         if (out_lo1 || out_hi1 || out_lo2 || out_hi2) continue;
         float ta[kMaxPolygonVertices], tb[kMaxPolygonVertices], tw[kMaxPolygonVertices];
-        n = ClipToPyramid(a, b, w, n, ta, tb, tw);
+        n = ClipToPyramid<false>(a, b, w, n, ta, tb, tw);
         if (n < 3) continue;
       }
       if (!Project(a, b, w, n, res, &face)) continue;
