@@ -51,6 +51,25 @@ inline constexpr float kMinPlaneCos = 1e-3f;
 Bounds FootprintBox(const Bounds& centres, const Bounds& cell, float spacing,
                     const glm::vec3& plane_normal, bool* full, int* snapped = nullptr,
                     const Bounds* reach = nullptr);
+// A box's lo and hi as four lanes each, the fourth repeating the third: Bounds is six floats,
+// read as two overlapping four-float loads within it.
+inline void LoadBounds(const Bounds& b, V4* lo, V4* hi) {
+  static_assert(sizeof(Bounds) == 6 * sizeof(float));
+  const char* p = reinterpret_cast<const char*>(&b);
+  V4 l, h;
+  std::memcpy(&l, p, sizeof l);
+  std::memcpy(&h, p + 2 * sizeof(float), sizeof h);
+  *lo = __builtin_shufflevector(l, l, 0, 1, 2, 2);
+  *hi = __builtin_shufflevector(h, h, 1, 2, 3, 3);
+}
+// Whether the boxes a and b (not empty), grown by ga and gb on every side, overlap or touch:
+// a.lo - ga <= b.hi + gb and b.lo - gb <= a.hi + ga along every axis, the three axes in lanes.
+inline bool GrownBoxesOverlap(const Bounds& a, float ga, const Bounds& b, float gb) {
+  V4 alo, ahi, blo, bhi;
+  LoadBounds(a, &alo, &ahi);
+  LoadBounds(b, &blo, &bhi);
+  return Movemask4((alo - ga <= bhi + gb) & (blo - gb <= ahi + ga)) == 0xf;
+}
 // The bounds of the plane {dot(normal, x) = offset} (x relative to `origin`) inside `cell`,
 // padded by kPlanePad spacings along the axes nearly along the normal, in world coordinates;
 // false when it misses the cell or lies along the axes (then the cell's sides serve).
