@@ -196,6 +196,10 @@ struct MaskSpans {
   float xl[kMaxMaskRows], xr[kMaxMaskRows];
 };
 
+// The first row of the block of kMaskSide rows from row0 that holds row j >= row0:
+// j - (j - row0) % kMaskSide, without a signed division.
+inline int BlockStart(int j, int row0) { return row0 + ((j - row0) & -kMaskSide); }
+
 // Sets every row's crossings to none.
 inline void ClearSpans(int y0, int y1, MaskSpans* s) {
   const int rows = std::min((y1 - y0 + 1) * kMaskSide, kMaxMaskRows);
@@ -232,7 +236,7 @@ inline void Spans(const Poly2& p, int y0, int y1, MaskSpans* s) {
     if (j0 >= j1) continue;
     const float slope = (bx - ax) / (by - ay);
     // Rows [jb, jb + 8) from the block that holds j0; the lanes outside [j0, j1) keep theirs.
-    for (int jb = j0 - (j0 - row0) % kMaskSide; jb < j1; jb += kMaskSide) {
+    for (int jb = BlockStart(j0, row0); jb < j1; jb += kMaskSide) {
       const SpanV8i j = jb + kSpanLane;
       const SpanV8i in = (j >= j0) & (j < j1);
       const SpanV8f y = (__builtin_convertvector(j, SpanV8f) + 0.5f) / kSide;
@@ -271,7 +275,7 @@ inline void BandSpans(const Poly2& p, int y0, int y1, MaskSpans* s) {
     const bool slanted = by > ay;
     const float slope = slanted ? (bx - ax) / (by - ay) : 0.0f;
     const float flat_a = std::min(ax, bx), flat_b = std::max(ax, bx);
-    for (int jb = j0 - (j0 - row0) % kMaskSide; jb <= j1; jb += kMaskSide) {
+    for (int jb = BlockStart(j0, row0); jb <= j1; jb += kMaskSide) {
       const SpanV8i j = jb + kSpanLane;
       const SpanV8i in = (j >= j0) & (j <= j1);
       const SpanV8f fj = __builtin_convertvector(j, SpanV8f);
