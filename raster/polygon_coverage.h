@@ -471,26 +471,22 @@ inline bool MaskAny(const SpanV8i& m) {
                    __builtin_shufflevector(m, m, 4, 5, 6, 7)) != 0;
 }
 
-// The least and greatest of eight lanes.
-inline float LeastLane(const SpanV8f& lanes) {
-  SpanV8f v = lanes;
-  v = v < __builtin_shufflevector(v, v, 4, 5, 6, 7, 0, 1, 2, 3)
-          ? v
-          : __builtin_shufflevector(v, v, 4, 5, 6, 7, 0, 1, 2, 3);
-  v = v < __builtin_shufflevector(v, v, 2, 3, 0, 1, 6, 7, 4, 5)
-          ? v
-          : __builtin_shufflevector(v, v, 2, 3, 0, 1, 6, 7, 4, 5);
-  return v[0] < v[1] ? v[0] : v[1];
-}
-inline float GreatestLane(const SpanV8f& lanes) {
-  SpanV8f v = lanes;
-  v = v > __builtin_shufflevector(v, v, 4, 5, 6, 7, 0, 1, 2, 3)
-          ? v
-          : __builtin_shufflevector(v, v, 4, 5, 6, 7, 0, 1, 2, 3);
-  v = v > __builtin_shufflevector(v, v, 2, 3, 0, 1, 6, 7, 4, 5)
-          ? v
-          : __builtin_shufflevector(v, v, 2, 3, 0, 1, 6, 7, 4, 5);
-  return v[0] > v[1] ? v[0] : v[1];
+// The least and greatest of the eight lanes of x and of y (no lane NaN, none -0: then any order
+// of comparisons finds std::min's and std::max's values), x's and y's halves side by side.
+inline void LaneExtremes(const SpanV8f& x, const SpanV8f& y, float* minx, float* maxx, float* miny,
+                         float* maxy) {
+  const SpanV8f a = __builtin_shufflevector(x, y, 0, 1, 2, 3, 8, 9, 10, 11);
+  const SpanV8f b = __builtin_shufflevector(x, y, 4, 5, 6, 7, 12, 13, 14, 15);
+  SpanV8f lo = a < b ? a : b, hi = a > b ? a : b;
+  SpanV8f t = __builtin_shufflevector(lo, lo, 2, 3, 0, 1, 6, 7, 4, 5);
+  lo = lo < t ? lo : t;
+  t = __builtin_shufflevector(hi, hi, 2, 3, 0, 1, 6, 7, 4, 5);
+  hi = hi > t ? hi : t;
+  t = __builtin_shufflevector(lo, lo, 1, 0, 3, 2, 5, 4, 7, 6);
+  lo = lo < t ? lo : t;
+  t = __builtin_shufflevector(hi, hi, 1, 0, 3, 2, 5, 4, 7, 6);
+  hi = hi > t ? hi : t;
+  *minx = lo[0], *miny = lo[4], *maxx = hi[0], *maxy = hi[4];
 }
 
 // A face's polygon in face-pixel coordinates and its extent there.
@@ -541,8 +537,7 @@ inline bool ProjectLanes(const SpanV8f& a, const SpanV8f& b, const SpanV8f& w, i
   static_assert(sizeof whole.x >= sizeof xs);
   std::memcpy(whole.x, &xs, sizeof xs);
   std::memcpy(whole.y, &ys, sizeof ys);
-  out->minx = LeastLane(xs), out->maxx = GreatestLane(xs);
-  out->miny = LeastLane(ys), out->maxy = GreatestLane(ys);
+  LaneExtremes(xs, ys, &out->minx, &out->maxx, &out->miny, &out->maxy);
   return true;
 }
 
