@@ -543,9 +543,11 @@ inline bool ProjectLanes(const SpanV8f& a, const SpanV8f& b, const SpanV8f& w, i
 
 }  // namespace polygon_coverage
 
-// RasterizePolygonTo() below; kLanes false: the polygon's faces and projection one vertex at a
-// time (the form that the lanes' must match, tests/raster/polygon_test.cc), as it is for a
-// polygon of more than eight vertices.
+// RasterizePolygonTo() below. kLanes: a polygon of up to eight vertices has its faces found,
+// its faces rejected and clipped and its projection made in eight lanes (the rasterizer's AVX2
+// build, Rasterizer::Finish); false: one vertex at a time (the baseline ISA's form, where eight
+// lanes are two SSE2 vectors and their shuffles cost more; the form that the lanes' must match,
+// tests/raster/polygon_test.cc), as it is for a polygon of more than eight vertices.
 template <bool kLanes, class Sink, class Skip>
 inline void RasterizePolygonIn(const Polygon& p, int res, std::vector<float>* acc, Sink&& sink,
                                Skip&& skip) {
@@ -723,7 +725,7 @@ inline void RasterizePolygonIn(const Polygon& p, int res, std::vector<float>* ac
 template <class Sink, class Skip>
 inline void RasterizePolygonTo(const Polygon& p, int res, std::vector<float>* acc, Sink&& sink,
                                Skip&& skip) {
-  RasterizePolygonIn<true>(p, res, acc, sink, skip);
+  RasterizePolygonIn</*kLanes=*/false>(p, res, acc, sink, skip);
 }
 
 template <class Sink>

@@ -394,11 +394,13 @@ class Rasterizer {
     uint64_t touched() const { return s.touched(); }
   };
 
-  template <bool kClamp, bool kRad>
+  template <bool kClamp, bool kRad, bool kLanes>
   void Draw(const Gathered& g, uint32_t count);
   // Everything after cluster preparation: Reset(), the surfels, Draw(), Integrate(); on the
-  // AVX2 build when avx2_ is set.
-  template <bool kClamp, bool kRad>
+  // AVX2 build when avx2_ is set. kLanes: polygon footprints are rasterized in eight lanes
+  // (RasterizePolygonIn), which only the AVX2 build takes: on the baseline ISA an eight-lane
+  // vector is two SSE2 ones and its shuffles cost more than the vertex-at-a-time code.
+  template <bool kClamp, bool kRad, bool kLanes>
   void Finish(const Gathered& g, const ShadeReceiver& r, ShadeResult* out);
   template <bool kClamp, bool kRad>
   void FinishOn(const Gathered& g, const ShadeReceiver& r, ShadeResult* out);
@@ -411,7 +413,7 @@ class Rasterizer {
   __attribute__((target("avx2"), flatten)) void FinishAvx2(const Gathered& g,
                                                            const ShadeReceiver& r,
                                                            ShadeResult* out) {
-    Finish<kClamp, kRad>(g, r, out);
+    Finish<kClamp, kRad, /*kLanes=*/true>(g, r, out);
   }
 #endif
 
@@ -423,7 +425,7 @@ class Rasterizer {
   void SplatBox(const PreparedSplat& s, int base, float u, float v, float h, uint32_t q);
   template <bool kClamp, bool kRad>
   void SplatDisk(const PreparedSplat& s);
-  template <bool kClamp, bool kRad>
+  template <bool kClamp, bool kRad, bool kLanes>
   void SplatPolygons(const PreparedSplat& s);
 
   // Polygon footprints only: a splat spreads its element's coverage over pixels past the
