@@ -132,18 +132,6 @@ bool BoxFaces(const Cluster& c, const Bounds& box, const glm::vec3& origin) {
   return faces >= 2 && off <= tol;
 }
 
-// A box's lo and hi as four lanes each, the fourth repeating the third: Bounds is six floats,
-// read as two overlapping four-float loads within it.
-inline void LoadBounds(const Bounds& b, V4* lo, V4* hi) {
-  static_assert(sizeof(Bounds) == 6 * sizeof(float));
-  const char* p = reinterpret_cast<const char*>(&b);
-  V4 l, h;
-  std::memcpy(&l, p, sizeof l);
-  std::memcpy(&h, p + 2 * sizeof(float), sizeof h);
-  *lo = __builtin_shufflevector(l, l, 0, 1, 2, 2);
-  *hi = __builtin_shufflevector(h, h, 1, 2, 3, 3);
-}
-
 // Whether `cell` is a usable octree cell for content with box `b` (the gather sets it; a
 // caller-built cluster may not). Three lanes of four, the same comparisons as one axis at a time.
 bool CellHolds(const Bounds& cell, const Bounds& b) {
@@ -404,12 +392,7 @@ Bounds ContactCell(const Bounds& cell, const SurfelGroup& a, absl::Span<const Su
       if (std::fabs(nb[j]) > std::fabs(nb[k])) k = j;
     }
     if (std::fabs(nb[k]) < 0.99f || std::fabs(na[k]) > kInPlaneAxis) continue;
-    bool overlap = true;
-    for (int j = 0; j < 3; ++j) {
-      overlap = overlap && a.centres.lo[j] - 1.5f * sa <= b.centres.hi[j] + 1.5f * sb &&
-                b.centres.lo[j] - 1.5f * sb <= a.centres.hi[j] + 1.5f * sa;
-    }
-    if (!overlap) continue;
+    if (!GrownBoxesOverlap(a.centres, 1.5f * sa, b.centres, 1.5f * sb)) continue;
     // Along the edge where they meet, b spans a (within a spacing): a wall beside the street
     // around a building's corner does not end the street in front of the building. Each side
     // by half of its own spacing: b's surface reaches that far past its last centre, and a

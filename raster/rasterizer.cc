@@ -162,7 +162,7 @@ void Rasterizer::PrepareSurfel(const Surfel& sf, ShadeResult* out) {
   ++out->surfels_drawn;
 }
 
-template <bool kClamp, bool kRad>
+template <bool kClamp, bool kRad, bool kLanes>
 void Rasterizer::SplatPolygons(const PreparedSplat& s) {
   const Frag fr = FragOf(s);
   const Polygon* polys = mb_.polygons_.data() + s.poly_first;
@@ -182,19 +182,20 @@ void Rasterizer::SplatPolygons(const PreparedSplat& s) {
         Emit<kClamp, kRad>(pixel, alpha * cov, fr, PolygonSamples<true>{t});
       };
       for (uint32_t k = 0; k < s.poly_count; ++k) {
-        RasterizePolygonTo(polys[k], res_, &mb_.accumulation_, masked, skip);
+        RasterizePolygonIn<kLanes>(polys[k], res_, &mb_.accumulation_, masked, skip);
       }
     } else {
       auto scalar = [&](uint32_t pixel, float cov, const polygon_coverage::PixelSamples& t) {
         Emit<kClamp, kRad>(pixel, alpha * cov, fr, PolygonSamples<false>{t});
       };
       for (uint32_t k = 0; k < s.poly_count; ++k) {
-        RasterizePolygonTo(polys[k], res_, &mb_.accumulation_, scalar, skip);
+        RasterizePolygonIn<kLanes>(polys[k], res_, &mb_.accumulation_, scalar, skip);
       }
     }
   } else {
     for (uint32_t k = 0; k < s.poly_count; ++k) {
-      RasterizePolygonTo(polys[k], res_, &mb_.accumulation_, emit);
+      RasterizePolygonIn<kLanes>(polys[k], res_, &mb_.accumulation_, emit,
+                                 [](uint32_t, int, int, int, int) { return false; });
     }
   }
 }
@@ -525,7 +526,7 @@ inline bool Rasterizer::BilinearConeClosed(const PreparedSplat& s) const {
                     std::max(iy, 0), std::min(iy + 1, res_ - 1), s.depth);
 }
 
-template <bool kClamp, bool kRad>
+template <bool kClamp, bool kRad, bool kLanes>
 void Rasterizer::Draw(const Gathered& g, uint32_t count) {
   PreparedSplat* splats = mb_.splats_.data();
   auto draw = [&](uint32_t i) {
@@ -541,7 +542,7 @@ void Rasterizer::Draw(const Gathered& g, uint32_t count) {
       if (!BuildClusterFootprint(c, s)) return;
     }
     if (s.near == 2) {
-      SplatPolygons<kClamp, kRad>(s);
+      SplatPolygons<kClamp, kRad, kLanes>(s);
     } else if (s.near) {
       SplatDisk<kClamp, kRad>(s);
     } else {
@@ -557,7 +558,7 @@ void Rasterizer::Draw(const Gathered& g, uint32_t count) {
   }
 }
 
-template <bool kClamp, bool kRad>
+template <bool kClamp, bool kRad, bool kLanes>
 void Rasterizer::Finish(const Gathered& g, const ShadeReceiver& r, ShadeResult* out) {
   Reset();
   if (polygons_) {
@@ -565,7 +566,7 @@ void Rasterizer::Finish(const Gathered& g, const ShadeReceiver& r, ShadeResult* 
   } else {
     for (const Surfel& s : g.surfels) PrepareSurfel(s, out);
   }
-  Draw<kClamp, kRad>(g, count_);
+  Draw<kClamp, kRad, kLanes>(g, count_);
   if (far_ != nullptr) CompositeFar<kClamp, kRad>();
   Integrate(r, out);
 }
@@ -638,7 +639,7 @@ void Rasterizer::FinishOn(const Gathered& g, const ShadeReceiver& r, ShadeResult
     return;
   }
 #endif
-  Finish<kClamp, kRad>(g, r, out);
+  Finish<kClamp, kRad, /*kLanes=*/false>(g, r, out);
 }
 
 absl::Status Rasterizer::Run(const Gathered& g, const ShadeReceiver& r, ShadeResult* out) {

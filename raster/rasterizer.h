@@ -51,6 +51,25 @@ inline constexpr float kMinPlaneCos = 1e-3f;
 Bounds FootprintBox(const Bounds& centres, const Bounds& cell, float spacing,
                     const glm::vec3& plane_normal, bool* full, int* snapped = nullptr,
                     const Bounds* reach = nullptr);
+// A box's lo and hi as four lanes each, the fourth repeating the third: Bounds is six floats,
+// read as two overlapping four-float loads within it.
+inline void LoadBounds(const Bounds& b, V4* lo, V4* hi) {
+  static_assert(sizeof(Bounds) == 6 * sizeof(float));
+  const char* p = reinterpret_cast<const char*>(&b);
+  V4 l, h;
+  std::memcpy(&l, p, sizeof l);
+  std::memcpy(&h, p + 2 * sizeof(float), sizeof h);
+  *lo = __builtin_shufflevector(l, l, 0, 1, 2, 2);
+  *hi = __builtin_shufflevector(h, h, 1, 2, 3, 3);
+}
+// Whether the boxes a and b (not empty), grown by ga and gb on every side, overlap or touch:
+// a.lo - ga <= b.hi + gb and b.lo - gb <= a.hi + ga along every axis, the three axes in lanes.
+inline bool GrownBoxesOverlap(const Bounds& a, float ga, const Bounds& b, float gb) {
+  V4 alo, ahi, blo, bhi;
+  LoadBounds(a, &alo, &ahi);
+  LoadBounds(b, &blo, &bhi);
+  return Movemask4((alo - ga <= bhi + gb) & (blo - gb <= ahi + ga)) == 0xf;
+}
 // The bounds of the plane {dot(normal, x) = offset} (x relative to `origin`) inside `cell`,
 // padded by kPlanePad spacings along the axes nearly along the normal, in world coordinates;
 // false when it misses the cell or lies along the axes (then the cell's sides serve).
@@ -385,11 +404,13 @@ class Rasterizer {
     uint64_t touched() const { return s.touched(); }
   };
 
-  template <bool kClamp, bool kRad>
+  template <bool kClamp, bool kRad, bool kLanes>
   void Draw(const Gathered& g, uint32_t count);
   // Everything after cluster preparation: Reset(), the surfels, Draw(), Integrate(); on the
-  // AVX2 build when avx2_ is set.
-  template <bool kClamp, bool kRad>
+  // AVX2 build when avx2_ is set. kLanes: polygon footprints are rasterized in eight lanes
+  // (RasterizePolygonIn), which only the AVX2 build takes: on the baseline ISA an eight-lane
+  // vector is two SSE2 ones and its shuffles cost more than the vertex-at-a-time code.
+  template <bool kClamp, bool kRad, bool kLanes>
   void Finish(const Gathered& g, const ShadeReceiver& r, ShadeResult* out);
   template <bool kClamp, bool kRad>
   void FinishOn(const Gathered& g, const ShadeReceiver& r, ShadeResult* out);
@@ -402,7 +423,7 @@ class Rasterizer {
   __attribute__((target("avx2"), flatten)) void FinishAvx2(const Gathered& g,
                                                            const ShadeReceiver& r,
                                                            ShadeResult* out) {
-    Finish<kClamp, kRad>(g, r, out);
+    Finish<kClamp, kRad, /*kLanes=*/true>(g, r, out);
   }
 #endif
 
@@ -414,7 +435,7 @@ class Rasterizer {
   void SplatBox(const PreparedSplat& s, int base, float u, float v, float h, uint32_t q);
   template <bool kClamp, bool kRad>
   void SplatDisk(const PreparedSplat& s);
-  template <bool kClamp, bool kRad>
+  template <bool kClamp, bool kRad, bool kLanes>
   void SplatPolygons(const PreparedSplat& s);
 
   // Polygon footprints only: a splat spreads its element's coverage over pixels past the

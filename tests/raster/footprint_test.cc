@@ -154,6 +154,38 @@ TEST(FootprintTest, FootprintBoxInLanesMatchesOneAxisAtATime) {
   EXPECT_LT(snapped_count, trials - trials / 50);
 }
 
+// GrownBoxesOverlap() (ContactCell's pairs of groups) compares the three axes in lanes: against
+// the scalar comparisons one axis at a time, the same answer over random boxes, grown boxes that
+// just touch, and coordinates that are NaN.
+TEST(FootprintTest, GrownBoxesOverlapInLanesMatchesOneAxisAtATime) {
+  std::mt19937 rng(19);
+  std::uniform_real_distribution<float> u(0.0f, 1.0f);
+  int differ = 0, overlaps = 0;
+  const int trials = 300000;
+  for (int trial = 0; trial < trials; ++trial) {
+    Bounds a, b;
+    const float ga = 1.5f * u(rng), gb = trial % 3 == 0 ? ga : 1.5f * u(rng);
+    for (int k = 0; k < 3; ++k) {
+      a.lo[k] = 4.0f * u(rng), a.hi[k] = a.lo[k] + u(rng);
+      b.lo[k] = 4.0f * u(rng), b.hi[k] = b.lo[k] + u(rng);
+      // Touching when grown, on either side.
+      if (rng() % 4 == 0) b.lo[k] = a.hi[k] + ga + gb;
+      if (rng() % 4 == 0) b.hi[k] = a.lo[k] - ga - gb;
+    }
+    if (trial % 101 == 0) a.hi[rng() % 3] = std::numeric_limits<float>::quiet_NaN();
+    bool want = true;
+    for (int j = 0; j < 3; ++j) {
+      want = want && a.lo[j] - ga <= b.hi[j] + gb && b.lo[j] - gb <= a.hi[j] + ga;
+    }
+    const bool got = internal::GrownBoxesOverlap(a, ga, b, gb);
+    differ += got != want;
+    overlaps += want;
+  }
+  EXPECT_EQ(differ, 0) << "of " << trials;
+  EXPECT_GT(overlaps, trials / 20);
+  EXPECT_LT(overlaps, trials - trials / 20);
+}
+
 // Rasterizer::ToLocal4() (AddPolygon's vertices) multiplies by the frame's columns in lanes:
 // against ToLocal()'s three glm::dot, the same floats to the bit over random frames and points.
 TEST(FootprintTest, ToLocalInLanesMatchesGlmDot) {

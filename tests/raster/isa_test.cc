@@ -1,5 +1,6 @@
-// The rasterizer's AVX2 builds (cluster preparation, splatting, integration) against the
-// baseline ones: the same code in two encodings, so Shade() must agree bit for bit.
+// The rasterizer's AVX2 builds (cluster preparation, splatting, polygon footprints,
+// integration) against the baseline ones: the same code in two encodings, so Shade() must agree
+// bit for bit.
 #include <cmath>
 #include <random>
 #include <vector>
@@ -53,34 +54,37 @@ TEST(RasterIsaTest, Avx2AndBaselineAgreeBitForBit) {
   ASSERT_GT(g.clusters.size(), 40u);
   MicroBuffer mb;
   int shaded = 0, near = 0;
-  for (bool clamp : {true, false}) {
-    for (bool radiance : {true, false}) {
-      for (int res : {8, 12}) {
-        RasterOptions o;
-        o.resolution = res;
-        o.clamp = clamp;
-        o.compute_radiance = radiance;
-        o.lobe = radiance ? GlossyLobe::kPhong : GlossyLobe::kNone;
-        for (const glm::vec3& p : {glm::vec3(0.0f), glm::vec3(0.3f, -0.2f, 0.1f)}) {
-          ShadeReceiver r;
-          r.position = p;
-          r.normal = glm::normalize(glm::vec3(0.1f, 0.2f, 1.0f));
-          r.reflection = glm::normalize(glm::vec3(1, 0, 1));
-          ShadeResult fast, base;
-          internal::ForceBaselineIsaForTesting(false);
-          ASSERT_TRUE(Shade(g, r, o, &mb, &fast).ok());
-          internal::ForceBaselineIsaForTesting(true);
-          ASSERT_TRUE(Shade(g, r, o, &mb, &base).ok());
-          internal::ForceBaselineIsaForTesting(false);
-          ExpectSame(fast, base);
-          EXPECT_GT(base.occlusion, 0.1f);
-          near += static_cast<int>(base.near_disks_drawn);
-          ++shaded;
+  for (Footprint footprint : {Footprint::kSplats, Footprint::kPolygons}) {
+    for (bool clamp : {true, false}) {
+      for (bool radiance : {true, false}) {
+        for (int res : {8, 12}) {
+          RasterOptions o;
+          o.footprint = footprint;
+          o.resolution = res;
+          o.clamp = clamp;
+          o.compute_radiance = radiance;
+          o.lobe = radiance ? GlossyLobe::kPhong : GlossyLobe::kNone;
+          for (const glm::vec3& p : {glm::vec3(0.0f), glm::vec3(0.3f, -0.2f, 0.1f)}) {
+            ShadeReceiver r;
+            r.position = p;
+            r.normal = glm::normalize(glm::vec3(0.1f, 0.2f, 1.0f));
+            r.reflection = glm::normalize(glm::vec3(1, 0, 1));
+            ShadeResult fast, base;
+            internal::ForceBaselineIsaForTesting(false);
+            ASSERT_TRUE(Shade(g, r, o, &mb, &fast).ok());
+            internal::ForceBaselineIsaForTesting(true);
+            ASSERT_TRUE(Shade(g, r, o, &mb, &base).ok());
+            internal::ForceBaselineIsaForTesting(false);
+            ExpectSame(fast, base);
+            EXPECT_GT(base.occlusion, 0.1f);
+            near += static_cast<int>(base.near_disks_drawn);
+            ++shaded;
+          }
         }
       }
     }
   }
-  EXPECT_EQ(shaded, 16);
+  EXPECT_EQ(shaded, 32);
   EXPECT_GT(near, 0);  // the exact-disk path ran too
 }
 

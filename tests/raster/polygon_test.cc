@@ -9,6 +9,7 @@
 #include <map>
 #include <memory>
 #include <random>
+#include <type_traits>
 #include <vector>
 
 #include "glm/geometric.hpp"
@@ -353,6 +354,76 @@ TEST(PolygonTest, SpansInLanesMatchOneRowAtATime) {
   }
   EXPECT_EQ(differ, 0) << "of " << rows << " rows";
   EXPECT_GT(rows, 100000);
+}
+
+// RasterizePolygonTo() finds a polygon's faces and projects it in lanes (up to eight vertices):
+// against the one-vertex-at-a-time form, the same pixels, coverages, coverage masks, touched
+// samples and skip() rectangles, bit for bit, over polygons on one face and across several,
+// with vertices on the faces' edges and corners, at the apex, and with stale vertices past n.
+TEST(PolygonTest, RasterizePolygonInLanesMatchesOneVertexAtATime) {
+  std::mt19937 rng(19);
+  std::uniform_real_distribution<float> u(-1.0f, 1.0f);
+  struct Out {
+    std::vector<uint32_t> pixels, rects;
+    std::vector<float> covs;
+    std::vector<uint64_t> masks, touched;
+  };
+  auto run = [](auto lanes, const Polygon& p, int res, Out* o) {
+    std::vector<float> acc;
+    RasterizePolygonIn<decltype(lanes)::value>(
+        p, res, &acc,
+        [&](uint32_t pixel, float cov, const PixelSamples& t) {
+          o->pixels.push_back(pixel);
+          o->covs.push_back(cov);
+          o->masks.push_back(t.mask());
+          o->touched.push_back(t.touched());
+        },
+        [&](uint32_t first, int col0, int col1, int row0, int row1) {
+          o->rects.insert(o->rects.end(),
+                          {first, uint32_t(col0), uint32_t(col1), uint32_t(row0), uint32_t(row1)});
+          return false;
+        });
+  };
+  int polygons = 0, multi_face = 0, differ = 0;
+  for (int trial = 0; trial < 40000; ++trial) {
+    const int res = trial % 3 == 0 ? 12 : trial % 3 == 1 ? 8 : 5;
+    Polygon p;
+    // Stale vertices past n, as a reused polygon has them.
+    for (glm::vec3& v : p.v) v = glm::vec3(1e3f * u(rng), 1e3f * u(rng), -1e3f);
+    if (trial % 7 == 3) p.v[11] = glm::vec3(std::numeric_limits<float>::quiet_NaN());
+    const glm::vec3 d = glm::normalize(glm::vec3(u(rng), u(rng), std::fabs(u(rng))) + 1e-3f);
+    const glm::vec3 e1 = glm::normalize(
+        glm::cross(d, std::fabs(d.x) < 0.9f ? glm::vec3(1, 0, 0) : glm::vec3(0, 1, 0)));
+    const glm::vec3 e2 = glm::cross(d, e1);
+    const float r = trial % 4 == 0 ? 1.5f * std::fabs(u(rng)) : 0.3f * std::fabs(u(rng));
+    p.n = 3 + static_cast<int>(rng() % (trial % 5 == 0 ? kMaxPolygonVertices - 2 : 6));
+    const float start = 3.14159f * u(rng);
+    for (int i = 0; i < p.n; ++i) {
+      const float angle = start + 6.2831853f * static_cast<float>(i) / p.n;
+      glm::vec3 x = d + r * (std::cos(angle) * e1 + std::sin(angle) * e2);
+      // Vertices on a face's edge (|x| = |y|), on a corner, at zero of either sign.
+      if (rng() % 9 == 0) x.y = (rng() % 2 ? 1.0f : -1.0f) * std::fabs(x.x);
+      if (rng() % 13 == 0) x.z = std::fabs(x.x), x.y = std::fabs(x.x);
+      if (rng() % 11 == 0) x[rng() % 3] = rng() % 2 ? 0.0f : -0.0f;
+      p.v[i] = x;
+    }
+    if (trial % 50 == 7) p.v[0] = glm::vec3(0.0f);  // at the apex
+    ClipHalfSpace(glm::vec3(0.0f, 0.0f, 1.0f), &p);
+    if (p.n < 3) continue;
+    ++polygons;
+    Out lanes, one;
+    run(std::true_type{}, p, res, &lanes);
+    run(std::false_type{}, p, res, &one);
+    multi_face += one.rects.size() > 5;
+    const bool same =
+        lanes.pixels == one.pixels && lanes.rects == one.rects && lanes.masks == one.masks &&
+        lanes.touched == one.touched && lanes.covs.size() == one.covs.size() &&
+        std::memcmp(lanes.covs.data(), one.covs.data(), one.covs.size() * sizeof(float)) == 0;
+    differ += !same;
+  }
+  EXPECT_EQ(differ, 0) << "of " << polygons;
+  EXPECT_GT(polygons, 30000);
+  EXPECT_GT(multi_face, 3000);
 }
 
 // BoxDotRange() against the eight corners' dot products (the code before it): the same values
