@@ -41,7 +41,7 @@ TEST(BuildDatabaseTest, TwoSidedSurfelsBuildAVerifiableStore) {
     cloud[i].two_sided = i % 3 == 1;
     cloud[i].sheet = cloud[i].two_sided ? static_cast<uint8_t>(1 + i % 255) : 0;
   }
-  for (const auto [estimate, memory] :
+  for (const auto& [estimate, memory] :
        {std::pair{false, 64 << 20}, std::pair{true, 64 << 20}, std::pair{false, 1}}) {
     SCOPED_TRACE(estimate ? "estimated radius" : "given radius");
     SCOPED_TRACE(memory);

@@ -390,7 +390,7 @@ TEST(TwoSidedTest, ACrossingLeafIsNotTheReceiversOwnFold) {
   // forest's at 2 M surfels. (A disk that passes over the receiver within a third of its radius
   // is drawn up to a fifth short of what rays find, with or without tags: docs/eval.md,
   // "Session 19"; these leaves keep their disks farther.)
-  for (const auto [d, theta] :
+  for (const auto& [d, theta] :
        {std::pair{0.04f, 1.05f}, std::pair{-0.03f, 1.3f}, std::pair{-0.05f, 0.7f}}) {
     const glm::vec3 u(-std::cos(theta), 0.0f, std::sin(theta));
     const glm::vec3 n = glm::normalize(glm::cross(u, glm::vec3(0.0f, 1.0f, 0.0f)));
