@@ -89,7 +89,8 @@ inline void Add9(const double* c, double* sum) {
 
 void NodeAggregate::AddPoint(const SortRecord& r, bool radiance) {
   bounds.Extend(glm::vec3(r.position[0], r.position[1], r.position[2]));
-  const double a = sh::kPi * double(RadiusValue(r.radius)) * double(RadiusValue(r.radius));
+  const double radius = RadiusValue(r.radius);
+  const double a = sh::kPi * radius * radius;
   area += a;
   auto c = sh::ProjectClampedCosine<double>(r.normal[0], r.normal[1], r.normal[2], a);
   // A two-sided surfel is the pair (n, -n): A |n.w|, band 1 cancels and the even bands double.

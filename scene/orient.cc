@@ -63,6 +63,25 @@ std::vector<uint32_t> WeldVertices(const std::vector<glm::vec3>& p, double tol, 
   return id;
 }
 
+// The box of a mesh's triangles' vertices.
+void TriangleBounds(const Mesh& mesh, glm::dvec3* lo, glm::dvec3* hi) {
+  *lo = glm::dvec3(HUGE_VAL);
+  *hi = glm::dvec3(-HUGE_VAL);
+  for (const glm::uvec3& t : mesh.triangles) {
+    for (int k = 0; k < 3; ++k) {
+      *lo = glm::min(*lo, glm::dvec3(mesh.positions[t[k]]));
+      *hi = glm::max(*hi, glm::dvec3(mesh.positions[t[k]]));
+    }
+  }
+}
+
+// The welding tolerance of a mesh whose triangles span [lo, hi]: a millionth of the diagonal,
+// far above float rounding of coordinates written twice, far below any feature a sampler
+// resolves.
+double WeldTolerance(const glm::dvec3& lo, const glm::dvec3& hi) {
+  return std::max(1e-6 * glm::length(hi - lo), 1e-30);
+}
+
 struct EdgeUse {
   uint64_t key;  // (min id << 32) | max id of the welded end points
   uint32_t tri;  // triangle using the edge
@@ -93,16 +112,9 @@ std::vector<bool> OrientMesh(Mesh& mesh, bool mirrored, OrientReport& r) {
   const size_t nt = mesh.triangles.size();
   std::vector<bool> thin(nt, false);
   if (nt == 0) return thin;
-  glm::dvec3 lo(HUGE_VAL), hi(-HUGE_VAL);
-  for (const glm::uvec3& t : mesh.triangles) {
-    for (int k = 0; k < 3; ++k) {
-      lo = glm::min(lo, glm::dvec3(mesh.positions[t[k]]));
-      hi = glm::max(hi, glm::dvec3(mesh.positions[t[k]]));
-    }
-  }
-  // A millionth of the diagonal: far above float rounding of coordinates written twice, far
-  // below any feature a sampler resolves.
-  const double tol = std::max(1e-6 * glm::length(hi - lo), 1e-30);
+  glm::dvec3 lo, hi;
+  TriangleBounds(mesh, &lo, &hi);
+  const double tol = WeldTolerance(lo, hi);
   int64_t merged = 0;
   const std::vector<uint32_t> id = WeldVertices(mesh.positions, tol, &merged);
   r.welded_vertices += merged;
@@ -352,15 +364,10 @@ std::vector<uint32_t> MeshPieces(const Mesh& mesh) {
   std::vector<uint32_t> piece(nt);
   std::iota(piece.begin(), piece.end(), 0u);
   if (nt == 0) return piece;
-  glm::dvec3 lo(HUGE_VAL), hi(-HUGE_VAL);
-  for (const glm::vec3& p : mesh.positions) {
-    lo = glm::min(lo, glm::dvec3(p));
-    hi = glm::max(hi, glm::dvec3(p));
-  }
-  // The welding tolerance of OrientMesh: a millionth of the diagonal.
-  const double tol = std::max(1e-6 * glm::length(hi - lo), 1e-30);
+  glm::dvec3 lo, hi;
+  TriangleBounds(mesh, &lo, &hi);
   int64_t merged = 0;
-  const std::vector<uint32_t> id = WeldVertices(mesh.positions, tol, &merged);
+  const std::vector<uint32_t> id = WeldVertices(mesh.positions, WeldTolerance(lo, hi), &merged);
   auto find = [&](uint32_t t) {
     while (piece[t] != t) t = piece[t] = piece[piece[t]];
     return t;

@@ -309,7 +309,7 @@ class SceneSurfelSource final : public SurfelSource {
         material = index_.MaterialOf(inst, t);
         // A thin sheet's surfels are two-sided: its back is the sheet's other side.
         thin = material < scene_->materials.size() && scene_->materials[material].thin;
-        sheet = thin ? index_.SheetOf(inst, t) : uint8_t{0};
+        sheet = index_.SheetOf(inst, t);
         const uint64_t tk = HashCombine(l.seed, static_cast<uint64_t>(g));
         r0 = internal::Random(tk, 0);
         r1 = internal::Random(tk, 1);

@@ -226,7 +226,17 @@ inline void OctahedralCoords(const float n[3], float* ox, float* oy) {
   *ox = std::clamp(x, -1.0f, 1.0f);
   *oy = std::clamp(y, -1.0f, 1.0f);
 }
-inline glm::vec3 OctahedralVector(float x, float y);
+inline glm::vec3 OctahedralVector(float x, float y) {
+  const float z = 1.0f - std::fabs(x) - std::fabs(y);
+  if (z < 0.0f) {
+    const float ox = (1.0f - std::fabs(y)) * (x >= 0.0f ? 1.0f : -1.0f);
+    const float oy = (1.0f - std::fabs(x)) * (y >= 0.0f ? 1.0f : -1.0f);
+    x = ox;
+    y = oy;
+  }
+  const float inv = 1.0f / std::sqrt(x * x + y * y + z * z);
+  return {x * inv, y * inv, z * inv};
+}
 inline void EncodeOctahedral(const float n[3], int16_t out[2]) {
   float x, y;
   OctahedralCoords(n, &x, &y);
@@ -252,17 +262,6 @@ inline glm::vec3 DecodeOctahedralSheet(const int16_t in[2], uint8_t* sheet) {
   *sheet = static_cast<uint8_t>(((in[0] & 15) << 4) | (in[1] & 15));
   return OctahedralVector(static_cast<float>(in[0] >> 4) * (1.0f / 2047.0f),
                           static_cast<float>(in[1] >> 4) * (1.0f / 2047.0f));
-}
-inline glm::vec3 OctahedralVector(float x, float y) {
-  const float z = 1.0f - std::fabs(x) - std::fabs(y);
-  if (z < 0.0f) {
-    const float ox = (1.0f - std::fabs(y)) * (x >= 0.0f ? 1.0f : -1.0f);
-    const float oy = (1.0f - std::fabs(x)) * (y >= 0.0f ? 1.0f : -1.0f);
-    x = ox;
-    y = oy;
-  }
-  const float inv = 1.0f / std::sqrt(x * x + y * y + z * z);
-  return {x * inv, y * inv, z * inv};
 }
 
 // Point records, version 4. Little-endian, packed, no alignment:

@@ -24,6 +24,7 @@ namespace pbgi {
 namespace {
 
 using testing_raster::ClustersInCells;
+using testing_raster::CosineRayFraction;
 using testing_raster::DiskSurfels;
 using testing_raster::kPi;
 using testing_raster::RectangleFormFactor;
@@ -553,23 +554,15 @@ TEST(FootprintTest, ACreaseIsTwoPlanes) {
     for (float x : {0.08f, 0.05f, 0.02f}) {
       const glm::vec3 p(x, 0.013f, 1e-4f);
       // Cosine-weighted rays from p against the tilted face (the flat one holds p).
-      int hits = 0;
-      const int n = 300;
-      for (int j = 0; j < n; ++j) {
-        for (int i = 0; i < n; ++i) {
-          const double u = (i + 0.5) / n, v = (j + 0.5) / n, r = std::sqrt(u);
-          const glm::dvec3 d(r * std::cos(2.0 * kPi * v), r * std::sin(2.0 * kPi * v),
-                             std::sqrt(1.0 - u));
-          const glm::dvec3 o = glm::dvec3(p) - glm::dvec3(crease, 0.0, 0.0);
-          const double dn = glm::dot(d, glm::dvec3(up));
-          if (dn >= 0.0) continue;  // parallel to or away from the tilted face's front
-          const double t = -glm::dot(o, glm::dvec3(up)) / dn;
-          const glm::dvec3 h = o + t * d;
-          const double s = glm::dot(h, glm::dvec3(along));
-          hits += t > 0.0 && s >= 0.0 && s <= half && std::fabs(h.y) <= half;
-        }
-      }
-      const double want = static_cast<double>(hits) / (n * n);
+      const glm::dvec3 o = glm::dvec3(p) - glm::dvec3(crease, 0.0, 0.0);
+      const double want = CosineRayFraction(300, [&](const glm::dvec3& d) {
+        const double dn = glm::dot(d, glm::dvec3(up));
+        if (dn >= 0.0) return false;  // parallel to or away from the tilted face's front
+        const double t = -glm::dot(o, glm::dvec3(up)) / dn;
+        const glm::dvec3 h = o + t * d;
+        const double s = glm::dot(h, glm::dvec3(along));
+        return t > 0.0 && s >= 0.0 && s <= half && std::fabs(h.y) <= half;
+      });
       EXPECT_NEAR(MustShade(g, At(p), Polygons(), &mb).occlusion, want, 0.005)
           << x << (two_sided ? " two-sided" : " one-sided");
     }

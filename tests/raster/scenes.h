@@ -185,6 +185,22 @@ inline double RectangleFormFactor(double x1, double x2, double y1, double y2, do
   return corner(x2, y2) - corner(x1, y2) - corner(x2, y1) + corner(x1, y1);
 }
 
+// The fraction of n x n stratified cosine-weighted directions w (unit, z > 0: the hemisphere of
+// a receiver at the origin with normal +z) for which hit(w) is true: rays cast as a reference.
+template <typename Hit>
+double CosineRayFraction(int n, Hit hit) {
+  int hits = 0;
+  for (int j = 0; j < n; ++j) {
+    for (int i = 0; i < n; ++i) {
+      const double u = (i + 0.5) / n, v = (j + 0.5) / n, r = std::sqrt(u);
+      const glm::dvec3 w(r * std::cos(2.0 * kPi * v), r * std::sin(2.0 * kPi * v),
+                         std::sqrt(1.0 - u));
+      hits += hit(w) ? 1 : 0;
+    }
+  }
+  return static_cast<double>(hits) / (n * n);
+}
+
 // Applies p -> rot * (scale * p) + shift to a surfel (position, normal, radius).
 inline Surfel Transform(const Surfel& s, const glm::mat3& rot, float scale,
                         const glm::vec3& shift) {

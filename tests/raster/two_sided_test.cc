@@ -20,6 +20,7 @@ namespace {
 
 using testing_raster::Aggregate;
 using testing_raster::ClustersInCells;
+using testing_raster::CosineRayFraction;
 using testing_raster::kPi;
 using testing_raster::RectangleFormFactor;
 using testing_raster::Rotation;
@@ -274,18 +275,10 @@ TEST(TwoSidedTest, OwnSurfaceSeenFromBehind) {
       pipe.push_back(sf);
     }
   }
-  int hits = 0;
-  const int n = 300;
-  for (int j = 0; j < n; ++j) {
-    for (int i = 0; i < n; ++i) {
-      const double u = (i + 0.5) / n, v = (j + 0.5) / n, r = std::sqrt(u);
-      const double dx = r * std::cos(2.0 * kPi * v), dy = r * std::sin(2.0 * kPi * v);
-      const double dz = std::sqrt(1.0 - u);
-      const double t = 2.0 * dz / (dy * dy + dz * dz);  // |(t dy, t dz - 1)| = 1
-      hits += t * dz <= 1.0 && std::fabs(t * dx) <= 4.0;
-    }
-  }
-  const double pipe_want = static_cast<double>(hits) / (n * n);
+  const double pipe_want = CosineRayFraction(300, [](const glm::dvec3& w) {
+    const double t = 2.0 * w.z / (w.y * w.y + w.z * w.z);  // |(t w.y, t w.z - 1)| = 1
+    return t * w.z <= 1.0 && std::fabs(t * w.x) <= 4.0;
+  });
   const Gathered pg = InLeafCells(pipe, 0.25f);
   const double pipe_front =
       MustShade(pg, glm::vec3(0.0f), Options(Footprint::kPolygons, HitSides::kFront)).occlusion;
@@ -409,26 +402,17 @@ TEST(TwoSidedTest, ACrossingLeafIsNotTheReceiversOwnFold) {
     }
     // Rays: cosine-weighted directions from the receiver at the disks (every point of a ray
     // lies above z = 0, so only what is above the receiver's plane is hit).
-    int hits = 0;
-    const int m = 400;
-    for (int j = 0; j < m; ++j) {
-      for (int i = 0; i < m; ++i) {
-        const double a = (i + 0.5) / m, b = (j + 0.5) / m, r = std::sqrt(a);
-        const glm::dvec3 w(r * std::cos(2.0 * kPi * b), r * std::sin(2.0 * kPi * b),
-                           std::sqrt(1.0 - a));
-        bool hit = false;
-        for (const Surfel& sf : leaf) {
-          const glm::dvec3 c(sf.position), dn(sf.normal);
-          const double wn = glm::dot(w, dn);
-          if (std::fabs(wn) < 1e-12) continue;
-          const double s = glm::dot(c, dn) / wn;
-          const glm::dvec3 q = s * w - c;
-          hit = hit || (s > 0.0 && glm::dot(q, q) <= double{sf.radius} * sf.radius);
-        }
-        hits += hit;
+    const double want = CosineRayFraction(400, [&leaf](const glm::dvec3& w) {
+      for (const Surfel& sf : leaf) {
+        const glm::dvec3 c(sf.position), dn(sf.normal);
+        const double wn = glm::dot(w, dn);
+        if (std::fabs(wn) < 1e-12) continue;
+        const double s = glm::dot(c, dn) / wn;
+        const glm::dvec3 q = s * w - c;
+        if (s > 0.0 && glm::dot(q, q) <= double{sf.radius} * sf.radius) return true;
       }
-    }
-    const double want = static_cast<double>(hits) / (m * m);
+      return false;
+    });
     const Gathered g = InLeafCells(leaf, 0.03f);
     const RasterOptions o = Options(Footprint::kPolygons, HitSides::kFront);
     const glm::vec3 p(0.0f, 0.0f, 1e-4f);
