@@ -347,8 +347,8 @@ class PlyFileReader final : public PlySource {
       if (std::fwrite(chunk.data(), 1, r, spill) != r) {
         const std::string why = std::strerror(errno);
         std::fclose(spill);
-        return absl::InternalError(absl::StrFormat(
-            "spilling %s to '%s' failed after %d bytes: %s", path_, dir, copied, why));
+        return absl::InternalError(absl::StrFormat("spilling %s to '%s' failed after %d bytes: %s",
+                                                   path_, dir, copied, why));
       }
       copied += r;
     }
@@ -643,8 +643,8 @@ class PlyFileReader final : public PlySource {
   absl::Status ParseBoundsComment(const std::vector<absl::string_view>& tok) {
     float v[6];
     bool ok = tok.size() == 9;
-    for (int i = 0; ok && i < 6; ++i) ok = absl::SimpleAtof(tok[size_t(3 + i)], &v[i]) &&
-                                          std::isfinite(v[i]);
+    for (int i = 0; ok && i < 6; ++i)
+      ok = absl::SimpleAtof(tok[size_t(3 + i)], &v[i]) && std::isfinite(v[i]);
     Bounds b;
     if (ok) {
       b.lo = glm::vec3(v[0], v[1], v[2]);
@@ -810,7 +810,7 @@ class PlyFileReader final : public PlySource {
   long body_offset_ = 0;
   uint64_t header_bytes_ = 0;  // bytes of the header read so far
   bool seekable_ = true;       // false for a pipe (until spilled)
-  long file_pos_ = 0;  // file offset of buf_[buf_pos_]
+  long file_pos_ = 0;          // file offset of buf_[buf_pos_]
   std::vector<char> buf_;
   size_t buf_pos_ = 0, buf_len_ = 0;
 };
@@ -892,8 +892,8 @@ absl::StatusOr<std::unique_ptr<PlyWriter>> PlyWriter::Create(const std::string& 
   if (!options.bounds.Empty()) {
     // %.9g round-trips every float.
     const Bounds& b = options.bounds;
-    absl::StrAppendFormat(&h, "comment pbgi bounds %.9g %.9g %.9g %.9g %.9g %.9g\n", b.lo.x,
-                          b.lo.y, b.lo.z, b.hi.x, b.hi.y, b.hi.z);
+    absl::StrAppendFormat(&h, "comment pbgi bounds %.9g %.9g %.9g %.9g %.9g %.9g\n", b.lo.x, b.lo.y,
+                          b.lo.z, b.hi.x, b.hi.y, b.hi.z);
   }
   for (const std::string& c : options.comments) {
     // One line each: a newline would end the comment and start a header line of its own.

@@ -177,8 +177,7 @@ absl::StatusOr<DecodedMeta> DecodeMeta(absl::string_view bytes, absl::string_vie
   }
   for (int i = 0; i < 3; ++i) {
     if (std::isnan(m.bounds.lo[i]) || std::isnan(m.bounds.hi[i])) {
-      return absl::DataLossError(
-          absl::StrFormat("%s: meta record has NaN in its bounds", where));
+      return absl::DataLossError(absl::StrFormat("%s: meta record has NaN in its bounds", where));
     }
   }
   const bool empty_box = m.bounds.lo == Bounds{}.lo && m.bounds.hi == Bounds{}.hi;
@@ -200,9 +199,9 @@ absl::StatusOr<DecodedMeta> DecodeMeta(absl::string_view bytes, absl::string_vie
         where, m.grid_origin.x, m.grid_origin.y, m.grid_origin.z, m.grid_step));
   }
   if (m.max_depth >= kMaxStoredDepth) {
-    return absl::DataLossError(absl::StrFormat(
-        "%s: meta record says the tree is %d levels deep (at most %d)", where, m.max_depth,
-        kMaxStoredDepth - 1));
+    return absl::DataLossError(
+        absl::StrFormat("%s: meta record says the tree is %d levels deep (at most %d)", where,
+                        m.max_depth, kMaxStoredDepth - 1));
   }
   // Bytes after the known fields are ignored: a later minor revision of version 3 may append.
   return d;

@@ -100,8 +100,9 @@ class PlySource : public SurfelSource {
                                                      absl::Span<glm::vec3> reflections) = 0;
 };
 
-// Opens `path` ("-": standard input, see PlyReadOptions::spill_dir) and reads its header. The source's KnownCount() is the header's vertex count and
-// HasRadiance() tells whether the file has colour properties (surfels without get zero radiance).
+// Opens `path` ("-": standard input, see PlyReadOptions::spill_dir) and reads its header. The
+// source's KnownCount() is the header's vertex count and HasRadiance() tells whether the file has
+// colour properties (surfels without get zero radiance).
 absl::StatusOr<std::unique_ptr<PlySource>> OpenPlyFile(const std::string& path,
                                                        const PlyReadOptions& options = {});
 // The same as a plain SurfelSource with the default options (x y z nx ny nz radius required).
