@@ -132,6 +132,10 @@ void ClipHalfSpace(const glm::vec3& m, Polygon* p) {
   Clip(p, [&](const glm::vec3& x) { return glm::dot(m, x); });
 }
 
+void ClipHalfSpace(const glm::vec3& m, float c, Polygon* p) {
+  Clip(p, [&](const glm::vec3& x) { return glm::dot(m, x) - c; });
+}
+
 double PolygonArea(const Polygon& p) {
   glm::dvec3 s(0.0);
   for (int i = 0; i < p.n; ++i) {

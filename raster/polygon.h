@@ -32,6 +32,8 @@ void PlaneBoxPolygon(const glm::vec3& normal, float offset, const glm::vec3& lo,
 
 // Keeps the part of p with dot(m, x) >= 0 (a half-space bounded by a plane through the origin).
 void ClipHalfSpace(const glm::vec3& m, Polygon* p);
+// Keeps the part of p with dot(m, x) >= c.
+void ClipHalfSpace(const glm::vec3& m, float c, Polygon* p);
 
 // Area of a planar polygon (any orientation).
 double PolygonArea(const Polygon& p);

@@ -9,10 +9,13 @@
 //        [--seed K] [--hitsides front|both] [--detail]
 //        pixel_error SCENE|MESH DATABASE --at X,Y,Z --normal X,Y,Z [--msa A] [--res R] [--sub S]
 //        [--hitsides front|both] [--pixel-diff D] [--pixel P] [--keep-above H] [--keep-within D]
+//        [--detail]
 // The second form is one receiver pixel by pixel (a `pbgi eval --dump-receivers` row): the
 // pixels whose coverage differs from the rays' by more than D, with what the rays hit there;
-// --pixel P lists the gathered surfels on P's central ray; --keep-above/--keep-within shade
-// only the surfels that high above the receiver's plane and that near (no clusters).
+// --pixel P lists each cluster and each leaf that covers P when drawn alone, and the gathered
+// surfels on P's central ray; --detail the parts that occlude most alone (with their cells);
+// --keep-above/--keep-within shade only the surfels that high above the receiver's plane and
+// that near (no clusters).
 // DATABASE: one built from the same scene (`pbgi eval ... -o DIR` leaves DIR/NAME.pbgi). Meshes
 // are read z-up as the file has them, or with --up y rotated as `pbgi eval --up y` does.
 // docs/eval.md ("Session 8") has what it showed.
@@ -112,12 +115,17 @@ void Detail(const Worst& w, Reader& reader, const Tracer& tracer, const Cut& cut
     if (!part.leaf) {
       const Cluster& c = g.clusters[part.index];
       const glm::vec3 centre = 0.5f * (c.bounds.lo + c.bounds.hi);
-      std::printf("  cluster: occlusion %.4f, depth %u, %llu points, centre at %.4f\n",
-                  part.occlusion, c.depth, static_cast<unsigned long long>(c.point_count),
-                  glm::length(centre - w.p));
+      std::printf(
+          "  cluster: occlusion %.4f, depth %u, %llu points, centre at %.4f, bounds "
+          "%.3f,%.3f,%.3f-%.3f,%.3f,%.3f, area %.5f\n",
+          part.occlusion, c.depth, static_cast<unsigned long long>(c.point_count),
+          glm::length(centre - w.p), c.bounds.lo.x, c.bounds.lo.y, c.bounds.lo.z, c.bounds.hi.x,
+          c.bounds.hi.y, c.bounds.hi.z, c.area);
       continue;
     }
-    std::printf("  leaf %zu: occlusion %.4f\n", part.index, part.occlusion);
+    const Bounds& lc = g.leaf_cells[part.index];
+    std::printf("  leaf %zu: occlusion %.4f, cell %.3f,%.3f,%.3f-%.3f,%.3f,%.3f\n", part.index,
+                part.occlusion, lc.lo.x, lc.lo.y, lc.lo.z, lc.hi.x, lc.hi.y, lc.hi.z);
     int shown = 0;
     for (size_t i = 0; i < g.surfels.size() && shown < 6; ++i) {
       if (g.surfel_leaf[i] != part.index) continue;
@@ -125,10 +133,11 @@ void Detail(const Worst& w, Reader& reader, const Tracer& tracer, const Cut& cut
       ++shown;
       std::printf(
           "    surfel at %.5f, above the receiver's plane %+.5f, receiver above its "
-          "plane %+.5f, normals' cosine %+.3f, radius %.4f%s\n",
+          "plane %+.5f, normals' cosine %+.3f, radius %.4f%s; at %.4f,%.4f,%.4f n %.3f,%.3f,%.3f\n",
           glm::length(s.position - w.p), glm::dot(s.position - w.p, w.n),
           glm::dot(w.p - s.position, s.normal), glm::dot(s.normal, w.n), s.radius,
-          s.two_sided ? ", two-sided" : "");
+          s.two_sided ? ", two-sided" : "", s.position.x, s.position.y, s.position.z, s.normal.x,
+          s.normal.y, s.normal.z);
     }
   }
 }
@@ -253,10 +262,54 @@ int RunOne(const Args& a, Reader& reader, const Tracer& tracer) {
   }
   std::printf("pixels: PBGI %.5f, rays %.5f (diff %+.5f)\n", got / weight, want / weight,
               (got - want) / weight);
+  if (a.detail)
+    Detail({float(got - want), p, n, float(want / weight)}, reader, tracer, cut, ro, mb);
   if (a.pixel >= 0 && a.pixel < mb.pixel_count()) {
     const glm::vec3 l = glm::normalize(mb.PixelDirection(a.pixel));
     const glm::vec3 d = l.x * t + l.y * b + l.z * n;
     std::printf("pixel %d: direction %.4f,%.4f,%.4f (world)\n", a.pixel, d.x, d.y, d.z);
+    // Each cluster and each leaf alone: its coverage of the pixel.
+    MicroBuffer one_mb;
+    if (one_mb.Prepare(a.res).ok()) {
+      for (size_t i = 0; i < g.clusters.size(); ++i) {
+        Gathered one;
+        one.clusters.push_back(g.clusters[i]);
+        ShadeResult out;
+        if (!Shade(one, {p, n, n}, ro, &one_mb, &out).ok()) continue;
+        const float c = one_mb.PixelCoverage(a.pixel);
+        if (!(c > 0.02f)) continue;
+        const Cluster& cl = g.clusters[i];
+        std::printf(
+            "  cluster %zu covers %.3f: depth %u, %llu points, area %.4f, bounds "
+            "%.3f,%.3f,%.3f-%.3f,%.3f,%.3f, cell %.3f,%.3f,%.3f-%.3f,%.3f,%.3f\n",
+            i, c, cl.depth, static_cast<unsigned long long>(cl.point_count), cl.area,
+            cl.bounds.lo.x, cl.bounds.lo.y, cl.bounds.lo.z, cl.bounds.hi.x, cl.bounds.hi.y,
+            cl.bounds.hi.z, cl.cell.lo.x, cl.cell.lo.y, cl.cell.lo.z, cl.cell.hi.x, cl.cell.hi.y,
+            cl.cell.hi.z);
+      }
+      for (size_t l = 0; l < g.leaf_cells.size(); ++l) {
+        Gathered one;
+        one.leaf_cells.push_back(g.leaf_cells[l]);
+        for (size_t i = 0; i < g.surfels.size(); ++i) {
+          if (g.surfel_leaf[i] != l) continue;
+          one.surfels.push_back(g.surfels[i]);
+          one.surfel_ids.push_back(g.surfel_ids[i]);
+          one.surfel_leaf.push_back(0);
+        }
+        ShadeResult out;
+        if (!Shade(one, {p, n, n}, ro, &one_mb, &out).ok()) continue;
+        const float c = one_mb.PixelCoverage(a.pixel);
+        if (!(c > 0.02f)) continue;
+        const Bounds& lc = g.leaf_cells[l];
+        std::printf("  leaf %zu covers %.3f: %zu surfels, cell %.3f,%.3f,%.3f-%.3f,%.3f,%.3f\n", l,
+                    c, one.surfels.size(), lc.lo.x, lc.lo.y, lc.lo.z, lc.hi.x, lc.hi.y, lc.hi.z);
+        for (const Surfel& s : one.surfels) {
+          std::printf("    at %.4f,%.4f,%.4f n %.3f,%.3f,%.3f r %.4f%s\n", s.position.x,
+                      s.position.y, s.position.z, s.normal.x, s.normal.y, s.normal.z, s.radius,
+                      s.two_sided ? " 2s" : "");
+        }
+      }
+    }
     for (size_t i = 0; i < g.surfels.size(); ++i) {
       const Surfel& s = g.surfels[i];
       const float dn = glm::dot(d, s.normal);
