@@ -472,7 +472,8 @@ Bounds ContactCell(const Bounds& cell, const SurfelGroup& a, absl::Span<const Su
 // A cell's convex edges: bit j of edges[i] when one-sided groups i and j are not parallel and
 // each one's centroid lies behind the other's plane (the first 32 groups). Returns whether the
 // groups are the faces of one convex solid: at least three, and every pair that is not parallel
-// meets at a convex edge (a trunk, a column, a box's corner).
+// meets at a convex edge (a trunk, a column, a box's corner). Two faces both along world axes
+// are left out: ContactCell's boxes already end them at each other's planes.
 bool ConvexEdges(absl::Span<const SurfelGroup> groups, uint32_t* edges) {
   const size_t n = std::min<size_t>(groups.size(), 32);
   int faces = 0;
@@ -485,7 +486,6 @@ bool ConvexEdges(absl::Span<const SurfelGroup> groups, uint32_t* edges) {
     for (size_t j = i + 1; j < n; ++j) {
       const SurfelGroup& b = groups[j];
       if (b.two_sided || !b.solid || !(glm::dot(a.normal, b.normal) < 0.9f)) continue;
-      // Two faces along the world axes are ContactCell's: their boxes end at each other.
       if (a.on_axis && b.on_axis) continue;
       const glm::vec3 ab = b.centroid - a.centroid;
       if (glm::dot(b.normal, ab) > kConvexDepth * a.spacing &&
@@ -500,19 +500,16 @@ bool ConvexEdges(absl::Span<const SurfelGroup> groups, uint32_t* edges) {
   return faces >= 3 && all;
 }
 
-// Where two one-sided groups of a cell meet at a convex edge, a's footprint ends at b's plane.
-// Without it each face's plane ran on across the cell past the edge, in front of the solid:
-// the faces of a forest's octagonal trunk, each the cell's section by its plane (a lone surfel
-// in a cell under two spacings fills it; a face's group snaps to the cell's sides), closed
-// pixels 30-75 degrees up over a ground receiver 0.1 from the cell where rays pass beside the
-// trunk, and drew trunks farther away up to twice as wide (bug:
-// convex_faces_run_past_their_edge). ContactCell ends a box at such a plane only along a world
-// axis. In a cell whose groups are the faces of one convex solid (ConvexEdges), each face ends
-// at every other's plane: the solid's faces are those sections. Otherwise b must meet a within
-// the cell (each group's centres within 1.5 spacings of the other's plane, their boxes so grown
+// Where two one-sided groups of a cell meet at a convex edge, a's footprint ends at b's plane
+// (docs/design.md, "Faces of a convex solid in one cell"). Without it each face's plane ran on
+// across the cell past the edge, in front of the solid: the faces of a forest's trunk, each its
+// cell's section by its plane, closed pixels over the ground beside it where rays pass the trunk
+// (bug: convex_faces_run_past_their_edge). In a cell whose groups are the faces of one convex
+// solid (ConvexEdges) each face ends at every other's plane. Otherwise b must meet a within the
+// cell (each group's centres within 1.5 spacings of the other's plane, their boxes so grown
 // overlapping) and span a along their edge (within half a spacing each side), as in
-// ContactCell: a roof goes on past the top of a notch's wall beside it. `p` is relative to
-// `from`; returns whether it was clipped.
+// ContactCell: a roof goes on past the top of a notch's wall beside it. `edges`: bit j for
+// groups[j] (ConvexEdges); `p` is relative to `from`. Returns whether it was clipped.
 bool ClipAtConvexEdges(const SurfelGroup& a, uint32_t edges, absl::Span<const SurfelGroup> groups,
                        bool convex_solid, const glm::vec3& from, Polygon* p) {
   bool clipped = false;
