@@ -1543,7 +1543,7 @@ TEST(FootprintTest, ATrunksFacesEndAtTheirEdges) {
   MicroBuffer mb;
   // The mean over eight receivers around the trunk at each distance from its axis: 0.45 is 1.5
   // spacings from its faces, 3 is ten trunk widths. Before: +0.044, +0.019, +0.0066 and +0.0011
-  // (25-40 % too much from 0.7 on).
+  // (20-30 % too much from 0.7 on).
   for (const auto& [dist, tol] :
        {std::pair{0.45, 0.02}, std::pair{0.7, 0.0}, std::pair{1.5, 0.0}, std::pair{3.0, 0.0}}) {
     double got = 0.0, want = 0.0;
