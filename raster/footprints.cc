@@ -1139,14 +1139,24 @@ void Rasterizer::PrepareSurfelGroups(const Gathered& g, ShadeResult* out) {
       if (count == 1) {
         // A lone surfel is its own disk (exact near the receiver), unless it fills a leaf cell
         // a few spacings wide: then it is the cell's piece of its surface like a group, or the
-        // gaps around its disk would leak (bug: sparse_full_cell_leak).
+        // gaps around its disk would leak (bug: sparse_full_cell_leak). Seen from the front,
+        // its sides snap where the plane leaves the cell, as a group's do (FlatBox): with the
+        // cell's own sides, a turned plane's surfel in a wedge's cell stayed its disk (bug:
+        // lone_surfel_fill_ignores_the_planes_reach; docs/design.md, "Footprints of a turned
+        // plane"). Seen from behind (hitsides both) it keeps the cell's sides: there a lone
+        // surfel is mostly a curved surface turning away, which its plane across the cell
+        // overstates (Wuson.ply, CesiumMilkTruck).
         const Surfel& lone = g.surfels[order[end - 1]];
         bool fills = false;
         if (leaves) {
           const float sp = std::sqrt(static_cast<float>(area));
           Bounds c;
           c.Extend(lone.position);
-          const Bounds box = FootprintBox(c, cell, sp, n0, &fills);
+          const float offset = glm::dot(n0, lone.position - origin_);
+          int snapped = 0;
+          const Bounds box = offset < 0.0f
+                                 ? FlatBox(c, cell, sp, n0, offset, origin_, &fills, &snapped)
+                                 : FootprintBox(c, cell, sp, n0, &fills);
           const glm::vec3 e = box.hi - box.lo;
           const float face = std::max({e.x * e.y, e.y * e.z, e.x * e.z});
           fills = fills && face <= kSmallCell * sp * sp;
