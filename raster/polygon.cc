@@ -180,37 +180,39 @@ void BoxSilhouette(const glm::vec3& lo, const glm::vec3& hi, int faces, Polygon*
     }
   }
   if (count == 0) return;
-  // near[k]: the coordinate of the seen face across axis k; far[k]: the opposite side.
-  glm::vec3 near_side, far_side;
+  // By axis in arrays: a glm::vec3 indexed by a variable is a switch.
+  const float l[3] = {lo.x, lo.y, lo.z}, h[3] = {hi.x, hi.y, hi.z};
+  // near_side[k]: the coordinate of the seen face across axis k; far_side[k]: the opposite side.
+  float near_side[3], far_side[3];
   for (int k = 0; k < 3; ++k) {
-    const bool at_lo = lo[k] > 0.0f;
-    near_side[k] = at_lo ? lo[k] : hi[k];
-    far_side[k] = at_lo ? hi[k] : lo[k];
+    const bool at_lo = l[k] > 0.0f;
+    near_side[k] = at_lo ? l[k] : h[k];
+    far_side[k] = at_lo ? h[k] : l[k];
   }
   glm::vec3 v[6];
   int n = 0;
-  auto put = [&](const glm::vec3& p) { v[n++] = p; };
+  auto put = [&](const float* p) { v[n++] = glm::vec3(p[0], p[1], p[2]); };
   if (count == 1) {
     // One face: its rectangle.
     const int k = axes[0], k1 = (k + 1) % 3, k2 = (k + 2) % 3;
     for (int j = 0; j < 4; ++j) {
-      glm::vec3 p;
+      float p[3];
       p[k] = near_side[k];
-      p[k1] = (j == 1 || j == 2) ? hi[k1] : lo[k1];
-      p[k2] = (j >= 2) ? hi[k2] : lo[k2];
+      p[k1] = (j == 1 || j == 2) ? h[k1] : l[k1];
+      p[k2] = (j >= 2) ? h[k2] : l[k2];
       put(p);
     }
   } else if (count == 2) {
     // Two faces a and b sharing the edge along c: each face's far edge, joined along c.
     const int a = axes[0], b = axes[1], c = others[0];
-    glm::vec3 p;
-    p[a] = near_side[a], p[b] = far_side[b], p[c] = lo[c];
+    float p[3];
+    p[a] = near_side[a], p[b] = far_side[b], p[c] = l[c];
     put(p);
     p[b] = near_side[b];
     put(p);
     p[a] = far_side[a];
     put(p);
-    p[c] = hi[c];
+    p[c] = h[c];
     put(p);
     p[a] = near_side[a];
     put(p);
@@ -221,7 +223,7 @@ void BoxSilhouette(const glm::vec3& lo, const glm::vec3& hi, int faces, Polygon*
     // two axes, alternately.
     for (int j = 0; j < 6; ++j) {
       const int k = j / 2;
-      glm::vec3 p = near_side;
+      float p[3] = {near_side[0], near_side[1], near_side[2]};
       p[k] = far_side[k];
       if (j % 2 == 1) p[(k + 1) % 3] = far_side[(k + 1) % 3];
       put(p);
