@@ -138,7 +138,9 @@ inline bool MaskAll(const SpanV8i& m) {
 }
 
 // Clips the homogeneous polygon (a, b, w) of a face to |a| <= w, |b| <= w (its pyramid),
-// ping-ponging between two buffers; returns the vertex count (0 when nothing is left).
+// through the buffers ta, tb, tw; returns the vertex count (0 when nothing is left). Each of
+// the six holds kMaxPolygonVertices floats; ta, tb and tw are copied back whole, so all of
+// theirs must be defined.
 // kLanes: a, b and w hold eight lanes of defined values (RasterizePolygonTo's lanes), and a
 // polygon of at most eight vertices has its planes' sides found in lanes, the same expressions.
 template <bool kLanes>
@@ -177,7 +179,11 @@ inline int ClipToPyramid(float* a, float* b, float* w, int n, float* ta, float* 
         tw[m++] = w[i] + t * (w[j] - w[i]);
       }
     }
-    for (int i = 0; i < m; ++i) a[i] = ta[i], b[i] = tb[i], w[i] = tw[i];
+    // The whole buffers, in a few moves: a copy of m floats was three calls of memcpy.
+    constexpr size_t kBuffer = sizeof(float) * kMaxPolygonVertices;
+    std::memcpy(a, ta, kBuffer);
+    std::memcpy(b, tb, kBuffer);
+    std::memcpy(w, tw, kBuffer);
     n = m;
   }
   return n >= 3 ? n : 0;
@@ -605,7 +611,8 @@ inline void RasterizePolygonIn(const Polygon& p, int res, std::vector<float>* ac
         std::memcpy(a, &la, sizeof la);
         std::memcpy(b, &lb, sizeof lb);
         std::memcpy(w, &lw, sizeof lw);
-        float ta[kMaxPolygonVertices], tb[kMaxPolygonVertices], tw[kMaxPolygonVertices];
+        float ta[kMaxPolygonVertices] = {}, tb[kMaxPolygonVertices] = {},
+              tw[kMaxPolygonVertices] = {};
         n = ClipToPyramid<true>(a, b, w, n, ta, tb, tw);
         if (n < 3 || !Project(a, b, w, n, res, &face)) continue;
       }
@@ -631,7 +638,8 @@ inline void RasterizePolygonIn(const Polygon& p, int res, std::vector<float>* ac
           out_lo2 &= w[i] + b[i] < 0.0f, out_hi2 &= w[i] - b[i] < 0.0f;
         }
         if (out_lo1 || out_hi1 || out_lo2 || out_hi2) continue;
-        float ta[kMaxPolygonVertices], tb[kMaxPolygonVertices], tw[kMaxPolygonVertices];
+        float ta[kMaxPolygonVertices] = {}, tb[kMaxPolygonVertices] = {},
+              tw[kMaxPolygonVertices] = {};
         n = ClipToPyramid<false>(a, b, w, n, ta, tb, tw);
         if (n < 3) continue;
       }
