@@ -3,6 +3,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 
 #include "base/math.h"
 #include "glm/geometric.hpp"
@@ -137,10 +138,30 @@ void ClipHalfSpace(const glm::vec3& m, float c, Polygon* p) {
 }
 
 double PolygonArea(const Polygon& p) {
+  // The sum of glm::cross(v[i], v[i + 1]) in doubles: two cross products at a time in lanes
+  // (glm::cross's expressions lane by lane), added one at a time in order, so the same doubles
+  // as one glm::cross at a time.
+  typedef double V2d __attribute__((vector_size(16)));
+  const int n = p.n;
+  // The vertices by component; vertex n is vertex 0, and n + 1 (read by the last pair's second
+  // lane when n is odd) is defined and not summed.
+  constexpr int kPadded = kMaxPolygonVertices + 2;
+  double x[kPadded], y[kPadded], z[kPadded];
+  for (int i = 0; i < n; ++i) x[i] = p.v[i].x, y[i] = p.v[i].y, z[i] = p.v[i].z;
+  if (n > 0) x[n] = x[0], y[n] = y[0], z[n] = z[0];
+  x[n + 1] = 0.0, y[n + 1] = 0.0, z[n + 1] = 0.0;
   glm::dvec3 s(0.0);
-  for (int i = 0; i < p.n; ++i) {
-    const int j = i + 1 == p.n ? 0 : i + 1;
-    s += glm::cross(glm::dvec3(p.v[i]), glm::dvec3(p.v[j]));
+  for (int i = 0; i < n; i += 2) {
+    auto load = [](const double* a) {
+      V2d v;
+      std::memcpy(&v, a, sizeof v);
+      return v;
+    };
+    const V2d ax = load(x + i), ay = load(y + i), az = load(z + i);
+    const V2d bx = load(x + i + 1), by = load(y + i + 1), bz = load(z + i + 1);
+    const V2d cx = ay * bz - by * az, cy = az * bx - bz * ax, cz = ax * by - bx * ay;
+    s += glm::dvec3(cx[0], cy[0], cz[0]);
+    if (i + 1 < n) s += glm::dvec3(cx[1], cy[1], cz[1]);
   }
   return 0.5 * glm::length(s);
 }
@@ -159,37 +180,39 @@ void BoxSilhouette(const glm::vec3& lo, const glm::vec3& hi, int faces, Polygon*
     }
   }
   if (count == 0) return;
-  // near[k]: the coordinate of the seen face across axis k; far[k]: the opposite side.
-  glm::vec3 near_side, far_side;
+  // By axis in arrays: a glm::vec3 indexed by a variable is a switch.
+  const float l[3] = {lo.x, lo.y, lo.z}, h[3] = {hi.x, hi.y, hi.z};
+  // near_side[k]: the coordinate of the seen face across axis k; far_side[k]: the opposite side.
+  float near_side[3], far_side[3];
   for (int k = 0; k < 3; ++k) {
-    const bool at_lo = lo[k] > 0.0f;
-    near_side[k] = at_lo ? lo[k] : hi[k];
-    far_side[k] = at_lo ? hi[k] : lo[k];
+    const bool at_lo = l[k] > 0.0f;
+    near_side[k] = at_lo ? l[k] : h[k];
+    far_side[k] = at_lo ? h[k] : l[k];
   }
   glm::vec3 v[6];
   int n = 0;
-  auto put = [&](const glm::vec3& p) { v[n++] = p; };
+  auto put = [&](const float* p) { v[n++] = glm::vec3(p[0], p[1], p[2]); };
   if (count == 1) {
     // One face: its rectangle.
     const int k = axes[0], k1 = (k + 1) % 3, k2 = (k + 2) % 3;
     for (int j = 0; j < 4; ++j) {
-      glm::vec3 p;
+      float p[3];
       p[k] = near_side[k];
-      p[k1] = (j == 1 || j == 2) ? hi[k1] : lo[k1];
-      p[k2] = (j >= 2) ? hi[k2] : lo[k2];
+      p[k1] = (j == 1 || j == 2) ? h[k1] : l[k1];
+      p[k2] = (j >= 2) ? h[k2] : l[k2];
       put(p);
     }
   } else if (count == 2) {
     // Two faces a and b sharing the edge along c: each face's far edge, joined along c.
     const int a = axes[0], b = axes[1], c = others[0];
-    glm::vec3 p;
-    p[a] = near_side[a], p[b] = far_side[b], p[c] = lo[c];
+    float p[3];
+    p[a] = near_side[a], p[b] = far_side[b], p[c] = l[c];
     put(p);
     p[b] = near_side[b];
     put(p);
     p[a] = far_side[a];
     put(p);
-    p[c] = hi[c];
+    p[c] = h[c];
     put(p);
     p[a] = near_side[a];
     put(p);
@@ -200,7 +223,7 @@ void BoxSilhouette(const glm::vec3& lo, const glm::vec3& hi, int faces, Polygon*
     // two axes, alternately.
     for (int j = 0; j < 6; ++j) {
       const int k = j / 2;
-      glm::vec3 p = near_side;
+      float p[3] = {near_side[0], near_side[1], near_side[2]};
       p[k] = far_side[k];
       if (j % 2 == 1) p[(k + 1) % 3] = far_side[(k + 1) % 3];
       put(p);

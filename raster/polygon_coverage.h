@@ -138,7 +138,9 @@ inline bool MaskAll(const SpanV8i& m) {
 }
 
 // Clips the homogeneous polygon (a, b, w) of a face to |a| <= w, |b| <= w (its pyramid),
-// ping-ponging between two buffers; returns the vertex count (0 when nothing is left).
+// through the buffers ta, tb, tw; returns the vertex count (0 when nothing is left). Each of
+// the six holds kMaxPolygonVertices floats; ta, tb and tw are copied back whole, so all of
+// theirs must be defined.
 // kLanes: a, b and w hold eight lanes of defined values (RasterizePolygonTo's lanes), and a
 // polygon of at most eight vertices has its planes' sides found in lanes, the same expressions.
 template <bool kLanes>
@@ -177,7 +179,11 @@ inline int ClipToPyramid(float* a, float* b, float* w, int n, float* ta, float* 
         tw[m++] = w[i] + t * (w[j] - w[i]);
       }
     }
-    for (int i = 0; i < m; ++i) a[i] = ta[i], b[i] = tb[i], w[i] = tw[i];
+    // The whole buffers, in a few moves: a copy of m floats was three calls of memcpy.
+    constexpr size_t kBuffer = sizeof(float) * kMaxPolygonVertices;
+    std::memcpy(a, ta, kBuffer);
+    std::memcpy(b, tb, kBuffer);
+    std::memcpy(w, tw, kBuffer);
     n = m;
   }
   return n >= 3 ? n : 0;
@@ -319,33 +325,32 @@ inline uint64_t RowColumns(const MaskSpans& s, int col, int row) {
   std::memcpy(&xl, s.xl + (row * kMaskSide - s.row0), sizeof xl);
   std::memcpy(&xr, s.xr + (row * kMaskSide - s.row0), sizeof xr);
   const float c0 = static_cast<float>(col);
-  // In the pixel's sample units, clamped to [-1, 9] so that the conversions stay exact. Points:
-  // the first column l = ceil(a), the last h = floor(b), a and b taken at the samples' centres.
-  // Cells: l = floor(a), h = ceil(b) - 1. l = 8 or h = -1: none.
+  // In the pixel's sample units. Points: the first column l = ceil(a), the last h = floor(b),
+  // a and b taken at the samples' centres. Cells: l = floor(a), h = ceil(b) - 1. l is clamped
+  // to [0, 8], h to [-1, 7] (l = 8 or h = -1: none). The values are shifted by 2, so that
+  // truncation is floor, and clamped before they are rounded, to the bounds that give those
+  // columns: the same columns as clamping after rounding (rounding is monotonic and keeps
+  // integers), in fewer instructions, and the conversions stay exact.
   constexpr float kShift = kCells ? 0.0f : 0.5f;
-  V8f a = (xl - c0) * 8.0f - kShift, b = (xr - c0) * 8.0f - kShift;
-  a = a < -1.0f ? -1.0f : a;
-  a = a > 9.0f ? 9.0f : a;
-  b = b < -1.0f ? -1.0f : b;
-  b = b > 9.0f ? 9.0f : b;
-  // Truncation is floor for x >= 0; shift by 2 so that every value is (ceil and floor of
-  // x + 2, minus 2).
-  const V8f a2 = a + 2.0f, b2 = b + 2.0f;
-  const V8i ai = __builtin_convertvector(a2, V8i), bi = __builtin_convertvector(b2, V8i);
+  V8f a = ((xl - c0) * 8.0f - kShift) + 2.0f, b = ((xr - c0) * 8.0f - kShift) + 2.0f;
+  constexpr float kLowB = kCells ? 2.0f : 1.0f, kHighB = kCells ? 10.0f : 9.0f;
+  a = a < 2.0f ? 2.0f : a;
+  a = a > 10.0f ? 10.0f : a;
+  b = b < kLowB ? kLowB : b;
+  b = b > kHighB ? kHighB : b;
+  // Truncation, and ceil from it (a true comparison is -1).
+  const V8i ai = __builtin_convertvector(a, V8i), bi = __builtin_convertvector(b, V8i);
   V8i l, h;
   if constexpr (kCells) {
     l = ai - 2;
-    h = (__builtin_convertvector(bi, V8f) < b2 ? bi + 1 : bi) - 3;
+    h = bi - (__builtin_convertvector(bi, V8f) < b) - 3;
   } else {
-    l = (__builtin_convertvector(ai, V8f) < a2 ? ai + 1 : ai) - 2;
+    l = ai - (__builtin_convertvector(ai, V8f) < a) - 2;
     h = bi - 2;
   }
-  l = l < 0 ? 0 : l;
-  l = l > 8 ? 8 : l;
-  h = h < -1 ? -1 : h;
-  h = h > 7 ? 7 : h;
+  // (ff << l) keeps bits past the eighth; (ff >> (7 - h)) has none.
   const V8i ff = {0xff, 0xff, 0xff, 0xff, 0xff, 0xff, 0xff, 0xff};
-  const V8i bits = (ff << l) & (ff >> (7 - h)) & ff;
+  const V8i bits = (ff << l) & (ff >> (7 - h));
   const V8b bytes =
       __builtin_shufflevector(reinterpret_cast<const V32b&>(bits),
                               reinterpret_cast<const V32b&>(bits), 0, 4, 8, 12, 16, 20, 24, 28);
@@ -606,7 +611,8 @@ inline void RasterizePolygonIn(const Polygon& p, int res, std::vector<float>* ac
         std::memcpy(a, &la, sizeof la);
         std::memcpy(b, &lb, sizeof lb);
         std::memcpy(w, &lw, sizeof lw);
-        float ta[kMaxPolygonVertices], tb[kMaxPolygonVertices], tw[kMaxPolygonVertices];
+        float ta[kMaxPolygonVertices] = {}, tb[kMaxPolygonVertices] = {},
+              tw[kMaxPolygonVertices] = {};
         n = ClipToPyramid<true>(a, b, w, n, ta, tb, tw);
         if (n < 3 || !Project(a, b, w, n, res, &face)) continue;
       }
@@ -632,7 +638,8 @@ inline void RasterizePolygonIn(const Polygon& p, int res, std::vector<float>* ac
           out_lo2 &= w[i] + b[i] < 0.0f, out_hi2 &= w[i] - b[i] < 0.0f;
         }
         if (out_lo1 || out_hi1 || out_lo2 || out_hi2) continue;
-        float ta[kMaxPolygonVertices], tb[kMaxPolygonVertices], tw[kMaxPolygonVertices];
+        float ta[kMaxPolygonVertices] = {}, tb[kMaxPolygonVertices] = {},
+              tw[kMaxPolygonVertices] = {};
         n = ClipToPyramid<false>(a, b, w, n, ta, tb, tw);
         if (n < 3) continue;
       }
