@@ -64,6 +64,19 @@ int Fail(const absl::Status& s) {
   return 1;
 }
 
+// The gathered leaf l alone: its cell and its surfels.
+Gathered LeafAlone(const Gathered& g, size_t l) {
+  Gathered one;
+  one.leaf_cells.push_back(g.leaf_cells[l]);
+  for (size_t i = 0; i < g.surfels.size(); ++i) {
+    if (g.surfel_leaf[i] != l) continue;
+    one.surfels.push_back(g.surfels[i]);
+    one.surfel_ids.push_back(g.surfel_ids[i]);
+    one.surfel_leaf.push_back(0);
+  }
+  return one;
+}
+
 void Detail(const Worst& w, Reader& reader, const Tracer& tracer, const Cut& cut,
             const RasterOptions& ro, MicroBuffer& mb) {
   std::printf("worst receiver at %.6f,%.6f,%.6f normal %.4f,%.4f,%.4f: truth %.4f\n", w.p.x, w.p.y,
@@ -95,14 +108,7 @@ void Detail(const Worst& w, Reader& reader, const Tracer& tracer, const Cut& cut
     if (Shade(one, r, ro, &mb, &out).ok()) parts.push_back({out.occlusion, false, i});
   }
   for (size_t l = 0; l < g.leaf_cells.size(); ++l) {
-    Gathered one;
-    one.leaf_cells.push_back(g.leaf_cells[l]);
-    for (size_t i = 0; i < g.surfels.size(); ++i) {
-      if (g.surfel_leaf[i] != l) continue;
-      one.surfels.push_back(g.surfels[i]);
-      one.surfel_ids.push_back(g.surfel_ids[i]);
-      one.surfel_leaf.push_back(0);
-    }
+    const Gathered one = LeafAlone(g, l);
     ShadeResult out;
     if (Shade(one, r, ro, &mb, &out).ok()) parts.push_back({out.occlusion, true, l});
   }
@@ -288,14 +294,7 @@ int RunOne(const Args& a, Reader& reader, const Tracer& tracer) {
             cl.cell.hi.z);
       }
       for (size_t l = 0; l < g.leaf_cells.size(); ++l) {
-        Gathered one;
-        one.leaf_cells.push_back(g.leaf_cells[l]);
-        for (size_t i = 0; i < g.surfels.size(); ++i) {
-          if (g.surfel_leaf[i] != l) continue;
-          one.surfels.push_back(g.surfels[i]);
-          one.surfel_ids.push_back(g.surfel_ids[i]);
-          one.surfel_leaf.push_back(0);
-        }
+        const Gathered one = LeafAlone(g, l);
         ShadeResult out;
         if (!Shade(one, {p, n, n}, ro, &one_mb, &out).ok()) continue;
         const float c = one_mb.PixelCoverage(a.pixel);
