@@ -1145,7 +1145,7 @@ void Rasterizer::PrepareSurfelGroups(const Gathered& g, ShadeResult* out) {
         // lone_surfel_fill_ignores_the_planes_reach; docs/design.md, "Footprints of a turned
         // plane"). Seen from behind (hitsides both) it keeps the cell's sides: there a lone
         // surfel is mostly a curved surface turning away, which its plane across the cell
-        // overstates (Wuson.ply, CesiumMilkTruck).
+        // overstates (Wuson.ply, CesiumMilkTruck); so does a two-sided one (a leaf's piece).
         const Surfel& lone = g.surfels[order[end - 1]];
         bool fills = false;
         if (leaves) {
@@ -1154,7 +1154,7 @@ void Rasterizer::PrepareSurfelGroups(const Gathered& g, ShadeResult* out) {
           c.Extend(lone.position);
           const float offset = glm::dot(n0, lone.position - origin_);
           int snapped = 0;
-          const Bounds box = offset < 0.0f
+          const Bounds box = !lone.two_sided && offset < 0.0f
                                  ? FlatBox(c, cell, sp, n0, offset, origin_, &fills, &snapped)
                                  : FootprintBox(c, cell, sp, n0, &fills);
           const glm::vec3 e = box.hi - box.lo;
