@@ -681,13 +681,48 @@ TEST(FootprintTest, SheetSeenFromBehindShowsNothing) {
   }
 }
 
+using LeafKeys = std::vector<std::tuple<int, int, int>>;
+
+// The leaf that holds p among cube cells of side `cell` whose grid is shifted by -offset: its
+// index in g->leaf_cells, the cell added (and its key) when it is new.
+uint32_t GridLeaf(const glm::vec3& p, float cell, const glm::vec3& offset, LeafKeys* keys,
+                  Gathered* g) {
+  const glm::vec3 q = glm::floor((p + offset) / cell);
+  const auto key =
+      std::make_tuple(static_cast<int>(q.x), static_cast<int>(q.y), static_cast<int>(q.z));
+  size_t i = 0;
+  while (i < keys->size() && (*keys)[i] != key) ++i;
+  if (i == keys->size()) {
+    keys->push_back(key);
+    Bounds c;
+    c.lo = q * cell - offset;
+    c.hi = c.lo + cell;
+    g->leaf_cells.push_back(c);
+  }
+  return static_cast<uint32_t>(i);
+}
+
+// A leaf's surfels together, as the gather returns them (a stable sort by leaf; surfel_ids stay
+// 0, 1, 2, ... in the new order).
+void SortByLeaf(Gathered* g) {
+  std::vector<size_t> order(g->surfels.size());
+  for (size_t i = 0; i < order.size(); ++i) order[i] = i;
+  std::stable_sort(order.begin(), order.end(),
+                   [&](size_t x, size_t y) { return g->surfel_leaf[x] < g->surfel_leaf[y]; });
+  Gathered sorted = *g;
+  for (size_t i = 0; i < order.size(); ++i) {
+    sorted.surfels[i] = g->surfels[order[i]];
+    sorted.surfel_leaf[i] = g->surfel_leaf[order[i]];
+  }
+  *g = std::move(sorted);
+}
+
 // Surfels of a jittered grid, `pitch` apart, on the rectangle o + u a + v b (u in [0, ua],
 // v in [0, vb]), facing `normal`, each the leaf surfel of a cube cell of side `cell`, the
 // cells' grid shifted by -offset.
 void AddJitteredRectangle(const glm::vec3& o, const glm::vec3& a, float ua, const glm::vec3& b,
                           float vb, const glm::vec3& normal, float pitch, float cell,
-                          const glm::vec3& offset, uint32_t seed, Gathered* g,
-                          std::vector<std::tuple<int, int, int>>* keys) {
+                          const glm::vec3& offset, uint32_t seed, Gathered* g, LeafKeys* keys) {
   uint32_t k = seed;
   const int nu = static_cast<int>(std::lround(ua / pitch)),
             nv = static_cast<int>(std::lround(vb / pitch));
@@ -699,34 +734,12 @@ void AddJitteredRectangle(const glm::vec3& o, const glm::vec3& a, float ua, cons
       sf.position = o + (u + du * pitch) * a + (v + dv * pitch) * b;
       sf.normal = normal;
       sf.radius = pitch / std::sqrt(static_cast<float>(kPi));
-      const glm::vec3 q = glm::floor((sf.position + offset) / cell);
-      const auto key =
-          std::make_tuple(static_cast<int>(q.x), static_cast<int>(q.y), static_cast<int>(q.z));
-      size_t i = 0;
-      while (i < keys->size() && (*keys)[i] != key) ++i;
-      if (i == keys->size()) {
-        keys->push_back(key);
-        Bounds c;
-        c.lo = q * cell - offset;
-        c.hi = c.lo + cell;
-        g->leaf_cells.push_back(c);
-      }
+      g->surfel_leaf.push_back(GridLeaf(sf.position, cell, offset, keys, g));
       g->surfels.push_back(sf);
-      g->surfel_leaf.push_back(static_cast<uint32_t>(i));
       g->surfel_ids.push_back(g->surfel_ids.size());
     }
   }
-  // A leaf's surfels together, as the gather returns them.
-  std::vector<size_t> order(g->surfels.size());
-  for (size_t i = 0; i < order.size(); ++i) order[i] = i;
-  std::stable_sort(order.begin(), order.end(),
-                   [&](size_t x, size_t y) { return g->surfel_leaf[x] < g->surfel_leaf[y]; });
-  Gathered sorted = *g;
-  for (size_t i = 0; i < order.size(); ++i) {
-    sorted.surfels[i] = g->surfels[order[i]];
-    sorted.surfel_leaf[i] = g->surfel_leaf[order[i]];
-  }
-  *g = std::move(sorted);
+  SortByLeaf(g);
 }
 
 // The share of 400 x 400 stratified cosine-weighted directions about +z for which hit(d) holds.
@@ -772,7 +785,7 @@ TEST(FootprintTest, AWallStandingOnTheFloorReachesIt) {
   const glm::vec3 floor_offset(0.37f * pitch, 2.0f * pitch, 0.29f * pitch);
   // The wall y = d facing -y, from the floor up; the floor z = 0 in front of it.
   Gathered wall, floor;
-  std::vector<std::tuple<int, int, int>> wall_keys, floor_keys;
+  LeafKeys wall_keys, floor_keys;
   AddJitteredRectangle(glm::vec3(-half, d, 0.0f), glm::vec3(1, 0, 0), 2.0f * half,
                        glm::vec3(0, 0, 1), h, glm::vec3(0, -1, 0), pitch, cell, wall_offset, 11u,
                        &wall, &wall_keys);
@@ -819,7 +832,7 @@ TEST(FootprintTest, AReceiverOnACreaseSeesTheOtherSurface) {
   const float pitch = 0.1f, cell = 3.0f * pitch, d = 0.5f, half = 1.5f;
   const glm::vec3 floor_offset(0.37f * pitch, 2.0f * pitch, 0.29f * pitch);
   Gathered floor;
-  std::vector<std::tuple<int, int, int>> floor_keys;
+  LeafKeys floor_keys;
   AddJitteredRectangle(glm::vec3(-half, d - 2.0f * half, 0.0f), glm::vec3(1, 0, 0), 2.0f * half,
                        glm::vec3(0, 1, 0), 2.0f * half, glm::vec3(0, 0, 1), pitch, cell,
                        floor_offset, 23u, &floor, &floor_keys);
@@ -1482,7 +1495,7 @@ TEST(FootprintTest, ATrunksFacesEndAtTheirEdges) {
   std::mt19937 rng(20261206);
   auto uniform = [&]() { return static_cast<double>(rng() >> 8) * (1.0 / 16777216.0); };
   Gathered g;
-  std::vector<glm::ivec3> keys;
+  LeafKeys keys;
   for (int i = 0; i < count; ++i) {
     const int k = static_cast<int>(uniform() * sides) % sides;
     const glm::dvec2 n = normal_of(k), t(-n.y, n.x);
@@ -1492,32 +1505,11 @@ TEST(FootprintTest, ATrunksFacesEndAtTheirEdges) {
     s.normal = glm::vec3(static_cast<float>(n.x), static_cast<float>(n.y), 0.0f);
     s.radius = r;
     // The leaf cells of a grid that puts the prism's axis 0.1 from a cell's side.
-    const glm::ivec3 key(glm::floor((s.position + glm::vec3(0.1f, 0.23f, 0.0f)) / cellw));
-    size_t leaf = std::find(keys.begin(), keys.end(), key) - keys.begin();
-    if (leaf == keys.size()) {
-      keys.push_back(key);
-      Bounds cell;
-      cell.lo = glm::vec3(key) * cellw - glm::vec3(0.1f, 0.23f, 0.0f);
-      cell.hi = cell.lo + glm::vec3(cellw);
-      g.leaf_cells.push_back(cell);
-    }
+    g.surfel_leaf.push_back(GridLeaf(s.position, cellw, glm::vec3(0.1f, 0.23f, 0.0f), &keys, &g));
     g.surfels.push_back(s);
     g.surfel_ids.push_back(g.surfel_ids.size());
-    g.surfel_leaf.push_back(static_cast<uint32_t>(leaf));
   }
-  // A gather returns a leaf's surfels together.
-  std::vector<size_t> by_leaf(g.surfels.size());
-  for (size_t i = 0; i < by_leaf.size(); ++i) by_leaf[i] = i;
-  std::stable_sort(by_leaf.begin(), by_leaf.end(),
-                   [&](size_t x, size_t y) { return g.surfel_leaf[x] < g.surfel_leaf[y]; });
-  Gathered sorted;
-  sorted.leaf_cells = g.leaf_cells;
-  for (size_t i : by_leaf) {
-    sorted.surfels.push_back(g.surfels[i]);
-    sorted.surfel_ids.push_back(sorted.surfel_ids.size());
-    sorted.surfel_leaf.push_back(g.surfel_leaf[i]);
-  }
-  g = std::move(sorted);
+  SortByLeaf(&g);
   // Rays against the prism: the ray's interval inside each face's half-plane, and z in [0, h].
   auto prism = [&](const glm::dvec3& o, const glm::dvec3& dir) {
     double t0 = 0.0, t1 = 1e30;
@@ -1591,8 +1583,8 @@ TEST(FootprintTest, ALoneSurfelOfATurnedPlaneFillsItsCell) {
   g.surfel_leaf.push_back(0);
   g.leaf_cells.push_back(cell);
   MicroBuffer mb;
-  for (const glm::vec3& near : {glm::vec3(0.0f, 0.18f, 0.95f), glm::vec3(0.3f, 0.1f, 0.5f),
-                                glm::vec3(0.1f, 0.25f, 0.2f)}) {
+  for (const glm::vec3& near :
+       {glm::vec3(0.0f, 0.18f, 0.95f), glm::vec3(0.3f, 0.1f, 0.5f), glm::vec3(0.1f, 0.25f, 0.2f)}) {
     // On the receiver's side of the plane, 0.08 in front of it.
     ShadeReceiver rc;
     rc.position = near - glm::dot(m, near - s.position) * m + 0.08f * m;
@@ -1610,8 +1602,7 @@ TEST(FootprintTest, ALoneSurfelOfATurnedPlaneFillsItsCell) {
              q.z <= 1.0;
     });
     const double got = MustShade(g, rc, Polygons(), &mb).occlusion;
-    EXPECT_NEAR(got, want, 0.01)
-        << "receiver near " << near.x << "," << near.y << "," << near.z;
+    EXPECT_NEAR(got, want, 0.01) << "receiver near " << near.x << "," << near.y << "," << near.z;
   }
 }
 
