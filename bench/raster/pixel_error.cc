@@ -9,13 +9,15 @@
 //        [--seed K] [--hitsides front|both] [--detail]
 //        pixel_error SCENE|MESH DATABASE --at X,Y,Z --normal X,Y,Z [--msa A] [--res R] [--sub S]
 //        [--hitsides front|both] [--pixel-diff D] [--pixel P] [--keep-above H] [--keep-within D]
-//        [--detail]
+//        [--detail] [--radiance]
 // The second form is one receiver pixel by pixel (a `pbgi eval --dump-receivers` row): the
 // pixels whose coverage differs from the rays' by more than D, with what the rays hit there;
 // --pixel P lists each cluster and each leaf that covers P when drawn alone, and the gathered
 // surfels on P's central ray; --detail the parts that occlude most alone (with their cells);
 // --keep-above/--keep-within shade only the surfels that high above the receiver's plane and
-// that near (no clusters).
+// that near (no clusters); --radiance compares each pixel's radiance (the mean of the channels,
+// PBGI's coverage-weighted pixel against the lighting function at the rays' front hits) instead
+// of its coverage, --pixel-diff then in units of 1e-3 of the pixel's cosine-weighted share.
 // DATABASE: one built from the same scene (`pbgi eval ... -o DIR` leaves DIR/NAME.pbgi). Meshes
 // are read z-up as the file has them, or with --up y rotated as `pbgi eval --up y` does.
 // docs/eval.md ("Session 8") has what it showed.
@@ -51,6 +53,7 @@ struct Args {
   float keep_above = -1e30f;  // --keep-above H: shade only the surfels at least H above
   float keep_within = 1e30f;  // --keep-within D: and within D of the receiver
   bool up_y = false;          // --up y: the mesh is y-up (pbgi eval --up y rotates it)
+  bool radiance = false;      // --radiance: compare the pixels' radiance (irradiance mode)
 };
 
 struct Worst {
@@ -178,7 +181,7 @@ RasterOptions ToolRaster(const Args& a) {
   RasterOptions ro;
   ro.resolution = a.res;
   ro.footprint = Footprint::kPolygons;
-  ro.compute_radiance = false;
+  ro.compute_radiance = a.radiance;
   ro.hitsides = a.sides;
   return ro;
 }
@@ -229,7 +232,7 @@ int RunOne(const Args& a, Reader& reader, const Tracer& tracer) {
         const int q = (f * a.res + row) * a.res + col;
         const double w = mb.PixelCosineWeight(q);
         if (!(w > 0.0)) continue;
-        double hit = 0, all = 0, dist = 0, back = 0, cosn = 0;
+        double hit = 0, all = 0, dist = 0, back = 0, cosn = 0, lsum = 0;
         int hits = 0;
         uint32_t tri = 0;
         for (int i = 0; i < a.sub; ++i) {
@@ -243,11 +246,36 @@ int RunOne(const Args& a, Reader& reader, const Tracer& tracer) {
             if (!h.hit) continue;
             hit += wt;
             ++hits;
+            if (a.radiance && h.front) {
+              const glm::vec3 l = tracer.SurfaceRadiance(h.position, h.normal, h.material,
+                                                         uint64_t(q) * 4099 + i * 64 + j);
+              lsum += wt * (l.x + l.y + l.z) / 3.0;
+            }
             dist += h.distance;
             back += h.front ? 0.0 : 1.0;
             cosn += glm::dot(h.normal, n);
             tri = h.triangle;
           }
+        }
+        if (a.radiance) {
+          // Radiance (mean of the channels): PBGI's coverage-weighted pixel against the rays'
+          // lighting function at their front hits.
+          const glm::vec3 pl = mb.PixelRadiance(q);
+          const double c = (pl.x + pl.y + pl.z) / 3.0;
+          const double truth = all > 0.0 ? lsum / all : 0.0;
+          got += w * c, want += w * truth, weight += w;
+          if (std::fabs(c - truth) * w * 1e3 <= a.pixel_diff) continue;
+          const glm::vec3 dir = glm::normalize(mb.PixelDirection(q));
+          std::printf("%5d %5.1f %6.1f %8.3f %5.3f %5.3f %+8.5f %7.4f cov %.3f | ", q,
+                      std::asin(std::min(1.0f, dir.z)) * 180.0 / sh::kPi,
+                      std::atan2(dir.y, dir.x) * 180.0 / sh::kPi, w * 1e3, c, truth,
+                      w * (c - truth), mb.PixelDepth(q), mb.PixelCoverage(q));
+          if (hits > 0) {
+            std::printf("%.4f %.2f %+.3f %u\n", dist / hits, back / hits, cosn / hits, tri);
+          } else {
+            std::printf("-\n");
+          }
+          continue;
         }
         const double truth = all > 0.0 ? hit / all : 0.0;
         const double c = std::min(1.0f, mb.PixelCoverage(q));
@@ -476,6 +504,8 @@ int main(int argc, char** argv) {
       a.seed = std::strtoull(value(), nullptr, 10);
     else if (arg == "--hitsides")
       a.sides = std::strcmp(value(), "both") == 0 ? pbgi::HitSides::kBoth : pbgi::HitSides::kFront;
+    else if (arg == "--radiance")
+      a.radiance = true;
     else if (arg == "--detail")
       a.detail = true;
     else if (arg == "--at" || arg == "--normal") {
