@@ -100,8 +100,26 @@ void NodeAggregate::AddPoint(const SortRecord& r, bool radiance) {
   Add9(c.data(), sh_area.data());
   if (radiance) {
     for (int ch = 0; ch < 3; ++ch) AddScaled9(c.data(), r.radiance[ch], sh_power[ch].data());
+    const double l = (double{r.radiance[0]} + r.radiance[1] + r.radiance[2]) / 3.0;
+    lum_min = std::min(lum_min, l);
+    lum_max = std::max(lum_max, l);
   }
 }
+
+double NodeAggregate::Luminance() const {
+  if (!(sh_area[0] > 0.0)) return 0.0;
+  return (sh_power[0][0] + sh_power[1][0] + sh_power[2][0]) / (3.0 * sh_area[0]);
+}
+
+namespace {
+// |l - mean| / mean, the contrast's term for one part (tree/format.h, ContrastCode): 0 when
+// both are 0, large when only the mean is.
+double RelativeStray(double l, double mean) {
+  const double d = std::fabs(l - mean);
+  if (!(d > 0.0)) return 0.0;
+  return mean > 0.0 ? d / mean : 1e30;
+}
+}  // namespace
 
 void NodeAggregate::Add(const NodeAggregate& o) {
   bounds.Extend(o.bounds);
@@ -171,14 +189,19 @@ PendingNode OctreeBuilder::MakeRecord(const OpenNode& n, bool leaf) const {
   c.depth = n.depth;
   for (int k = 0; k < 9; ++k) c.sh_area[k] = static_cast<float>(n.agg.sh_area[k]);
   c.pad = 0;
+  p.rec.contrast = 0.0f;
   if (HasRadiance(channels_)) {
     for (int ch = 0; ch < 3; ++ch) {
       for (int k = 0; k < 9; ++k) {
         p.rec.sh_power[ch][k] = static_cast<float>(n.agg.sh_power[ch][k]);
       }
     }
+    if (leaf && n.agg.lum_min <= n.agg.lum_max) {
+      const double l = n.agg.Luminance();
+      p.rec.contrast = static_cast<float>(std::min(
+          1e30, std::max(RelativeStray(n.agg.lum_min, l), RelativeStray(n.agg.lum_max, l))));
+    }
   }
-  p.rec.pad = 0;
   return p;
 }
 
@@ -217,6 +240,20 @@ absl::Status OctreeBuilder::CloseTop() {
   ++stats_.nodes;
   ClosedNode c;
   c.node = MakeRecord(n, false);
+  if (HasRadiance(channels_)) {
+    // The contrast over the children's mean radiances (tree/format.h, ContrastCode).
+    const double l = n.agg.Luminance();
+    double stray = 0.0;
+    for (const ClosedNode& child : n.children) {
+      const NodeRecordRadiance& r = child.node.rec;
+      const double a0 = r.common.sh_area[0];
+      const double lc =
+          a0 > 0.0 ? (double{r.sh_power[0][0]} + r.sh_power[1][0] + r.sh_power[2][0]) / (3.0 * a0)
+                   : 0.0;
+      stray = std::max(stray, RelativeStray(lc, l));
+    }
+    c.node.rec.contrast = static_cast<float>(std::min(1e30, stray));
+  }
   PBGI_RETURN_IF_ERROR(packer_->CloseInterior(absl::MakeSpan(n.children), &c));
   PBGI_RETURN_IF_ERROR(Deliver(std::move(c), n.agg, n.count));
   n.children.clear();

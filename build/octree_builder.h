@@ -15,6 +15,7 @@
 
 #include <array>
 #include <cstdint>
+#include <limits>
 #include <vector>
 
 #include "absl/status/status.h"
@@ -71,8 +72,15 @@ struct NodeAggregate {
   double area = 0;
   std::array<double, 9> sh_area{};
   std::array<std::array<double, 9>, 3> sh_power{};
+  // A leaf's least and greatest surfel luminance (the mean of the channels), for its contrast
+  // (NodeRecordRadiance::contrast); not merged by Add().
+  double lum_min = std::numeric_limits<double>::infinity();
+  double lum_max = -std::numeric_limits<double>::infinity();
 
   void AddPoint(const SortRecord& r, bool radiance);
+  // The luminance of the mean radiance: band 0 of the power over band 0 of the projected area
+  // (0 without area).
+  double Luminance() const;
   void Add(const NodeAggregate& o);
 };
 

@@ -315,6 +315,7 @@ absl::StatusOr<ShadeOptions> ToShadeOptions(const pbgi_shade_options* c) {
   }
   o.progress_interval_seconds = c->progress_interval_seconds;
   if (c->cancel != nullptr) o.cancel = &c->cancel->raised;
+  o.radiance_contrast = c->radiance_contrast;
   return o;
 }
 
@@ -592,6 +593,7 @@ void pbgi_shade_options_init(pbgi_shade_options* c) {
   c->threads = d.threads;
   c->z_order = d.z_order ? 1 : 0;
   c->progress_interval_seconds = d.progress_interval_seconds;
+  c->radiance_contrast = pbgi::kRecommendedRadianceContrast;
 }
 
 pbgi_status pbgi_shade(pbgi_database* db, const pbgi_shade_receiver* receivers, size_t count,

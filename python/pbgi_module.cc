@@ -641,6 +641,7 @@ struct ShadeArgs {
   bool z_order = true;
   py::object progress;  // None or callable(done, total)
   double progress_interval = 0.1;
+  float radiance_contrast = kRecommendedRadianceContrast;
 };
 
 py::dict Shade(DatabaseHandle& h, py::handle positions, py::handle normals, py::handle reflections,
@@ -670,6 +671,11 @@ py::dict Shade(DatabaseHandle& h, py::handle positions, py::handle normals, py::
   if (a.threads < 0) Invalid(absl::StrFormat("threads must be >= 0, not %d", a.threads));
   o.threads = a.threads;
   o.z_order = a.z_order;
+  o.radiance_contrast = a.radiance_contrast;
+  if (!(a.radiance_contrast >= 0.0f) || !std::isfinite(a.radiance_contrast)) {
+    Invalid(
+        absl::StrFormat("radiance_contrast must be finite and >= 0, not %g", a.radiance_contrast));
+  }
   Check(ValidateRasterOptions(o.raster));
   if (!(a.max_solid_angle >= 0.0f)) {
     Invalid(absl::StrFormat("max_solid_angle must be >= 0, not %g", a.max_solid_angle));
@@ -868,7 +874,7 @@ void Init(py::module_& m) {
              float max_distance, bool cosine_weighted, int resolution, float bias, bool clamp,
              const std::string& hitsides, float near_field_factor, int near_field_samples,
              float phong_exponent, float ggx_roughness, bool z_order, py::object progress,
-             double progress_interval) {
+             double progress_interval, float radiance_contrast) {
             ShadeArgs a;
             a.radiance = radiance;
             a.lobe = lobe;
@@ -887,6 +893,7 @@ void Init(py::module_& m) {
             a.z_order = z_order;
             a.progress = std::move(progress);
             a.progress_interval = progress_interval;
+            a.radiance_contrast = radiance_contrast;
             return Shade(h, positions, normals, reflections, a);
           },
           py::arg("positions"), py::arg("normals"), py::arg("reflections"), py::arg("radiance"),
@@ -894,7 +901,7 @@ void Init(py::module_& m) {
           py::arg("cosine_weighted"), py::arg("resolution"), py::arg("bias"), py::arg("clamp"),
           py::arg("hitsides"), py::arg("near_field_factor"), py::arg("near_field_samples"),
           py::arg("phong_exponent"), py::arg("ggx_roughness"), py::arg("z_order"),
-          py::arg("progress"), py::arg("progress_interval"));
+          py::arg("progress"), py::arg("progress_interval"), py::arg("radiance_contrast"));
 
   py::class_<PyReader>(m, "Reader")
       .def("gather", &PyReader::Gather, py::arg("position"), py::arg("normal"),

@@ -32,8 +32,10 @@ using internal::AbsMax;
 using internal::BelowCurvedBoxCut;
 using internal::BelowPlainCut;
 using internal::CachedPage;
+using internal::ContrastValue;
 using internal::DecodedPage;
 using internal::NodeBeyondMargin;
+using internal::NodeContrastScale;
 using internal::NodeCutCosine;
 using internal::NodeHot;
 using internal::NodeMarginOf;
@@ -427,6 +429,14 @@ absl::Status Reader::Impl::CheckQuery(absl::string_view what, const glm::vec3& p
     return absl::InvalidArgumentError(
         absl::StrFormat("%s: Cut.curved_scale = %g: must be in (0, 1]", what, cut.curved_scale));
   }
+  if (!(cut.radiance_contrast >= 0.0f && std::isfinite(cut.radiance_contrast))) {
+    return absl::InvalidArgumentError(absl::StrFormat(
+        "%s: Cut.radiance_contrast = %g: must be finite and >= 0", what, cut.radiance_contrast));
+  }
+  if (!(cut.contrast_floor >= 0.0f && std::isfinite(cut.contrast_floor))) {
+    return absl::InvalidArgumentError(absl::StrFormat(
+        "%s: Cut.contrast_floor = %g: must be finite and >= 0", what, cut.contrast_floor));
+  }
   if (!(cut.curved_box_scale >= 0.0f && std::isfinite(cut.curved_box_scale))) {
     return absl::InvalidArgumentError(absl::StrFormat(
         "%s: Cut.curved_box_scale = %g: must be finite and >= 0", what, cut.curved_box_scale));
@@ -490,7 +500,7 @@ inline void Reader::Impl::EmitCluster(const DecodedPage& page, uint32_t slot, co
   if (page.power) {
     out->clusters.emplace_back(Bounds{node.lo, node.hi}, area, node.sh_area, page.power[slot],
                                uint32_t{node.depth}, node.first_point, node.point_count,
-                               cube.CellOf(node.lo, node.depth));
+                               cube.CellOf(node.lo, node.depth), ContrastValue(node.contrast));
   } else {
     out->clusters.emplace_back(Bounds{node.lo, node.hi}, area, node.sh_area, std::array<Sh9, 3>{},
                                uint32_t{node.depth}, node.first_point, node.point_count,
@@ -500,7 +510,8 @@ inline void Reader::Impl::EmitCluster(const DecodedPage& page, uint32_t slot, co
   out->clusters.push_back(Cluster{Bounds{node.lo, node.hi}, area, node.sh_area,
                                   page.power ? page.power[slot] : std::array<Sh9, 3>{},
                                   uint32_t{node.depth}, node.first_point, node.point_count,
-                                  cube.CellOf(node.lo, node.depth)});
+                                  cube.CellOf(node.lo, node.depth),
+                                  page.power ? ContrastValue(node.contrast) : 0.0f});
 #endif
   ++q.clusters;
 }
@@ -516,6 +527,8 @@ absl::Status Reader::Impl::Traverse(const glm::vec3& p, const glm::vec3& n, cons
   // Whether a node's flatness matters (Cut::curved_scale, Cut::curved_box_scale).
   const bool need_flat = cut.curved_scale != 1.0f || cut.curved_box_scale > 0.0f;
   const float curved_max_sa = cut.max_solid_angle * cut.curved_scale;
+  // Cut::radiance_contrast, in a radiance database (NodeContrastScale).
+  const bool contrast_cut = cut.radiance_contrast > 0.0f && HasRadiance(meta.channels);
   // The corner of every node farthest along n (NodeWhollyBehindMargin's choice, as indices).
   const uint32_t far_word[3] = {n.x > 0 ? 4u : 0u, n.y > 0 ? 5u : 1u, n.z > 0 ? 6u : 2u};
 
@@ -560,7 +573,12 @@ absl::Status Reader::Impl::Traverse(const glm::vec3& p, const glm::vec3& n, cons
       }
       // NodeMaxSolidAngle, with the flatness that the curved-box test needs too.
       const bool flat = !need_flat || node.flat != 0;
-      const float max_sa = flat ? cut.max_solid_angle : curved_max_sa;
+      float max_sa = flat ? cut.max_solid_angle : curved_max_sa;
+      if (contrast_cut && node.contrast != 0) {
+        const float scale = NodeContrastScale(cut, ContrastValue(node.contrast), page->power[slot],
+                                              node.sh_area[0]);
+        if (scale > 1.0f) max_sa /= scale;
+      }
       const auto cosine = [&] { return NodeCutCosine(node.near_centre, node.near_radius2, p, n); };
       if (!NodeNearFieldSphere(node.near_centre, node.near_radius2, p) &&
           (kLobe ? BelowLobeCut(node, p, max_sa, lobe)
@@ -647,6 +665,7 @@ absl::Status Reader::Impl::GatherFar(const ReceiverGroup& group, const Cut& cut,
   const float curved_max_sa = cut.max_solid_angle * cut.curved_scale;
   const uint32_t far_word[3] = {n.x > 0 ? 4u : 0u, n.y > 0 ? 5u : 1u, n.z > 0 ? 6u : 2u};
   const float near_reach = r + k * r;  // a node wholly within this of c is near for everyone
+  const bool contrast_cut = cut.radiance_contrast > 0.0f && HasRadiance(meta.channels);
 
   int sp = 0;
   stack[sp++] = {meta.root, 0};
@@ -679,7 +698,12 @@ absl::Status Reader::Impl::GatherFar(const ReceiverGroup& group, const Cut& cut,
       // force in tests/shade/far_sharing_test.cc).
       // NodeMaxSolidAngle, with the flatness that the curved-box test below needs too.
       const bool flat = !need_flat || node.flat != 0;
-      const float max_sa = flat ? cut.max_solid_angle : curved_max_sa;
+      float max_sa = flat ? cut.max_solid_angle : curved_max_sa;
+      if (contrast_cut && node.contrast != 0) {
+        const float scale = NodeContrastScale(cut, ContrastValue(node.contrast), page->power[slot],
+                                              node.sh_area[0]);
+        if (scale > 1.0f) max_sa /= scale;
+      }
       const glm::vec3 to_c = c - node.centre;
       const float dc = glm::length(to_c);
       const float dmin = dc - r;
@@ -832,6 +856,24 @@ absl::Status Reader::GatherBatch(absl::Span<const Receiver> receivers, const Cut
     if (absl::Status s = fn(i, g); !s.ok()) return s;
   }
   return absl::OkStatus();
+}
+
+absl::StatusOr<float> Reader::MeanRadiance() {
+  const StoreMeta& m = impl_->meta;
+  if (!HasRadiance(m.channels) || m.point_count == 0 || m.root == internal::kNoNodeRef) {
+    return 0.0f;
+  }
+  const DecodedPage* page;
+  PBGI_RETURN_IF_ERROR(
+      impl_->Fetch(Section::kNodes, internal::RefPage(m.root), /*level=*/0, &page));
+  const uint32_t slot = internal::RefSlot(m.root);
+  if (slot >= page->count || !page->power) {
+    return absl::DataLossError(absl::StrFormat("%s: the root's node page %d is corrupt",
+                                               db_->path(), internal::RefPage(m.root)));
+  }
+  const float a0 = page->nodes[slot].sh_area[0];
+  const Sh9* power = page->power[slot].data();
+  return a0 > 0.0f ? (power[0][0] + power[1][0] + power[2][0]) / (3.0f * a0) : 0.0f;
 }
 
 absl::Status Reader::ReadPoints(uint64_t first, uint64_t count, std::vector<Surfel>* out) {

@@ -18,6 +18,7 @@ using internal::MakeLobeCut;
 using internal::NearSphere;
 using internal::NodeBeyond;
 using internal::NodeBoxSolidAngleFrom;
+using internal::NodeContrastScale;
 using internal::NodeCut;
 using internal::NodeCutCosine;
 using internal::NodeIsFlat;
@@ -115,7 +116,8 @@ absl::Status CheckValidCut(const Gathered& result, absl::Span<const Surfel> surf
     const float reach = NodeReach(cl.area);
     const float sa = ClusterSolidAngle(cl, receiver);
     const NearSphere near = NodeNearSphere(cl.bounds.lo, cl.bounds.hi, reach);
-    const Cut node_cut = NodeCut(cut, cl.sh_area.data(), cl.bounds.lo, cl.bounds.hi);
+    const Cut node_cut = NodeCut(cut, cl.sh_area.data(), cl.bounds.lo, cl.bounds.hi,
+                                 NodeContrastScale(cut, cl.contrast, cl.sh_power, cl.sh_area[0]));
     const auto cosine = [&] { return NodeCutCosine(near.centre, near.radius2, p, nrm); };
     const auto lobe_weight = [&] { return NodeLobeWeight(lobe, near.centre, near.radius2, p); };
     if (!BelowCut(sa, node_cut, cosine, lobe_weight)) {

@@ -44,7 +44,7 @@ struct ShadeEngine::Worker {
 };
 
 ShadeEngine::ShadeEngine(Database& db, absl::Span<const ShadeReceiver> receivers,
-                         const ShadeOptions& options, absl::Span<ShadeResult> out)
+                         const ShadeOptions& options, const Cut& cut, absl::Span<ShadeResult> out)
     : db_(db),
       receivers_(receivers),
       options_(options),
@@ -52,7 +52,7 @@ ShadeEngine::ShadeEngine(Database& db, absl::Span<const ShadeReceiver> receivers
       threads_(options.threads > 0 ? options.threads : DefaultShadeThreads()),
       arena_(threads_),
       workers_(std::make_unique<tbb::enumerable_thread_specific<Worker>>()) {
-  cut_ = options.cut;
+  cut_ = cut;
   const RasterOptions& ro = options.raster;
   lobe_cut_ = options.lobe_cut && ro.lobe != GlossyLobe::kNone &&
               options.cut.lobe.kind == CutLobeKind::kNone;

@@ -30,8 +30,10 @@ float HarmonicDistance(const MicroBuffer& buffer);
 class ShadeEngine {
  public:
   // REQUIRES: the arguments outlive the engine and were validated (ShadeBatch does both).
+  // `cut` is the cut that every receiver's starts from (options.cut, or ShadeBatch's with the
+  // radiance contrast set: EffectiveCut).
   ShadeEngine(Database& db, absl::Span<const ShadeReceiver> receivers, const ShadeOptions& options,
-              absl::Span<ShadeResult> out);
+              const Cut& cut, absl::Span<ShadeResult> out);
   ShadeEngine(const ShadeEngine&) = delete;
   ShadeEngine& operator=(const ShadeEngine&) = delete;
   ~ShadeEngine();

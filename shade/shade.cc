@@ -43,6 +43,11 @@ absl::Status Validate(absl::Span<const ShadeReceiver> receivers, const ShadeOpti
         "Cut.curved_box_scale = %g: must be finite and >= 0", options.cut.curved_box_scale));
   }
   PBGI_RETURN_IF_ERROR(ValidateCutLobe(options.cut.lobe));
+  if (!(options.radiance_contrast >= 0.0f && std::isfinite(options.radiance_contrast))) {
+    return absl::InvalidArgumentError(
+        absl::StrFormat("ShadeOptions::radiance_contrast = %g: must be finite and >= 0",
+                        options.radiance_contrast));
+  }
   PBGI_RETURN_IF_ERROR(ValidateRasterOptions(options.raster));
   for (size_t i = 0; i < receivers.size(); ++i) {
     const ShadeReceiver& r = receivers[i];
@@ -177,12 +182,29 @@ absl::Status ValidateSharingOptions(const SharingOptions& s, size_t receivers) {
   return absl::OkStatus();
 }
 
+absl::StatusOr<Cut> EffectiveCut(Database& db, const ShadeOptions& options) {
+  Cut cut = options.cut;
+  if (!(options.radiance_contrast > 0.0f) || cut.radiance_contrast > 0.0f ||
+      !options.raster.compute_radiance || !HasRadiance(db.meta().channels)) {
+    return cut;
+  }
+  absl::StatusOr<std::unique_ptr<Reader>> reader = db.NewReader();
+  if (!reader.ok()) return reader.status();
+  absl::StatusOr<float> mean = (*reader)->MeanRadiance();
+  if (!mean.ok()) return mean.status();
+  cut.radiance_contrast = options.radiance_contrast;
+  cut.contrast_floor = kContrastFloorScale * *mean;
+  return cut;
+}
+
 absl::Status ShadeBatch(Database& db, absl::Span<const ShadeReceiver> receivers,
                         const ShadeOptions& options, absl::Span<ShadeResult> out, ShadeStats* stats,
                         absl::Span<uint8_t> shaded) {
   PBGI_RETURN_IF_ERROR(Validate(receivers, options, out, shaded));
+  absl::StatusOr<Cut> cut = EffectiveCut(db, options);
+  if (!cut.ok()) return cut.status();
   std::fill(out.begin(), out.end(), ShadeResult{});
-  internal::ShadeEngine engine(db, receivers, options, out);
+  internal::ShadeEngine engine(db, receivers, options, *cut, out);
   internal::SharingCounts sharing;
   if (options.mode == ShadeMode::kExact || receivers.empty()) {
     std::vector<uint32_t> all(receivers.size());

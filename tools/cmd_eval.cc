@@ -57,6 +57,7 @@ struct EvalArgs {
   std::vector<std::string> footprints = {"polygons"};  // RasterOptions::footprint
   float curved_scale = 0.3f;                           // Cut::curved_scale
   float curved_box_scale = 1.0f;                       // Cut::curved_box_scale
+  float radiance_contrast = kRecommendedRadianceContrast;  // ShadeOptions::radiance_contrast
   float lobe_min_weight = CutLobe{}.min_weight;        // CutLobe::min_weight (--cuts lobe)
   std::string memory = "auto";
   std::string cache = "auto";
@@ -377,6 +378,7 @@ ShadeOptions EvalShadeOptions(const EvalArgs& a, const EvalSetup& e, float msa, 
   ShadeOptions so;
   so.cut.curved_scale = a.curved_scale;
   so.cut.curved_box_scale = a.curved_box_scale;
+  so.radiance_contrast = a.radiance_contrast;
   so.cut.lobe.min_weight = a.lobe_min_weight;
   so.raster.footprint = ParseFootprint(a.footprints.front());
   so.threads = e.threads;
@@ -926,6 +928,7 @@ CommandSetup Setup() {
                     "too, subtends below this times the max solid angle (0: off)")
         ->check(CLI::Range(0.0f, 1e3f))
         ->capture_default_str();
+    AddRadianceContrastFlag(app, &a->radiance_contrast);
     app->add_option("--memory", a->memory, "Memory cap of the build, with a unit (512M), or auto")
         ->check(BudgetValidator())
         ->capture_default_str();
@@ -1048,6 +1051,7 @@ CommandSetup Setup() {
       v.footprints = a->footprints;
       v.curved_scale = a->curved_scale;
       v.curved_box_scale = a->curved_box_scale;
+      v.radiance_contrast = a->radiance_contrast;
       v.width = a->width;
       v.height = a->height;
       v.window = a->window;

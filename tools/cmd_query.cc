@@ -106,6 +106,8 @@ Json QueryJson(const Args& a, const QueryRun& q) {
   j["cut"] = {{"max_solid_angle", JsonFloat(cut.max_solid_angle)},
               {"max_distance", JsonFloat(cut.max_distance)}};
   j["cut"]["criterion"] = cut.cosine_weighted ? "cosine" : "plain";
+  j["cut"]["radiance_contrast"] = JsonFloat(cut.radiance_contrast);
+  j["cut"]["contrast_floor"] = JsonFloat(cut.contrast_floor);
   j["gathered"] = {{"clusters", g.clusters.size()}, {"surfels", g.surfels.size()}};
   j["shaded"] = {{"raster_res", a.raster_res}, {"occlusion", JsonFloat(q.shaded.occlusion)}};
   if (q.radiance) j["shaded"]["irradiance"] = JsonVec3(q.shaded.irradiance);
@@ -170,9 +172,14 @@ void PrintQuery(const Args& a, const Database& db, const QueryRun& q) {
   std::printf("receiver (%g, %g, %g) normal (%g, %g, %g), max_solid_angle %g, max_distance %g\n",
               p.x, p.y, p.z, r.normal.x, r.normal.y, r.normal.z, cut.max_solid_angle,
               cut.max_distance);
-  std::printf("gathered %zu clusters + %zu surfels in %.3f ms cold, %.3f ms warm (%s cut)\n",
+  std::printf("gathered %zu clusters + %zu surfels in %.3f ms cold, %.3f ms warm (%s cut",
               g.clusters.size(), g.surfels.size(), ms, warm_ms,
               cut.cosine_weighted ? "cosine" : "plain");
+  if (cut.radiance_contrast > 0.0f) {
+    std::printf(", radiance contrast %g over a floor of %g", cut.radiance_contrast,
+                cut.contrast_floor);
+  }
+  std::printf(")\n");
   std::printf("shaded (raster %d): occlusion %.6g", a.raster_res, q.shaded.occlusion);
   if (q.radiance) {
     std::printf(", irradiance (%.6g, %.6g, %.6g)", q.shaded.irradiance.x, q.shaded.irradiance.y,
@@ -300,6 +307,10 @@ absl::Status Run(const Args& a) {
   ApplyFootprintFlags(a.footprint, &so);
   cut.curved_scale = so.cut.curved_scale;
   cut.curved_box_scale = so.cut.curved_box_scale;
+  // The radiance contrast as `pbgi shade` sets it (EffectiveCut).
+  so.cut = cut;
+  so.raster.compute_radiance = HasRadiance(db->meta().channels);
+  PBGI_ASSIGN_OR_RETURN(cut, EffectiveCut(*db, so));
   const Receiver receiver{p, glm::normalize(n)};
   PBGI_ASSIGN_OR_RETURN(QueryRun q, GatherColdAndWarm(*reader, receiver, cut));
   // The values `pbgi shade` writes for this receiver, from the same cut.

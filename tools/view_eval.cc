@@ -432,6 +432,7 @@ absl::Status RunViewEval(const ViewEvalArgs& a) {
             so.raster.hitsides = sides;
             so.cut.curved_scale = a.curved_scale;
             so.cut.curved_box_scale = a.curved_box_scale;
+            so.radiance_contrast = a.radiance_contrast;
             so.raster.footprint = ParseFootprint(footprint);
             if (glossy) {
               so.raster.lobe = a.lobe.lobe;

@@ -60,6 +60,7 @@ struct ViewEvalArgs {
   std::vector<std::string> footprints = {"polygons"};  // swept: polygons | splats
   float curved_scale = 0.3f;                           // Cut::curved_scale
   float curved_box_scale = 1.0f;                       // Cut::curved_box_scale
+  float radiance_contrast = kRecommendedRadianceContrast;  // ShadeOptions::radiance_contrast
   std::string hitsides = "front";
   uint64_t memory_bytes = uint64_t{512} << 20;  // the build's cap
   uint64_t cache_bytes = uint64_t{256} << 20;   // the shading cache

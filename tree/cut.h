@@ -8,6 +8,7 @@
 #define PBGI_TREE_CUT_H_
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <limits>
 
@@ -208,9 +209,29 @@ inline bool BelowCurvedBoxCut(const Cut& cut, bool flat, const glm::vec3& centre
          cut.curved_box_scale * cut.max_solid_angle;
 }
 
-inline Cut NodeCut(const Cut& cut, const float* sh_area, const glm::vec3& lo, const glm::vec3& hi) {
+// The cut that sees radiance (Cut::radiance_contrast; docs/design.md, "A cut that sees
+// radiance"): a node's max_solid_angle is divided by max(1, radiance_contrast * c), c its
+// stored contrast (tree/format.h, ContrastValue) times min(1, L / contrast_floor), L the
+// luminance of its mean radiance (band 0 of `power` over band 0 of its projected area). 1
+// without a contrast or a radiance channel. The traversal and the test harness both divide by
+// exactly this.
+inline float NodeContrastScale(const Cut& cut, float contrast, const std::array<Sh9, 3>& power,
+                               float sh_area0) {
+  if (!(cut.radiance_contrast > 0.0f) || !(contrast > 0.0f)) return 1.0f;
+  float c = contrast;
+  if (cut.contrast_floor > 0.0f) {
+    const float l =
+        sh_area0 > 0.0f ? (power[0][0] + power[1][0] + power[2][0]) / (3.0f * sh_area0) : 0.0f;
+    c *= std::clamp(l / cut.contrast_floor, 0.0f, 1.0f);
+  }
+  return std::max(1.0f, cut.radiance_contrast * c);
+}
+
+inline Cut NodeCut(const Cut& cut, const float* sh_area, const glm::vec3& lo, const glm::vec3& hi,
+                   float contrast_scale = 1.0f) {
   Cut c = cut;
   c.max_solid_angle = NodeMaxSolidAngle(cut, sh_area, lo, hi);
+  if (contrast_scale > 1.0f) c.max_solid_angle /= contrast_scale;
   return c;
 }
 

@@ -105,7 +105,7 @@ absl::Status DecodePage(const PageView& view, Section section, uint64_t page_no,
       n.depth = static_cast<uint8_t>(r.depth);
       n.child_count = static_cast<uint8_t>(leaf ? 0 : r.child_count);
       n.flat = NodeIsFlat(n.sh_area.data(), n.lo, n.hi) ? 1 : 0;
-      n.pad = 0;
+      n.contrast = page->power ? data[size_t{i} * rec + kNodeContrastOffset] : uint8_t{0};
       n.children = leaf ? kNoNodeRef : r.children;
       n.first_point = r.first_point;
       n.point_count = r.point_count;

@@ -40,7 +40,7 @@ struct alignas(64) NodeHot {
   // NodeIsFlat(sh_area, lo, hi) (tree/cut.h): what Cut::curved_scale and the curved-box test
   // read, once per decoded page instead of per visit.
   uint8_t flat;
-  uint8_t pad;
+  uint8_t contrast;   // radiance databases: ContrastCode of the node's contrast (tree/format.h)
   uint64_t children;  // NodeRef of the first child (interior)
   uint64_t first_point;
   uint64_t point_count;

@@ -14,6 +14,7 @@
 #define PBGI_TREE_FORMAT_H_
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstdint>
 #include <cstring>
@@ -69,7 +70,9 @@ static_assert(sizeof(NodeRecordCommon) == 104);
 struct NodeRecordRadiance {
   NodeRecordCommon common;
   float sh_power[3][9];  // power SH per colour
-  uint32_t pad;
+  // Radiance databases: how far the radiance of the node's parts strays from its own, relative
+  // to it (NodeContrast), as stored (ContrastValue of its code); 0 in occlusion databases.
+  float contrast;
 };
 static_assert(sizeof(NodeRecordRadiance) == 216);
 
@@ -345,8 +348,30 @@ inline Surfel DecodePoint(const uint8_t* payload, uint32_t slot, Channels c,
 //   radiance databases, per colour (3x):
 //   60 f32    s_c: the largest |sh_power[c][k]|
 //   64 i8[9]  sh_power[c][k] = s_c * q / 127
+//   99 u8     (version 5) contrast: ContrastCode(contrast)
 inline constexpr uint32_t kNodeRecordOcclusionBytes = 60;
-inline constexpr uint32_t kNodeRecordRadianceBytes = 60 + 3 * 13;
+inline constexpr uint32_t kNodeRecordRadianceBytes = 60 + 3 * 13 + 1;
+inline constexpr uint32_t kNodeContrastOffset = 60 + 3 * 13;
+
+// A node's radiance contrast (format version 5; docs/design.md, "A cut that sees radiance"):
+// the largest |L_i - L| / L over its children i (a leaf: over its surfels), L the luminance
+// (the mean of the three channels) of the mean radiance, band 0 of the power SH over band 0
+// of the projected-area SH (a surfel: its radiance). Stored in one byte on a log scale,
+// rounded up: code = ceil(16 log2(1 + c)), at most 255; ContrastValue(code) = 2^(code / 16) - 1
+// >= c (up to 2^15.9 - 1, about 62,000).
+inline uint8_t ContrastCode(double c) {
+  if (!(c > 1e-6)) return 0;  // 0 (or the rounding of equal means), or NaN
+  const double code = std::ceil(16.0 * std::log2(1.0 + c) - 1e-9);
+  return static_cast<uint8_t>(std::clamp(code, 0.0, 255.0));
+}
+inline float ContrastValue(uint8_t code) {
+  static const std::array<float, 256> table = [] {
+    std::array<float, 256> t{};
+    for (int k = 0; k < 256; ++k) t[k] = static_cast<float>(std::exp2(k / 16.0) - 1.0);
+    return t;
+  }();
+  return table[code];
+}
 inline constexpr uint64_t kMaxStoredPointIndex = (uint64_t{1} << 40) - 1;
 
 inline uint32_t NodeRecordSize(Channels c) {
@@ -435,6 +460,7 @@ inline void EncodeNodeRecord(const NodeRecordRadiance& r, Channels ch, const Pos
       std::memcpy(dst + 60 + 13 * k, &sp, 4);
       std::memcpy(dst + 64 + 13 * k, qp, 9);
     }
+    dst[kNodeContrastOffset] = ContrastCode(r.contrast);
   }
 }
 
@@ -446,7 +472,7 @@ inline NodeRecordRadiance DecodeNodeRecord(const uint8_t* src, Channels ch,
   NodeRecordRadiance r;
   NodeRecordCommon& c = r.common;
   c.pad = 0;
-  r.pad = 0;
+  r.contrast = 0.0f;
   uint64_t lo, hi;
   std::memcpy(&lo, src, 8);
   std::memcpy(&hi, src + 8, 8);
@@ -483,6 +509,7 @@ inline NodeRecordRadiance DecodeNodeRecord(const uint8_t* src, Channels ch,
       std::memcpy(qp, src + 64 + 13 * k, 9);
       DecodeScaled<int8_t, 127>(sp, qp, 9, r.sh_power[k]);
     }
+    r.contrast = ContrastValue(src[kNodeContrastOffset]);
   } else {
     std::fill(&r.sh_power[0][0], &r.sh_power[0][0] + 27, 0.0f);
   }

@@ -5,10 +5,12 @@
 #include <array>
 #include <cmath>
 #include <cstring>
+#include <limits>
 #include <memory>
 #include <vector>
 
 #include "absl/strings/str_format.h"
+#include "absl/types/span.h"
 #include "pbgi/sh.h"
 #include "pbgi/status.h"
 #include "store/page_io.h"
@@ -187,6 +189,50 @@ class Verifier {
     return absl::OkStatus();
   }
 
+  // The luminance of a node record's mean radiance (band 0 of power over band 0 of area, as the
+  // builder and the cut compute it) and a bound on what the stored quantization moves it by.
+  struct Lum {
+    double l = 0.0, err = 0.0;
+  };
+  static Lum NodeLum(const NodeRecordRadiance& n) {
+    const double a0 = n.common.sh_area[0];
+    if (!(a0 > 0.0)) return {0.0, std::numeric_limits<double>::infinity()};
+    const double p = double(n.sh_power[0][0]) + n.sh_power[1][0] + n.sh_power[2][0];
+    double dp = 0.0;
+    for (int ch = 0; ch < 3; ++ch) dp += kPowerShStep * MaxAbs(n.sh_power[ch], 9);
+    const double l = p / (3.0 * a0);
+    const double da = kAreaShStep * MaxAbs(n.common.sh_area, 9) / a0;
+    return {l, dp / (3.0 * a0) + std::abs(l) * 2.0 * da + 1e-6 * std::abs(l)};
+  }
+
+  // The stored contrast (tree/format.h, ContrastCode: rounded up to 1/16 octave of 1 + c) against
+  // the largest stray of the node's parts' luminance from its own, within what the quantization
+  // of the records allows.
+  absl::Status CheckContrast(NodeRef ref, const NodeRecordRadiance& n,
+                             absl::Span<const Lum> parts) {
+    if (!radiance_ || parts.empty()) return absl::OkStatus();
+    const Lum m = NodeLum(n);
+    if (!std::isfinite(m.err)) return absl::OkStatus();
+    double lo = 0.0, hi = 0.0;
+    for (const Lum& q : parts) {
+      const double d = std::abs(q.l - m.l), e = q.err + m.err;
+      lo = std::max(lo, (d - e) / (m.l + m.err));
+      hi = m.l - m.err > 0.0 ? std::max(hi, (d + e) / (m.l - m.err))
+                             : std::numeric_limits<double>::infinity();
+    }
+    const double c = n.contrast;
+    const bool low = c < lo * (1.0 - 1e-6) - 1e-6;
+    const bool high =
+        std::isfinite(hi) && c < 6e4 && c > (1.0 + hi) * std::exp2(1.0 / 16.0) - 1.0 + 1e-4;
+    if (low || high) {
+      return absl::DataLossError(absl::StrFormat(
+          "node %d/%d: radiance contrast %g, but its parts' luminance strays %g to %g from its "
+          "own",
+          RefPage(ref), RefSlot(ref), c, lo, hi));
+    }
+    return absl::OkStatus();
+  }
+
   absl::Status Visit(NodeRef ref, const NodeRecordRadiance& n, uint32_t depth) {
     const NodeRecordCommon& c = n.common;
     ++nodes_;
@@ -221,8 +267,12 @@ class Verifier {
       if (c.first_point + c.point_count > meta_.point_count) {
         return absl::DataLossError(absl::StrFormat("%s: points past the end", where()));
       }
+      std::vector<Lum> parts;
       for (uint64_t i = c.first_point; i < c.first_point + c.point_count; ++i) {
         PBGI_ASSIGN_OR_RETURN(Surfel p, ReadPoint(i));
+        if (radiance_) {
+          parts.push_back({(double(p.radiance[0]) + p.radiance[1] + p.radiance[2]) / 3.0, 0.0});
+        }
         const float pos[3] = {p.position.x, p.position.y, p.position.z};
         if (!Contains(c, pos, pos)) {
           return absl::DataLossError(
@@ -245,6 +295,7 @@ class Verifier {
         }
       }
       next_point_ += c.point_count;
+      PBGI_RETURN_IF_ERROR(CheckContrast(ref, n, parts));
       return Compare("points", ref, n, s);
     }
     if (c.child_count < 1 || c.child_count > 8) {
@@ -283,6 +334,9 @@ class Verifier {
                                                  where(), c.point_count,
                                                  next_point_ - c.first_point));
     }
+    Lum parts[8];
+    for (uint32_t i = 0; i < c.child_count; ++i) parts[i] = NodeLum(kids[i]);
+    PBGI_RETURN_IF_ERROR(CheckContrast(ref, n, absl::MakeConstSpan(parts, c.child_count)));
     return Compare("children", ref, n, s);
   }
 

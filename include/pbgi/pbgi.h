@@ -378,6 +378,10 @@ typedef struct pbgi_shade_options {
   void* progress_user;
   double progress_interval_seconds; /* default 1 */
   pbgi_cancel* cancel;              /* NULL: none */
+  /* Irradiance and glossy: nodes whose parts' radiance strays from their mean are refined by
+   * this times their contrast (ShadeOptions::radiance_contrast); default 16, as `pbgi shade`;
+   * 0: off. */
+  float radiance_contrast;
 } pbgi_shade_options;
 
 void pbgi_shade_options_init(pbgi_shade_options* options);

@@ -152,6 +152,17 @@ struct Cut {
   // cosine-weighted) test: finer than the plain cut in the lobe's core (and, with a
   // CutLobe::min_weight below 1, coarser outside it).
   CutLobe lobe{};
+  // A cut that sees radiance (docs/design.md, "A cut that sees radiance"): a node whose parts'
+  // radiance strays from its mean (Cluster::contrast, c) is taken whole only below
+  // max_solid_angle / max(1, radiance_contrast * c * min(1, L / contrast_floor)), L the
+  // luminance of its mean radiance: drawn whole, a node's footprint has its mean radiance
+  // everywhere, and a light panel's node that holds some of the ceiling round it, or a street's
+  // that crosses a shadow's edge, spreads the light over the dark part. 0 (the default here)
+  // turns it off; it needs a radiance database (format version 5). contrast_floor, a radiance
+  // >= 0, keeps the contrast of dark nodes from refining them (0: none); ShadeBatch sets it from
+  // the database (ShadeOptions::radiance_contrast).
+  float radiance_contrast = 0.0f;
+  float contrast_floor = 0.0f;
 };
 
 // The lobe's weight in the lobe-aware cut, for a node whose directions from the receiver come
@@ -390,6 +401,11 @@ class Reader {
 
   // Reads the surfels with global point indices [first, first + count) into `out` (appended).
   absl::Status ReadPoints(uint64_t first, uint64_t count, std::vector<Surfel>* out);
+
+  // The luminance (the mean of the channels) of the database's mean radiance: the root's band
+  // 0 of power over band 0 of projected area, as the cut computes a node's
+  // (Cut::contrast_floor). 0 for an occlusion database or an empty one.
+  absl::StatusOr<float> MeanRadiance();
 
   // This Reader's counters since it was made.
   const CacheStats& stats() const { return stats_; }

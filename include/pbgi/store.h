@@ -60,8 +60,10 @@ inline constexpr uint64_t kStoreMagic = 0x3130424447425050ull;  // "PPBGDB01" li
 // versions, and says to rebuild. Version 4: a two-sided point record carries its sheet tag
 // (Surfel::sheet) in the low bits of its normal (tree/format.h); a version-3 store, whose
 // two-sided normals have no tag there, is refused the same way.
-inline constexpr uint32_t kStoreFormatVersion = 4;
-inline constexpr uint32_t kOldestReadableStoreFormatVersion = 4;
+// Version 5: a radiance database's node record ends with its radiance contrast (one byte,
+// tree/format.h), which the cut reads (Cut::radiance_contrast); a version-4 store is refused.
+inline constexpr uint32_t kStoreFormatVersion = 5;
+inline constexpr uint32_t kOldestReadableStoreFormatVersion = 5;
 
 // The efficient page sizes are k*4096 - 16: LMDB stores a large value in a run of 4 KiB overflow
 // pages behind a 16-byte page header.

@@ -139,6 +139,11 @@ struct Cluster {
   // below it): the cells of a cut tile space, so the rasterizer cuts footprints with them that
   // tile the view (docs/design.md, "Raster"). Empty when unknown (then the bounds serve).
   Bounds cell;
+  // Radiance databases: how far the radiance of the node's parts strays from its own, the
+  // largest |L_i - L| / L over its children (a leaf: its surfels), L the luminance of a mean
+  // radiance, as stored (rounded up to a step of 1/16 octave of 1 + c); 0 otherwise
+  // (Cut::radiance_contrast).
+  float contrast = 0.0f;
 };
 
 // A cluster is flat when |sum A_i n_i| > kClusterFlatness * sum A_i (its surfels face within

@@ -315,7 +315,7 @@ class Database:
               max_solid_angle=0.03, max_distance=_math.inf, cut="auto", resolution=12, bias=0.0,
               clamp=True, hitsides="front", near_field_factor=4.0, near_field_samples=4,
               lobe="phong", phong_exponent=32.0, ggx_roughness=0.2, z_order=True,
-              progress=None, progress_interval=0.1):
+              progress=None, progress_interval=0.1, radiance_contrast=16.0):
         """Shades receivers at ``positions`` (m, 3) facing ``normals`` (m, 3) on ``threads``
         threads (0: all cores), with the GIL released; returns a Shading.
 
@@ -324,7 +324,9 @@ class Database:
         normals). ``cut``: 'cosine' weighs the cut's solid angle by the cosine to the normal,
         'plain' does not; 'auto' is cosine but for glossy. The other options are the
         rasterizer's (include/pbgi/raster.h): micro-buffer ``resolution``, ``bias`` along the
-        normal, ``hitsides`` ('front', 'back', 'both'), ...
+        normal, ``hitsides`` ('front', 'back', 'both'), ... ``radiance_contrast`` (irradiance
+        and glossy): nodes whose parts' radiance strays from their mean are refined by this
+        times their contrast (ShadeOptions::radiance_contrast, as ``pbgi shade``; 0: off).
         """
         if mode not in _MODES:
             raise InvalidArgumentError(f"mode: expected one of {_MODES}, got {mode!r}", 3)
@@ -342,7 +344,8 @@ class Database:
                 near_field_factor=float(near_field_factor),
                 near_field_samples=int(near_field_samples),
                 phong_exponent=float(phong_exponent), ggx_roughness=float(ggx_roughness),
-                z_order=bool(z_order), progress=cb, progress_interval=float(progress_interval)))
+                z_order=bool(z_order), progress=cb, progress_interval=float(progress_interval),
+                radiance_contrast=float(radiance_contrast)))
         finally:
             if closer is not None:
                 closer.close()

@@ -244,6 +244,12 @@ int main(int argc, char** argv) {
   CHECK(s == PBGI_INVALID_ARGUMENT && strstr(pbgi_last_error(), "resolution") != NULL,
         "resolution 2: %s '%s'", pbgi_status_name(s), pbgi_last_error());
   so.resolution = 12;
+  CHECK(so.radiance_contrast == 16.0f, "default radiance_contrast %g", so.radiance_contrast);
+  so.radiance_contrast = -1.0f;
+  s = pbgi_shade(db, receivers, kReceivers, &so, two, NULL);
+  CHECK(s == PBGI_INVALID_ARGUMENT && strstr(pbgi_last_error(), "radiance_contrast") != NULL,
+        "radiance_contrast -1: %s '%s'", pbgi_status_name(s), pbgi_last_error());
+  so.radiance_contrast = 16.0f;
 
   /* A raised cancel flag stops the batch. */
   pbgi_cancel* cancel = pbgi_cancel_create();

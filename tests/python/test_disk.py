@@ -44,6 +44,18 @@ def test_disk_occlusion_matches_form_factor(disk_db, mode):
     assert out.stats["receivers"] == 64 and out.stats["clusters"] > 0
 
 
+def test_a_uniform_emitter_has_no_radiance_contrast(disk_db):
+    # Every node of a uniform disk has contrast 0, so the cut that sees radiance takes the same
+    # nodes as the plain one: the same bits.
+    path, _, _ = disk_db
+    db = pbgi.open(path)
+    positions, normals, _ = axis_receivers(32)
+    plain = db.shade(positions, normals, radiance_contrast=0)
+    seen = db.shade(positions, normals)
+    np.testing.assert_array_equal(plain.irradiance, seen.irradiance)
+    assert plain.stats["clusters"] == seen.stats["clusters"]
+
+
 def test_glossy_mode_returns_all_three(disk_db):
     path, _, _ = disk_db
     db = pbgi.open(path)

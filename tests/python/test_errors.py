@@ -75,6 +75,8 @@ def test_shade_refuses_bad_options(db):
         db.shade(p, n, hitsides="sideways")
     with pytest.raises(pbgi.InvalidArgumentError, match="max_solid_angle"):
         db.shade(p, n, max_solid_angle=-1)
+    with pytest.raises(pbgi.InvalidArgumentError, match="radiance_contrast"):
+        db.shade(p, n, radiance_contrast=-1)
 
 
 def test_shade_of_no_receivers_is_empty(db):

@@ -183,7 +183,34 @@ TEST(CompactFormatTest, RecordSizes) {
   EXPECT_EQ(PointRecordSize(Channels::kOcclusion), 14u);
   EXPECT_EQ(PointRecordSize(Channels::kRadiance), 20u);
   EXPECT_EQ(NodeRecordSize(Channels::kOcclusion), 60u);
-  EXPECT_EQ(NodeRecordSize(Channels::kRadiance), 99u);
+  EXPECT_EQ(NodeRecordSize(Channels::kRadiance), 100u);
+}
+
+// A node's radiance contrast: rounded up, by at most one step of 1/16 octave of 1 + c; 0 and
+// NaN store 0; the largest code saturates.
+TEST(CompactFormatTest, NodeContrastRoundsUpWithinAStep) {
+  EXPECT_EQ(ContrastCode(0.0), 0);
+  EXPECT_EQ(ContrastCode(std::nan("")), 0);
+  EXPECT_EQ(ContrastValue(0), 0.0f);
+  EXPECT_EQ(ContrastCode(1e30), 255);
+  for (double c = 1e-4; c < 6e4; c *= 1.01) {
+    const uint8_t code = ContrastCode(c);
+    const double v = ContrastValue(code);
+    EXPECT_GE(v, c * (1.0 - 1e-6)) << c;
+    EXPECT_LE(std::log2(1.0 + v) - std::log2(1.0 + c), 1.0 / 16.0 + 1e-6) << c;
+  }
+  // The record carries it: radiance databases only.
+  const PositionGrid g = TestGrid();
+  NodeRecordRadiance r{};
+  r.common.flags = kNodeFlagLeaf;
+  r.common.children = kNoNodeRef;
+  r.contrast = 2.5f;
+  uint8_t bytes[kNodeRecordRadianceBytes];
+  EncodeNodeRecord(r, Channels::kRadiance, g, bytes);
+  EXPECT_EQ(DecodeNodeRecord(bytes, Channels::kRadiance, g).contrast,
+            ContrastValue(ContrastCode(2.5)));
+  EncodeNodeRecord(r, Channels::kOcclusion, g, bytes);
+  EXPECT_EQ(DecodeNodeRecord(bytes, Channels::kOcclusion, g).contrast, 0.0f);
 }
 
 // Position: within half a cell (plus float rounding of the cell centre); normal: within 1e-4 rad
