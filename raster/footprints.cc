@@ -413,13 +413,26 @@ Bounds ContactCell(const Bounds& cell, const SurfelGroup& a, absl::Span<const Su
     }
     if (m == k) continue;
     const int e = 3 - m - k;
-    if (b.centres.lo[e] - 0.5f * sb > a.centres.lo[e] + 0.5f * sa ||
-        b.centres.hi[e] + 0.5f * sb < a.centres.hi[e] - 0.5f * sa) {
-      continue;
-    }
     // b's centres against a's plane.
     float lo, hi;
     BoxDotRange(b.centres, na, ca, &lo, &hi);
+    // Unless they meet at a convex edge (each one's centres behind the other's plane): a roof
+    // ends at its wall's plane however few of the wall's surfels its cell holds. With a lone
+    // surfel of the wall under the roof's edge the roof went on to its cell's side, past the
+    // wall, and a receiver above the street saw the sunlit roof where the shaded wall is (bug:
+    // roof_overhangs_its_wall; city irradiance +0.13 of 1.74). A street around a building's
+    // corner meets the other wall at a concave edge (the wall stands in front of the street's
+    // plane), so it still goes on.
+    bool convex = false;
+    if (hi < 0.0f) {
+      float alo, ahi;
+      BoxDotRange(a.centres, nb, cb, &alo, &ahi);
+      convex = ahi < 0.0f;
+    }
+    if (!convex && (b.centres.lo[e] - 0.5f * sb > a.centres.lo[e] + 0.5f * sa ||
+                    b.centres.hi[e] + 0.5f * sb < a.centres.hi[e] - 0.5f * sa)) {
+      continue;
+    }
     if (lo > 1.5f * sb || hi < -1.5f * sb) continue;
     // b's plane along axis k, at a's centroid.
     float c = cb[k];

@@ -1650,5 +1650,55 @@ TEST(FootprintTest, AGroupsFootprintKeepsItsMembersRadiance) {
   }
 }
 
+// A building's roof edge in one leaf cell, as the city's 4 M surfels sample it: four roof
+// surfels behind the wall's plane and one wall surfel under the edge, the roof's cell going on
+// 1.5 past the wall. The lone wall surfel does not span the roof along the edge, so the roof's
+// footprint was not ended at the wall's plane (ContactCell asks that of a contact, where a
+// street beside a building's corner must go on past the other wall): it reached 1.5 past the
+// wall, and a receiver above the street in front of the building saw the sunlit roof where the
+// shaded wall is (bug: roof_overhangs_its_wall; city irradiance +0.13 of 1.74 on such a
+// receiver). Two faces that each lie behind the other's plane meet at a convex edge, and each
+// ends at the other's plane. Against the roof's exact rectangle (lit), the wall dark.
+TEST(FootprintTest, ARoofEndsAtItsWallsPlane) {
+  const float r = 0.7959f, h = 7.46f, wall = -1.5f;
+  Gathered g;
+  Bounds cell;
+  cell.lo = glm::vec3(0.0f, -3.516f, 6.374f);
+  cell.hi = glm::vec3(3.516f, 0.0f, 9.889f);
+  g.leaf_cells.push_back(cell);
+  auto add = [&](glm::vec3 p, glm::vec3 n, float radiance) {
+    Surfel sf;
+    sf.position = p;
+    sf.normal = n;
+    sf.radius = r;
+    sf.radiance = glm::vec3(radiance);
+    g.surfels.push_back(sf);
+    g.surfel_ids.push_back(g.surfel_ids.size());
+    g.surfel_leaf.push_back(0);
+  };
+  for (const auto& [x, y] :
+       {std::pair{0.9f, -2.06f}, {0.04f, -2.64f}, {2.62f, -3.37f}, {3.48f, -2.22f}}) {
+    add(glm::vec3(x, y, h), glm::vec3(0, 0, 1), 1.0f);
+  }
+  add(glm::vec3(1.83f, wall, 6.875f), glm::vec3(0, 1, 0), 0.0f);
+  MicroBuffer mb;
+  for (const glm::vec3& p :
+       {glm::vec3(1.8f, 1.0f, 9.8f), glm::vec3(0.7f, 2.4f, 9.8f), glm::vec3(2.9f, 0.6f, 11.0f)}) {
+    ShadeReceiver rec;
+    rec.position = p;
+    rec.normal = glm::vec3(0, -1, 0);
+    const double share = CosineShare([&](const glm::dvec3& l) {
+      // l about +z; the receiver's frame: +z -> -y, +x -> +x, +y -> +z.
+      const glm::dvec3 d(l.x, -l.z, l.y);
+      if (!(d.z < 0.0)) return false;
+      const glm::dvec3 q = glm::dvec3(p) + ((double(h) - p.z) / d.z) * d;
+      return q.x >= cell.lo.x && q.x <= cell.hi.x && q.y >= cell.lo.y && q.y <= wall;
+    });
+    const ShadeResult got = MustShade(g, rec, Polygons(true), &mb);
+    EXPECT_NEAR(got.irradiance.x, kPi * share, 0.1 * kPi * share + 0.01)
+        << "receiver " << p.x << " " << p.y << " " << p.z;
+  }
+}
+
 }  // namespace
 }  // namespace pbgi
