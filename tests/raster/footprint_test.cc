@@ -1700,5 +1700,55 @@ TEST(FootprintTest, ARoofEndsAtItsWallsPlane) {
   }
 }
 
+// A wall whose last row of centres lies just under its roof, the roof's surfels in the next
+// leaf (as the city's 4 M surfels sample a building's edge): the wall's footprint snapped to
+// its cell's top, a spacing above the roof, in front of whatever lies beyond (bug:
+// wall_overhangs_its_roof). The faces meet at a convex edge, so the wall ends at the roof's
+// plane though the roof is not in its cell (CrossLeafConvexClip). A lit wall and a dark roof,
+// receivers a little above the roof looking at the wall, against the wall's exact rectangle.
+TEST(FootprintTest, AWallEndsAtTheRoofOfTheNextLeaf) {
+  const float r = 0.7959f, top = 54.73f, x_wall = 140.0f;
+  Gathered g;
+  Bounds wall_cell, roof_cell;
+  wall_cell.lo = glm::vec3(133.594f, -42.188f, 48.561f);
+  wall_cell.hi = glm::vec3(140.625f, -35.156f, 55.593f);
+  roof_cell.lo = glm::vec3(140.625f, -42.188f, 52.077f);
+  roof_cell.hi = glm::vec3(144.141f, -35.156f, 55.593f);
+  g.leaf_cells = {wall_cell, roof_cell};
+  auto add = [&](glm::vec3 p, glm::vec3 n, float radiance, uint32_t leaf) {
+    Surfel sf;
+    sf.position = p;
+    sf.normal = n;
+    sf.radius = r;
+    sf.radiance = glm::vec3(radiance);
+    g.surfels.push_back(sf);
+    g.surfel_ids.push_back(g.surfel_ids.size());
+    g.surfel_leaf.push_back(leaf);
+  };
+  const float pitch = 1.41f;
+  for (float z = 49.3f; z < top; z += pitch) {
+    for (float y = -41.5f; y < wall_cell.hi.y; y += pitch) add({x_wall, y, z}, {-1, 0, 0}, 1.0f, 0);
+  }
+  for (float x = 141.3f; x < roof_cell.hi.x; x += pitch) {
+    for (float y = -41.5f; y < roof_cell.hi.y; y += pitch) add({x, y, top}, {0, 0, 1}, 0.0f, 1);
+  }
+  MicroBuffer mb;
+  for (const glm::vec3& p : {glm::vec3(133.43f, -39.0f, 55.95f), glm::vec3(136.0f, -38.0f, 56.6f),
+                             glm::vec3(131.0f, -40.5f, 55.4f)}) {
+    ShadeReceiver rec;
+    rec.position = p;
+    rec.normal = glm::vec3(1, 0, 0);
+    const double share = CosineShare([&](const glm::dvec3& l) {
+      // l about +z; the receiver's frame: +z -> +x, +x -> +y, +y -> +z.
+      const glm::dvec3 d(l.z, l.x, l.y);
+      const glm::dvec3 q = glm::dvec3(p) + ((double(x_wall) - p.x) / d.x) * d;
+      return q.y >= wall_cell.lo.y && q.y <= wall_cell.hi.y && q.z >= wall_cell.lo.z && q.z <= top;
+    });
+    const ShadeResult got = MustShade(g, rec, Polygons(true), &mb);
+    EXPECT_NEAR(got.irradiance.x, kPi * share, 0.05 * kPi * share)
+        << "receiver " << p.x << " " << p.y << " " << p.z;
+  }
+}
+
 }  // namespace
 }  // namespace pbgi
