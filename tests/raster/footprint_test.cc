@@ -1606,6 +1606,19 @@ TEST(FootprintTest, ALoneSurfelOfATurnedPlaneFillsItsCell) {
   }
 }
 
+// Appends a surfel of leaf `leaf` to g (its id the next one).
+void AddLeafSurfel(Gathered* g, const glm::vec3& p, const glm::vec3& n, float radius,
+                   float radiance, uint32_t leaf) {
+  Surfel sf;
+  sf.position = p;
+  sf.normal = n;
+  sf.radius = radius;
+  sf.radiance = glm::vec3(radiance);
+  g->surfels.push_back(sf);
+  g->surfel_ids.push_back(g->surfel_ids.size());
+  g->surfel_leaf.push_back(leaf);
+}
+
 // A leaf of a street whose cell crosses a shadow's edge (city 4 M: six surfels in a 3.5-wide
 // cell, two of them sunlit), seen from just below by receivers on both sides of the edge: drawn
 // as one footprint at the members' mean radiance, the shadowed part took the sunlit part's
@@ -1621,14 +1634,9 @@ TEST(FootprintTest, AGroupsFootprintKeepsItsMembersRadiance) {
   g.leaf_cells.push_back(cell);
   for (int j = 0; j < 4; ++j) {
     for (int i = 0; i < 4; ++i) {
-      Surfel sf;
-      sf.position = glm::vec3(cell.lo.x + (i + 0.5f) * pitch, cell.lo.y + (j + 0.5f) * pitch, h);
-      sf.normal = glm::vec3(0, 0, -1);
-      sf.radius = pitch / std::sqrt(static_cast<float>(kPi));
-      sf.radiance = glm::vec3(sf.position.y < 0.0f ? dark : lit);
-      g.surfels.push_back(sf);
-      g.surfel_ids.push_back(g.surfel_ids.size());
-      g.surfel_leaf.push_back(0);
+      const glm::vec3 p(cell.lo.x + (i + 0.5f) * pitch, cell.lo.y + (j + 0.5f) * pitch, h);
+      AddLeafSurfel(&g, p, glm::vec3(0, 0, -1), pitch / std::sqrt(static_cast<float>(kPi)),
+                    p.y < 0.0f ? dark : lit, 0);
     }
   }
   MicroBuffer mb;
@@ -1667,14 +1675,7 @@ TEST(FootprintTest, ARoofEndsAtItsWallsPlane) {
   cell.hi = glm::vec3(3.516f, 0.0f, 9.889f);
   g.leaf_cells.push_back(cell);
   auto add = [&](glm::vec3 p, glm::vec3 n, float radiance) {
-    Surfel sf;
-    sf.position = p;
-    sf.normal = n;
-    sf.radius = r;
-    sf.radiance = glm::vec3(radiance);
-    g.surfels.push_back(sf);
-    g.surfel_ids.push_back(g.surfel_ids.size());
-    g.surfel_leaf.push_back(0);
+    AddLeafSurfel(&g, p, n, r, radiance, 0);
   };
   for (const auto& [x, y] :
        {std::pair{0.9f, -2.06f}, {0.04f, -2.64f}, {2.62f, -3.37f}, {3.48f, -2.22f}}) {
@@ -1716,14 +1717,7 @@ TEST(FootprintTest, AWallEndsAtTheRoofOfTheNextLeaf) {
   roof_cell.hi = glm::vec3(144.141f, -35.156f, 55.593f);
   g.leaf_cells = {wall_cell, roof_cell};
   auto add = [&](glm::vec3 p, glm::vec3 n, float radiance, uint32_t leaf) {
-    Surfel sf;
-    sf.position = p;
-    sf.normal = n;
-    sf.radius = r;
-    sf.radiance = glm::vec3(radiance);
-    g.surfels.push_back(sf);
-    g.surfel_ids.push_back(g.surfel_ids.size());
-    g.surfel_leaf.push_back(leaf);
+    AddLeafSurfel(&g, p, n, r, radiance, leaf);
   };
   const float pitch = 1.41f;
   for (float z = 49.3f; z < top; z += pitch) {
