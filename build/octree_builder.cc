@@ -245,12 +245,7 @@ absl::Status OctreeBuilder::CloseTop() {
     const double l = n.agg.Luminance();
     double stray = 0.0;
     for (const ClosedNode& child : n.children) {
-      const NodeRecordRadiance& r = child.node.rec;
-      const double a0 = r.common.sh_area[0];
-      const double lc =
-          a0 > 0.0 ? (double{r.sh_power[0][0]} + r.sh_power[1][0] + r.sh_power[2][0]) / (3.0 * a0)
-                   : 0.0;
-      stray = std::max(stray, RelativeStray(lc, l));
+      stray = std::max(stray, RelativeStray(RecordLuminance(child.node.rec), l));
     }
     c.node.rec.contrast = static_cast<float>(std::min(1e30, stray));
   }

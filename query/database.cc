@@ -871,9 +871,7 @@ absl::StatusOr<float> Reader::MeanRadiance() {
     return absl::DataLossError(absl::StrFormat("%s: the root's node page %d is corrupt",
                                                db_->path(), internal::RefPage(m.root)));
   }
-  const float a0 = page->nodes[slot].sh_area[0];
-  const Sh9* power = page->power[slot].data();
-  return a0 > 0.0f ? (power[0][0] + power[1][0] + power[2][0]) / (3.0f * a0) : 0.0f;
+  return internal::NodeLuminance(page->power[slot], page->nodes[slot].sh_area[0]);
 }
 
 absl::Status Reader::ReadPoints(uint64_t first, uint64_t count, std::vector<Surfel>* out) {

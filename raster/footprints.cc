@@ -579,41 +579,44 @@ bool CrossLeafConvexPair(const SurfelGroup& a, const SurfelGroup& b) {
   return hi < 0.0f && hi > -1.5f * a.spacing;
 }
 
+// A leaf cell and its groups [g0, g1) among every cell's (PrepareSurfelGroups).
+struct CellRun {
+  Bounds cell;
+  size_t g0, g1;
+};
+
 // Every pair (a, b) of `all`'s groups in two different cells that touch (octree cells share a
-// face, an edge or a corner) that meet so, both ways. `runs[r]`: cell r and its
-// groups [first, last) in `all`. The cells are swept along x: a receiver near a sparse database
-// gathers hundreds of groups, and testing every pair of groups cost 3 M instructions per
-// receiver (city 50 k surfels).
-void CrossLeafConvexPairs(absl::Span<const SurfelGroup> all,
-                          absl::Span<const std::pair<Bounds, std::pair<size_t, size_t>>> runs,
+// face, an edge or a corner) that meet so, both ways. The cells are swept along x: a receiver near
+// a sparse database gathers hundreds of groups, and testing every pair of groups cost 3 M
+// instructions per receiver (city 50 k surfels).
+void CrossLeafConvexPairs(absl::Span<const SurfelGroup> all, absl::Span<const CellRun> runs,
                           std::vector<std::pair<uint32_t, uint32_t>>* pairs) {
   static thread_local std::vector<uint32_t> order;
   pairs->clear();
   auto candidate = [](const SurfelGroup& a) { return !a.two_sided && a.solid && a.on_axis; };
   order.clear();
   for (uint32_t r = 0; r < runs.size(); ++r) {
-    const auto& [first, last] = runs[r].second;
     bool any = false;
-    for (size_t i = first; i < last && !any; ++i) any = candidate(all[i]);
+    for (size_t i = runs[r].g0; i < runs[r].g1 && !any; ++i) any = candidate(all[i]);
     if (any) order.push_back(r);
   }
   if (order.size() < 2) return;
   std::sort(order.begin(), order.end(), [&](uint32_t x, uint32_t y) {
-    return runs[x].first.lo.x < runs[y].first.lo.x ||
-           (runs[x].first.lo.x == runs[y].first.lo.x && x < y);
+    return runs[x].cell.lo.x < runs[y].cell.lo.x ||
+           (runs[x].cell.lo.x == runs[y].cell.lo.x && x < y);
   });
   for (size_t i = 0; i < order.size(); ++i) {
-    const Bounds& ci = runs[order[i]].first;
-    for (size_t j = i + 1; j < order.size() && runs[order[j]].first.lo.x <= ci.hi.x; ++j) {
-      const Bounds& cj = runs[order[j]].first;
+    const CellRun& ri = runs[order[i]];
+    const Bounds& ci = ri.cell;
+    for (size_t j = i + 1; j < order.size() && runs[order[j]].cell.lo.x <= ci.hi.x; ++j) {
+      const CellRun& rj = runs[order[j]];
+      const Bounds& cj = rj.cell;
       if (cj.lo.y > ci.hi.y || ci.lo.y > cj.hi.y || cj.lo.z > ci.hi.z || ci.lo.z > cj.hi.z) {
         continue;
       }
-      const auto& [i0, i1] = runs[order[i]].second;
-      const auto& [j0, j1] = runs[order[j]].second;
-      for (size_t a = i0; a < i1; ++a) {
+      for (size_t a = ri.g0; a < ri.g1; ++a) {
         if (!candidate(all[a])) continue;
-        for (size_t b = j0; b < j1; ++b) {
+        for (size_t b = rj.g0; b < rj.g1; ++b) {
           if (!candidate(all[b]) || !CrossLeafConvexPair(all[a], all[b])) continue;
           pairs->push_back({static_cast<uint32_t>(a), static_cast<uint32_t>(b)});
           pairs->push_back({static_cast<uint32_t>(b), static_cast<uint32_t>(a)});
@@ -1181,10 +1184,6 @@ void Rasterizer::PrepareSurfelGroups(const Gathered& g, ShadeResult* out) {
   };
   // Every cell's groups are found first, then drawn: a group's footprint stops at the plane of
   // another that it meets, in its cell or a neighbouring one (CrossLeafConvexClip).
-  struct CellRun {
-    Bounds cell;
-    size_t g0, g1;  // its groups in `all`
-  };
   static thread_local std::vector<SurfelGroup> all;
   static thread_local std::vector<CellRun> cell_runs;
   all.clear();
@@ -1250,11 +1249,8 @@ void Rasterizer::PrepareSurfelGroups(const Gathered& g, ShadeResult* out) {
     cell_runs.push_back({cell, g0, all.size()});
     run0 = run1;
   }
-  static thread_local std::vector<std::pair<Bounds, std::pair<size_t, size_t>>> cell_groups;
   static thread_local std::vector<std::pair<uint32_t, uint32_t>> cross_pairs;
-  cell_groups.clear();
-  for (const CellRun& r : cell_runs) cell_groups.push_back({r.cell, {r.g0, r.g1}});
-  CrossLeafConvexPairs(all, cell_groups, &cross_pairs);
+  CrossLeafConvexPairs(all, cell_runs, &cross_pairs);
   // Each group's partners, in the order found (a counting sort by group).
   static thread_local std::vector<uint32_t> partner_first, partners;
   partner_first.assign(all.size() + 1, 0);
@@ -1373,24 +1369,24 @@ void Rasterizer::PrepareSurfelGroups(const Gathered& g, ShadeResult* out) {
       Polygon p;
       float alpha = FlatFootprint(first.two_sided ? centres : reach, snap_to, spacing, facing,
                                   -std::fabs(side), from, area, &p);
-      if (const size_t gi = &gr - groups.data(); gi < 32 && edges[gi] != 0 && p.n >= 3) {
-        // Clipped at a convex edge, the polygon loses only what lay past the edge, where the
-        // surface is not: its content covers that much more of what is left.
+      // Clipped at a convex edge, the polygon loses only what lay past the edge, where the
+      // surface is not: its content covers that much more of what is left.
+      auto clip_past_edge = [&](auto&& clip) {
         const double before = alpha < 1.0f ? PolygonArea(p) : 0.0;
-        if (ClipAtConvexEdges(gr, edges[gi], groups, convex_solid, from, &p) && before > 0.0 &&
-            p.n >= 3) {
+        if (clip() && before > 0.0 && p.n >= 3) {
           const double after = PolygonArea(p);
           if (after > 0.0) alpha = std::min(1.0f, static_cast<float>(alpha * before / after));
         }
+      };
+      if (const size_t gi = &gr - groups.data(); gi < 32 && edges[gi] != 0 && p.n >= 3) {
+        clip_past_edge(
+            [&] { return ClipAtConvexEdges(gr, edges[gi], groups, convex_solid, from, &p); });
       }
       if (p.n >= 3 && !cross_pairs.empty()) {
-        const double before = alpha < 1.0f ? PolygonArea(p) : 0.0;
-        if (CrossLeafConvexClip(static_cast<uint32_t>(&gr - all.data()), all, partner_first,
-                                partners, from, &p) &&
-            before > 0.0 && p.n >= 3) {
-          const double after = PolygonArea(p);
-          if (after > 0.0) alpha = std::min(1.0f, static_cast<float>(alpha * before / after));
-        }
+        clip_past_edge([&] {
+          return CrossLeafConvexClip(static_cast<uint32_t>(&gr - all.data()), all, partner_first,
+                                     partners, from, &p);
+        });
       }
       if (p.n < 3) {
         out->culled += count;

@@ -54,11 +54,11 @@ struct EvalArgs {
   // Cut criteria to sweep: "cosine" (Cut::cosine_weighted, the default), "plain" and/or
   // "lobe" (--mode glossy: ShadeOptions::lobe_cut, glossy's default).
   std::vector<std::string> cuts = {"cosine"};
-  std::vector<std::string> footprints = {"polygons"};  // RasterOptions::footprint
-  float curved_scale = 0.3f;                           // Cut::curved_scale
-  float curved_box_scale = 1.0f;                       // Cut::curved_box_scale
+  std::vector<std::string> footprints = {"polygons"};      // RasterOptions::footprint
+  float curved_scale = 0.3f;                               // Cut::curved_scale
+  float curved_box_scale = 1.0f;                           // Cut::curved_box_scale
   float radiance_contrast = kRecommendedRadianceContrast;  // ShadeOptions::radiance_contrast
-  float lobe_min_weight = CutLobe{}.min_weight;        // CutLobe::min_weight (--cuts lobe)
+  float lobe_min_weight = CutLobe{}.min_weight;            // CutLobe::min_weight (--cuts lobe)
   std::string memory = "auto";
   std::string cache = "auto";
   int threads = 0;

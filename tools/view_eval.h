@@ -57,9 +57,9 @@ struct ViewEvalArgs {
   std::vector<float> solid_angles = {0.03f};
   std::vector<int> resolutions = {12};
   std::vector<std::string> cuts = {"cosine"};
-  std::vector<std::string> footprints = {"polygons"};  // swept: polygons | splats
-  float curved_scale = 0.3f;                           // Cut::curved_scale
-  float curved_box_scale = 1.0f;                       // Cut::curved_box_scale
+  std::vector<std::string> footprints = {"polygons"};      // swept: polygons | splats
+  float curved_scale = 0.3f;                               // Cut::curved_scale
+  float curved_box_scale = 1.0f;                           // Cut::curved_box_scale
   float radiance_contrast = kRecommendedRadianceContrast;  // ShadeOptions::radiance_contrast
   std::string hitsides = "front";
   uint64_t memory_bytes = uint64_t{512} << 20;  // the build's cap

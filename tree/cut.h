@@ -215,14 +215,17 @@ inline bool BelowCurvedBoxCut(const Cut& cut, bool flat, const glm::vec3& centre
 // luminance of its mean radiance (band 0 of `power` over band 0 of its projected area). 1
 // without a contrast or a radiance channel. The traversal and the test harness both divide by
 // exactly this.
+// The luminance of a node's mean radiance: band 0 of its power over band 0 of its projected
+// area, the mean of the channels (0 without area).
+inline float NodeLuminance(const std::array<Sh9, 3>& power, float sh_area0) {
+  return sh_area0 > 0.0f ? (power[0][0] + power[1][0] + power[2][0]) / (3.0f * sh_area0) : 0.0f;
+}
 inline float NodeContrastScale(const Cut& cut, float contrast, const std::array<Sh9, 3>& power,
                                float sh_area0) {
   if (!(cut.radiance_contrast > 0.0f) || !(contrast > 0.0f)) return 1.0f;
   float c = contrast;
   if (cut.contrast_floor > 0.0f) {
-    const float l =
-        sh_area0 > 0.0f ? (power[0][0] + power[1][0] + power[2][0]) / (3.0f * sh_area0) : 0.0f;
-    c *= std::clamp(l / cut.contrast_floor, 0.0f, 1.0f);
+    c *= std::clamp(NodeLuminance(power, sh_area0) / cut.contrast_floor, 0.0f, 1.0f);
   }
   return std::max(1.0f, cut.radiance_contrast * c);
 }

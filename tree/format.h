@@ -353,6 +353,15 @@ inline constexpr uint32_t kNodeRecordOcclusionBytes = 60;
 inline constexpr uint32_t kNodeRecordRadianceBytes = 60 + 3 * 13 + 1;
 inline constexpr uint32_t kNodeContrastOffset = 60 + 3 * 13;
 
+// The luminance of a node record's mean radiance, in double: band 0 of its power SH over band 0
+// of its projected-area SH, the mean of the channels (0 without area). The builder's contrast
+// over a node's children and `pbgi verify`'s check of it.
+inline double RecordLuminance(const NodeRecordRadiance& r) {
+  const double a0 = r.common.sh_area[0];
+  return a0 > 0.0 ? (double{r.sh_power[0][0]} + r.sh_power[1][0] + r.sh_power[2][0]) / (3.0 * a0)
+                  : 0.0;
+}
+
 // A node's radiance contrast (format version 5; docs/design.md, "A cut that sees radiance"):
 // the largest |L_i - L| / L over its children i (a leaf: over its surfels), L the luminance
 // (the mean of the three channels) of the mean radiance, band 0 of the power SH over band 0

@@ -197,10 +197,9 @@ class Verifier {
   static Lum NodeLum(const NodeRecordRadiance& n) {
     const double a0 = n.common.sh_area[0];
     if (!(a0 > 0.0)) return {0.0, std::numeric_limits<double>::infinity()};
-    const double p = double(n.sh_power[0][0]) + n.sh_power[1][0] + n.sh_power[2][0];
     double dp = 0.0;
     for (int ch = 0; ch < 3; ++ch) dp += kPowerShStep * MaxAbs(n.sh_power[ch], 9);
-    const double l = p / (3.0 * a0);
+    const double l = RecordLuminance(n);
     const double da = kAreaShStep * MaxAbs(n.common.sh_area, 9) / a0;
     return {l, dp / (3.0 * a0) + std::abs(l) * 2.0 * da + 1e-6 * std::abs(l)};
   }
