@@ -340,13 +340,15 @@ class SceneSurfelSource final : public SurfelSource {
   }
 
   // Bakes radiance in groups of candidates [16q, 16q + 16) (global numbers): a group shares its
-  // light samples, keyed by q, so a group split between two calls still gets the same ones, and
-  // a dropped candidate changes nobody else's light.
+  // light samples' shift, keyed by q, and each candidate's slot is its number less 16q, so a
+  // group split between two calls still gets the same samples, and a dropped candidate changes
+  // nobody else's light.
   void Bake(int64_t begin, int64_t end, Surfel* out, const uint32_t* materials,
             const uint8_t* keep) const {
     constexpr int64_t kP = Tracer::kGroup;
     glm::vec3 p[kP], n[kP], l[kP];
     uint32_t m[kP];
+    uint8_t slot[kP];
     int64_t at[kP];
     for (int64_t first = begin; first < end;) {
       const int64_t q = first / kP;
@@ -358,6 +360,7 @@ class SceneSurfelSource final : public SurfelSource {
         p[count] = out[i].position;
         n[count] = out[i].normal;
         m[count] = materials[i];
+        slot[count] = static_cast<uint8_t>(s - q * kP);
         at[count] = i;
         ++count;
       }
@@ -365,7 +368,7 @@ class SceneSurfelSource final : public SurfelSource {
         tracer_->SurfaceRadiance(absl::MakeConstSpan(p, count), absl::MakeConstSpan(n, count),
                                  absl::MakeConstSpan(m, count),
                                  HashCombine(options_.seed ^ 0x62616b65u, static_cast<uint64_t>(q)),
-                                 absl::MakeSpan(l, count));
+                                 absl::MakeSpan(l, count), absl::MakeConstSpan(slot, count));
       }
       for (int i = 0; i < count; ++i) out[at[i]].radiance = l[i];
       first = last;

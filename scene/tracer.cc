@@ -328,12 +328,19 @@ void Tracer::OccludedGroup(int count, const glm::vec3* origin, const glm::vec3* 
 }
 
 void Tracer::DirectLightGroup(int count, const glm::vec3* p, const glm::vec3* n, const bool* active,
-                              uint64_t key, glm::vec3* out) const {
+                              const uint8_t* slot, uint64_t key, glm::vec3* out) const {
   const Lights& lights = impl_->scene.lights;
   const float eps = impl_->eps;
   const float inf = impl_->far;
   glm::vec3 origin[kGroup] = {}, dir[kGroup] = {}, t[kGroup] = {}, b[kGroup] = {};
   float tfar[kGroup] = {}, weight[kGroup] = {};
+  // Each point's share of the strata: its slot over kGroup.
+  float share[kGroup] = {};
+  uint32_t slots[kGroup] = {};
+  for (int i = 0; i < count; ++i) {
+    slots[i] = slot != nullptr ? slot[i] : static_cast<uint32_t>(i);
+    share[i] = static_cast<float>(slots[i]) / static_cast<float>(kGroup);
+  }
   bool on[kGroup] = {}, blocked[kGroup] = {};
   for (int i = 0; i < count; ++i) {
     out[i] = glm::vec3(0.0f);
@@ -362,9 +369,16 @@ void Tracer::DirectLightGroup(int count, const glm::vec3* p, const glm::vec3* n,
       tfar[i] = inf;
     }
     for (int ray = 0; ray < m; ++ray) {
-      // One stratified direction per ray index, shared by the group in each point's own frame.
-      const glm::vec2 u = internal::RotatedHammersley(ray, m, r0, r1);
-      for (int i = 0; i < count; ++i) dir[i] = internal::CosineDirection(n[i], t[i], b[i], u);
+      // Each point's m directions are a stratified set of its own: the group's shift r plus
+      // (i / (kGroup m), RadicalInverse2(i)) for the point in slot i, so the group's kGroup * m
+      // directions are stratified together. One direction shared by the group (before) gave every
+      // point of a wall's strip the same sky estimate, an error that no cluster averages.
+      for (int i = 0; i < count; ++i) {
+        const glm::vec2 u =
+            internal::RotatedHammersley(ray, m, r0 + share[i] / static_cast<float>(m),
+                                        r1 + internal::RadicalInverse2(slots[i]));
+        dir[i] = internal::CosineDirection(n[i], t[i], b[i], u);
+      }
       OccludedGroup(count, origin, dir, tfar, active, blocked);
       for (int i = 0; i < count; ++i) open[i] += (active[i] && !blocked[i]) ? 1 : 0;
     }
@@ -381,16 +395,20 @@ void Tracer::DirectLightGroup(int count, const glm::vec3* p, const glm::vec3* n,
     const double total = cdf.back();
     // Irradiance / pi averaged over the m samples.
     const float norm = 1.0f / (internal::kPiFloat * static_cast<float>(m));
+    glm::vec3 emission[kGroup] = {};
     for (int s = 0; s < m; ++s) {
-      // Stratified over the power CDF: sample s picks an emitter in the s-th 1/m of the power,
-      // and a point on it shared by the group.
-      const size_t e = impl_->index.PickEmitter((static_cast<double>(s) + r0) / m);
-      const auto& em = emitters[e];
-      const glm::vec2 uv(internal::Random(k, 2 * s + 2), internal::Random(k, 2 * s + 3));
-      const glm::vec3 q = internal::TrianglePoint(em.tri.a, em.tri.b, em.tri.c, uv);
-      // pdf over area: (w_e / W) / area_e, with w_e = luminance * area.
-      const float inv_pdf = static_cast<float>(total / (cdf[e + 1] - cdf[e])) * em.area;
+      // Stratified over the power CDF: sample s of point i picks an emitter in the s-th 1/m of
+      // the power, at r0 + i / kGroup of it, and a point of its own on the emitter.
       for (int i = 0; i < count; ++i) {
+        const double at = static_cast<double>(s) + internal::Wrap01(r0 + share[i]);
+        const size_t e = impl_->index.PickEmitter(at / m);
+        const auto& em = emitters[e];
+        const uint64_t j = static_cast<uint64_t>(s) * kGroup + slots[i];
+        const glm::vec2 uv(internal::Random(k, 2 * j + 2), internal::Random(k, 2 * j + 3));
+        const glm::vec3 q = internal::TrianglePoint(em.tri.a, em.tri.b, em.tri.c, uv);
+        // pdf over area: (w_e / W) / area_e, with w_e = luminance * area.
+        const float inv_pdf = static_cast<float>(total / (cdf[e + 1] - cdf[e])) * em.area;
+        emission[i] = em.emission;
         const glm::vec3 to = q - origin[i];
         const float dist2 = glm::dot(to, to);
         on[i] = false;
@@ -406,7 +424,7 @@ void Tracer::DirectLightGroup(int count, const glm::vec3* p, const glm::vec3* n,
       }
       OccludedGroup(count, origin, dir, tfar, on, blocked);
       for (int i = 0; i < count; ++i) {
-        if (on[i] && !blocked[i]) out[i] += em.emission * weight[i];
+        if (on[i] && !blocked[i]) out[i] += emission[i] * weight[i];
       }
     }
   }
@@ -415,7 +433,7 @@ void Tracer::DirectLightGroup(int count, const glm::vec3* p, const glm::vec3* n,
 glm::vec3 Tracer::DirectLight(const glm::vec3& p, const glm::vec3& n, uint64_t key) const {
   const bool active = true;
   glm::vec3 out;
-  DirectLightGroup(1, &p, &n, &active, internal::HashCombine(key, 0), &out);
+  DirectLightGroup(1, &p, &n, &active, nullptr, internal::HashCombine(key, 0), &out);
   return out;
 }
 
@@ -429,7 +447,7 @@ glm::vec3 Tracer::SurfaceRadiance(const glm::vec3& p, const glm::vec3& n, uint32
 
 void Tracer::SurfaceRadiance(absl::Span<const glm::vec3> p, absl::Span<const glm::vec3> n,
                              absl::Span<const uint32_t> materials, uint64_t key,
-                             absl::Span<glm::vec3> out) const {
+                             absl::Span<glm::vec3> out, absl::Span<const uint8_t> slots) const {
   const auto& mats = impl_->scene.materials;
   for (size_t first = 0, group = 0; first < p.size(); first += kGroup, ++group) {
     const int count = static_cast<int>(std::min<size_t>(kGroup, p.size() - first));
@@ -440,6 +458,7 @@ void Tracer::SurfaceRadiance(absl::Span<const glm::vec3> p, absl::Span<const glm
       active[i] = a.x > 0.0f || a.y > 0.0f || a.z > 0.0f;
     }
     DirectLightGroup(count, p.data() + first, n.data() + first, active,
+                     slots.empty() ? nullptr : slots.data() + first,
                      internal::HashCombine(key, group), direct);
     for (int i = 0; i < count; ++i) {
       const Material& m = mats[materials[first + i]];

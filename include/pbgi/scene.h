@@ -198,14 +198,17 @@ class Tracer {
   // albedo * DirectLight + emission.
   glm::vec3 SurfaceRadiance(const glm::vec3& p, const glm::vec3& n, uint32_t material,
                             uint64_t key) const;
-  // The same for many points, in groups of kGroup points that share their stratified light
-  // samples (drawn from `key` and the group's index); each point keeps its own normal and
-  // shadow rays, so every estimate is unbiased, and neighbours' rays stay coherent (measured
-  // 1.4x faster than independent samples per point). REQUIRES: all spans have the same size.
+  // The same for many points, in groups of kGroup consecutive points that share one random
+  // shift of their light samples (drawn from `key` and the group's index); the point in slot i
+  // of its group draws a stratified set of its own, shifted by i's share of the strata, so the
+  // group's sets are stratified together: every estimate is unbiased, and neighbours that
+  // share a place average their errors (docs/design.md, "Baking"). `slots`: each point's slot,
+  // when the span holds a group's points with some left out (a dropped sample); empty: its
+  // index in its group. REQUIRES: all spans have the same size; slots < kGroup.
   static constexpr int kGroup = 16;
   void SurfaceRadiance(absl::Span<const glm::vec3> p, absl::Span<const glm::vec3> n,
                        absl::Span<const uint32_t> materials, uint64_t key,
-                       absl::Span<glm::vec3> out) const;
+                       absl::Span<glm::vec3> out, absl::Span<const uint8_t> slots = {}) const;
 
   // Reference integrator (Embree against the scene geometry): `rays` stratified
   // cosine-weighted rays from p around n. Occlusion: the fraction that hit something within
@@ -246,9 +249,10 @@ class Tracer {
  private:
   struct Impl;
   explicit Tracer(std::unique_ptr<Impl> impl);
-  // Direct light (irradiance / pi) at up to kGroup points; `active` false skips a point.
+  // Direct light (irradiance / pi) at up to kGroup points; `active` false skips a point;
+  // slot[i] (nullptr: i) is point i's slot in its group (SurfaceRadiance()).
   void DirectLightGroup(int count, const glm::vec3* p, const glm::vec3* n, const bool* active,
-                        uint64_t key, glm::vec3* out) const;
+                        const uint8_t* slot, uint64_t key, glm::vec3* out) const;
   // Shadow rays for up to kGroup points: blocked[i] for the active ones.
   void OccludedGroup(int count, const glm::vec3* origin, const glm::vec3* dir, const float* tfar,
                      const bool* active, bool* blocked) const;

@@ -1,5 +1,6 @@
 // Direct light baked into surfels: exact answers for the sun and the sky, shadows, and a closed
 // box that only its interior light reaches.
+#include <algorithm>
 #include <cmath>
 #include <memory>
 #include <vector>
@@ -155,6 +156,81 @@ TEST(BakeTest, AreaLightMatchesTheSphereFormFactor) {
   // And the surfel convention: albedo 0.5 times that.
   glm::vec3 l = (*tracer)->SurfaceRadiance(p, n, 0, 3);
   EXPECT_FLOAT_EQ(l.x, 0.5f * (*tracer)->DirectLight(p, n, 3).x);
+}
+
+// The cosine-weighted share of the hemisphere over p (normal +z) that the convex polygon
+// `v` (in order) covers: the contour integral (1 / 2 pi) sum of the edges' angles times the
+// z of their planes' unit normals (Lambert).
+double PolygonFormFactor(const glm::dvec3& p, const std::vector<glm::dvec3>& v) {
+  double sum = 0.0;
+  for (size_t i = 0; i < v.size(); ++i) {
+    const glm::dvec3 a = glm::normalize(v[i] - p), b = glm::normalize(v[(i + 1) % v.size()] - p);
+    const glm::dvec3 c = glm::cross(a, b);
+    sum += std::acos(std::clamp(glm::dot(a, b), -1.0, 1.0)) * c.z / glm::length(c);
+  }
+  return std::abs(sum) / (2.0 * 3.14159265358979);
+}
+
+// The sixteen points of a baking group share one random shift of their light samples, each
+// keeps a stratified set of its own: where they share a place (neighbours on a wall's strip),
+// their mean is an estimate of 16 times the samples. Before, every point of a group drew the
+// same directions and the same points on the lights, so the group's points all made one error,
+// which no cluster of them averages away (the city's irradiance: a wall 3.5 away seen at 0.088
+// where rays see 0.03, a receiver +0.07 of 0.29).
+double GroupErrorRatio(const Tracer& tracer, const glm::vec3& p, const glm::vec3& n, double exact,
+                       double* mean_single) {
+  constexpr int kKeys = 400, kP = Tracer::kGroup;
+  const std::vector<glm::vec3> ps(kP, p), ns(kP, n);
+  const std::vector<uint32_t> materials(kP, 0);
+  std::vector<glm::vec3> out(kP);
+  double single2 = 0.0, group2 = 0.0, single = 0.0;
+  for (int k = 0; k < kKeys; ++k) {
+    tracer.SurfaceRadiance(ps, ns, materials, static_cast<uint64_t>(k) + 17, absl::MakeSpan(out));
+    double mean = 0.0;
+    for (const glm::vec3& l : out) mean += l.x / kP;
+    for (const glm::vec3& l : out) single += l.x / (kKeys * kP);
+    single2 += (out[3].x - exact) * (out[3].x - exact) / kKeys;
+    group2 += (mean - exact) * (mean - exact) / kKeys;
+  }
+  *mean_single = single;
+  return std::sqrt(group2 / single2);
+}
+
+TEST(BakeTest, AGroupsPointsDrawTheirOwnSkySamples) {
+  // A ground point under a square roof [-0.5, 0.5]^2 at height 0.4; a sky of radiance 1 and
+  // albedo 1: the radiance is the cosine-weighted open share of the sky.
+  glm::mat4 roof(1.0f);
+  roof[3] = glm::vec4(-0.5f, -0.5f, 0.4f, 1.0f);
+  Scene s = Quad(roof, glm::vec3(1.0f));
+  s.lights.sky = glm::vec3(1.0f);
+  s.lights.sky_rays = 4;
+  auto tracer = Tracer::Create(s);
+  ASSERT_TRUE(tracer.ok()) << tracer.status();
+  const double exact =
+      1.0 -
+      PolygonFormFactor(glm::dvec3(0.1, 0.05, 0.0),
+                        {{-0.5, -0.5, 0.4}, {0.5, -0.5, 0.4}, {0.5, 0.5, 0.4}, {-0.5, 0.5, 0.4}});
+  ASSERT_GT(exact, 0.2);
+  ASSERT_LT(exact, 0.8);
+  double mean = 0.0;
+  const double ratio = GroupErrorRatio(**tracer, glm::vec3(0.1f, 0.05f, 0.0f),
+                                       glm::vec3(0.0f, 0.0f, 1.0f), exact, &mean);
+  EXPECT_NEAR(mean, exact, 0.01);  // unbiased
+  EXPECT_LT(ratio, 0.25) << "the group's mean errs as much as one point: shared samples";
+}
+
+TEST(BakeTest, AGroupsPointsDrawTheirOwnPointsOnTheLights) {
+  auto scene = MakeScene("sphere-in-box");
+  ASSERT_TRUE(scene.ok());
+  scene->materials[0].albedo = glm::vec3(1.0f);
+  auto tracer = Tracer::Create(*scene);
+  ASSERT_TRUE(tracer.ok()) << tracer.status();
+  // The floor under the sphere (R = 0.5, d = 2): Le (R / d)^2 = 0.0625, see above.
+  double mean = 0.0;
+  const double ratio = GroupErrorRatio(**tracer, glm::vec3(0.0f, 0.0f, -2.0f),
+                                       glm::vec3(0.0f, 0.0f, 1.0f), 0.0625, &mean);
+  EXPECT_NEAR(mean, 0.0625, 0.0625 * 0.03);
+  EXPECT_LT(ratio, 0.25) << "the group's mean errs as much as one point: shared light samples";
 }
 
 }  // namespace
