@@ -51,6 +51,7 @@ float ProjectedAreaShEval(const Cluster& cluster, const glm::vec3& w, HitSides s
 }
 
 glm::vec3 ClusterRadiance(const Cluster& cluster, const glm::vec3& w, HitSides sides) {
+  if (glm::vec3 axis; AxisFacesRadiance(cluster, w, sides, &axis)) return axis;
   const Basis9 b{sh::Basis(w.x, w.y, w.z)};
   const float sign = SideSign(cluster.sh_area, b, sides);
   const float a = EvalSide(cluster.sh_area, b, sign);

@@ -101,6 +101,65 @@ inline float ProjectedArea(const Cluster& cluster, const glm::vec3& w, HitSides 
   return ProjectedArea(MomentsFromSh(cluster.sh_area), w, sides);
 }
 
+// Content whose normals all lie along the world axes, either way (a building's roof and walls,
+// a street): its SH holds the areas of its six faces exactly. Band 1 is N_k = A(+k) - A(-k)
+// and bands 0 and 2 give M_kk = A(+k) + A(-k), with M's off-diagonal entries 0. From the faces,
+// A(w) = sum over faces of A_f max(0, n_f.w) is exact, where the order-2 SH rings: a face seen
+// edge-on or from behind keeps up to 9 % of its area, so a building's dark walls leaked into
+// the sunlit roof that a high receiver sees, and its lit roof into the walls a street sees
+// (docs/design.md, "Radiance of axis-aligned content").
+// Faces in the order +x, -x, +y, -y, +z, -z of one SH (area or one colour's power).
+inline void AxisFacesOf(const float* c, float f[6]) {
+  using namespace cluster_model_internal;
+  constexpr float kInv0 = static_cast<float>(1.0 / kBand0);
+  constexpr float kInv1 = static_cast<float>(1.0 / kBand1);
+  constexpr float kInvZ = static_cast<float>(1.0 / kBand2Z);
+  constexpr float kInvXx = static_cast<float>(1.0 / kBand2Xx);
+  const float total = c[0] * kInv0;
+  const float mzz = (c[6] * kInvZ + total) * (1.0f / 3.0f);
+  const float diff = c[8] * kInvXx;
+  const float mxx = 0.5f * (total - mzz + diff), myy = 0.5f * (total - mzz - diff);
+  const float nx = c[3] * kInv1, ny = c[1] * kInv1, nz = c[2] * kInv1;
+  f[0] = 0.5f * (mxx + nx), f[1] = 0.5f * (mxx - nx);
+  f[2] = 0.5f * (myy + ny), f[3] = 0.5f * (myy - ny);
+  f[4] = 0.5f * (mzz + nz), f[5] = 0.5f * (mzz - nz);
+}
+
+// Whether the area SH c is of axis-aligned content: M's off-diagonal entries and any negative
+// face within kAxisFacesTolerance of the total area (the SH is stored quantized). Also false
+// for an empty cluster.
+inline constexpr float kAxisFacesTolerance = 0.02f;
+inline bool IsAxisAligned(const float* c, const float f[6]) {
+  using namespace cluster_model_internal;
+  constexpr float kInv0 = static_cast<float>(1.0 / kBand0);
+  constexpr float kInvXy = static_cast<float>(1.0 / kBand2Xy);
+  const float total = c[0] * kInv0;
+  if (!(total > 0.0f)) return false;
+  const float tol = kAxisFacesTolerance * total;
+  if ((std::fabs(c[4]) + std::fabs(c[5]) + std::fabs(c[7])) * kInvXy > tol) return false;
+  for (int k = 0; k < 6; ++k) {
+    if (f[k] < -tol) return false;
+  }
+  return true;
+}
+
+// sum over the faces f of A_f max(0, n_f.w): the front side seen from w, and the back side
+// (seen from -w).
+struct AxisSight {
+  float front, back;
+};
+inline AxisSight AxisFacesSeen(const float f[6], const glm::vec3& w) {
+  const float px = std::max(0.0f, w.x), mx = std::max(0.0f, -w.x);
+  const float py = std::max(0.0f, w.y), my = std::max(0.0f, -w.y);
+  const float pz = std::max(0.0f, w.z), mz = std::max(0.0f, -w.z);
+  return {(f[0] * px + f[1] * mx) + (f[2] * py + f[3] * my) + (f[4] * pz + f[5] * mz),
+          (f[0] * mx + f[1] * px) + (f[2] * my + f[3] * py) + (f[4] * mz + f[5] * pz)};
+}
+
+// ClusterRadiance() for axis-aligned content, from its faces: false (and *out untouched) when
+// the content is not axis-aligned. The same side rule and regularisation as the SH ratio.
+inline bool AxisFacesRadiance(const Cluster& c, const glm::vec3& w, HitSides sides, glm::vec3* out);
+
 // What the rasterizer needs of a cluster seen from w, from one evaluation of the SH basis
 // (ClusterView below): the same values as MomentsFromSh + ProjectedArea and ClusterRadiance,
 // to float rounding, in about a quarter of the instructions.
@@ -195,7 +254,10 @@ template <bool kRad>
     // Lane 0: the plain SH area and its mean (not clamped, as in ClusterRadiance).
     const V4 mean = Max4(zero, c0 * kY0);
     const float den = seen[0] + kRadianceBlend * (kY0 * sa[0]);
-    if (den > 0.0f) {
+    glm::vec3 axis;
+    if (AxisFacesRadiance(c, w, sides, &axis)) {
+      out.rgb1 = V4{1.0f, axis.x, axis.y, axis.z};
+    } else if (den > 0.0f) {
       const V4 den4 = {den, den, den, den};
       out.rgb1 = (seen + kRadianceBlend * mean) / den4;
     } else {
@@ -208,10 +270,36 @@ template <bool kRad>
   return out;
 }
 
+inline bool AxisFacesRadiance(const Cluster& c, const glm::vec3& w, HitSides sides,
+                              glm::vec3* out) {
+  using namespace cluster_model_internal;
+  float fa[6];
+  AxisFacesOf(c.sh_area.data(), fa);
+  if (!IsAxisAligned(c.sh_area.data(), fa)) return false;
+  for (float& x : fa) x = std::max(0.0f, x);
+  const AxisSight a = AxisFacesSeen(fa, w);
+  // kBoth: the side whose area is the larger, as the SH ratio's rule.
+  const bool front = sides == HitSides::kFront || (sides == HitSides::kBoth && a.front >= a.back);
+  const float den = (front ? a.front : a.back) + kRadianceBlend * (kY0 * c.sh_area[0]);
+  if (!(den > 0.0f)) {
+    *out = glm::vec3(0.0f);
+    return true;
+  }
+  for (int ch = 0; ch < 3; ++ch) {
+    float fp[6];
+    AxisFacesOf(c.sh_power[ch].data(), fp);
+    for (float& x : fp) x = std::max(0.0f, x);
+    const AxisSight p = AxisFacesSeen(fp, w);
+    const float p_mean = std::max(0.0f, kY0 * c.sh_power[ch][0]);
+    (*out)[ch] = ((front ? p.front : p.back) + kRadianceBlend * p_mean) / den;
+  }
+  return true;
+}
+
 // Radiance P(w)/A(w) per colour seen from w, with the same side rule (kBoth: the side with the
-// larger area). The ratio is regularised
-// towards the cluster's mean radiance where A(w) is small (exact for a uniform radiance, however
-// much the SH rings); never negative.
+// larger area). Axis-aligned content (AxisFacesRadiance) from its six faces. The ratio is
+// regularised towards the cluster's mean radiance where A(w) is small (exact for a uniform
+// radiance, however much the SH rings); never negative.
 glm::vec3 ClusterRadiance(const Cluster& cluster, const glm::vec3& w, HitSides sides);
 
 }  // namespace pbgi::internal

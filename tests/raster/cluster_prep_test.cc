@@ -29,11 +29,20 @@ std::vector<Cluster> RandomClusters(int count, uint32_t seed) {
     const glm::vec3 centre = glm::vec3(g(rng), g(rng), g(rng)) * (0.5f + 3.0f * u(rng));
     const glm::vec3 n = glm::normalize(glm::vec3(g(rng), g(rng), g(rng)));
     const float spread = i % 3 == 0 ? 0.0f : 2.0f * u(rng);
+    // Every fifth: normals along the world axes (AxisFacesRadiance's content).
+    const bool axis = i % 5 == 2;
     std::vector<Surfel> s;
     for (int k = 0; k < 6; ++k) {
       Surfel x;
       x.position = centre + 0.2f * glm::vec3(g(rng), g(rng), g(rng));
       x.normal = glm::normalize(n + spread * glm::vec3(g(rng), g(rng), g(rng)));
+      if (axis) {
+        const glm::vec3 m = glm::abs(x.normal);
+        const int k = m.x >= m.y && m.x >= m.z ? 0 : m.y >= m.z ? 1 : 2;
+        glm::vec3 e(0.0f);
+        e[k] = x.normal[k] > 0.0f ? 1.0f : -1.0f;
+        x.normal = e;
+      }
       x.radius = 0.02f + 0.05f * u(rng);
       x.radiance = glm::vec3(u(rng), u(rng), 3.0f * u(rng));
       s.push_back(x);
