@@ -92,7 +92,8 @@ absl::StatusOr<uint64_t> BuildShareOfMemory(uint64_t memory, uint64_t rss_before
 absl::Status BuildDemoDatabase(const DemoArgs& a, uint64_t memory, DemoRun* run) {
   const internal::Stopwatch t;
   const uint64_t rss_before = internal::CurrentRssBytes();
-  PBGI_ASSIGN_OR_RETURN(run->scene, LoadScene(a.scene, a.seed, 0));
+  PBGI_ASSIGN_OR_RETURN(
+      run->scene, LoadLitScene(a.scene, a.seed, 0, UpAxis::kZ, true, LightFlags{}, "pbgi demo"));
   const Scene& scene = *run->scene;
   PBGI_ASSIGN_OR_RETURN(int64_t points, ParseCount(a.points, "--points"));
   SamplerOptions sampler;

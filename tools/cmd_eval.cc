@@ -70,6 +70,7 @@ struct EvalArgs {
   int size = 0;                 // scene scale (city blocks, forest trees per side); 0: default
   std::string up = "z";         // a mesh file's up axis (y: glTF)
   std::string orient = "auto";  // a mesh file: auto | none (pbgi import --orient)
+  LightFlags lights;            // a mesh file's lights (pbgi import --sun, --sky, --sky-rays)
   std::string receivers_from = "surfaces";  // or "camera": the default view's primary hits
   int64_t frame = 1920 * 1080;              // receivers that one database build serves
   int repeat = 1;  // time every setting this many times, keep the median (the results repeat)
@@ -825,7 +826,8 @@ absl::Status RunEval(const EvalArgs& a) {
   PBGI_ASSIGN_OR_RETURN(const UpAxis up, ParseUpAxis(a.up));
   PBGI_ASSIGN_OR_RETURN(const bool orient, ParseOrient(a.orient));
   ImportReport import;
-  PBGI_ASSIGN_OR_RETURN(e.scene, LoadScene(a.scene, a.seed, a.size, up, orient, &import));
+  PBGI_ASSIGN_OR_RETURN(
+      e.scene, LoadLitScene(a.scene, a.seed, a.size, up, orient, a.lights, "pbgi eval", &import));
   if (import.oriented) {
     std::printf("%s: orientation: %s\n", a.scene.c_str(),
                 DescribeOrientation(import.orientation).c_str());
@@ -870,6 +872,9 @@ CommandSetup Setup() {
     auto a = std::make_shared<EvalArgs>();
     app->add_option("scene", a->scene, "Procedural scene or mesh file")->capture_default_str();
     AddMeshFlags(app, &a->up, &a->orient);
+    AddLightFlags(
+        app, &a->lights,
+        " (a mesh file: neither gives a white sky; a procedural scene: replaces its own)");
     app->add_option("-o,--output", a->out_dir, "Output directory (database, eval.json, eval.png)")
         ->capture_default_str();
     app->add_option("--mode", a->mode,
@@ -1065,6 +1070,7 @@ CommandSetup Setup() {
       v.size = a->size;
       v.up = a->up;
       v.orient = a->orient;
+      v.lights = a->lights;
       v.error_scale = a->error_scale;
       v.exact_only = a->exact;
       v.shared_only = a->shared;

@@ -26,34 +26,13 @@
 namespace pbgi::tools {
 namespace {
 
-// "a,b,c" or "a,b,c,d,e,f" -> numbers; `what` names the option in errors.
-absl::StatusOr<std::vector<float>> ParseFloats(const std::string& text, const char* what, size_t n1,
-                                               size_t n2) {
-  std::vector<float> v;
-  for (absl::string_view part : absl::StrSplit(text, ',')) {
-    float f = 0.0f;
-    if (!absl::SimpleAtof(part, &f) || !std::isfinite(f)) {
-      return absl::InvalidArgumentError(
-          absl::StrFormat("%s: '%s' is not a number in '%s'", what, part, text));
-    }
-    v.push_back(f);
-  }
-  if (v.size() != n1 && v.size() != n2) {
-    return absl::InvalidArgumentError(
-        absl::StrFormat("%s wants %d or %d comma-separated numbers, got '%s'", what, n1, n2, text));
-  }
-  return v;
-}
-
 struct Options {
   std::string mesh;
   std::string out;
   std::string points;
   double density = 0.0;
-  std::string sun;
-  std::string sky;
+  LightFlags lights;
   uint64_t seed = 1;
-  int sky_rays = 8;
   bool ascii = false;
   std::string up = "z";
   std::string orient = "auto";
@@ -93,23 +72,11 @@ absl::Status Run(const Options& o) {
   for (const std::string& w : report.warnings) {
     absl::FPrintF(stderr, "pbgi import: warning: %s\n", w.c_str());
   }
-  if (!o.sun.empty()) {
-    PBGI_ASSIGN_OR_RETURN(std::vector<float> v, ParseFloats(o.sun, "--sun", 3, 6));
-    glm::vec3 d(v[0], v[1], v[2]);
-    if (!(glm::length(d) > 0.0f)) return absl::InvalidArgumentError("--sun: zero direction");
-    scene.lights.has_sun = true;
-    scene.lights.sun.direction = glm::normalize(d);
-    scene.lights.sun.radiance = v.size() == 6 ? glm::vec3(v[3], v[4], v[5]) : glm::vec3(1.0f);
-  }
-  if (!o.sky.empty()) {
-    PBGI_ASSIGN_OR_RETURN(std::vector<float> v, ParseFloats(o.sky, "--sky", 3, 3));
-    scene.lights.sky = glm::vec3(v[0], v[1], v[2]);
-  }
-  if (o.sun.empty() && o.sky.empty()) {
-    scene.lights.sky = glm::vec3(1.0f);
+  bool white_sky = false;
+  PBGI_RETURN_IF_ERROR(ApplyLightFlags(o.lights, /*mesh=*/true, &scene, &white_sky));
+  if (white_sky) {
     absl::FPrintF(stderr, "pbgi import: no --sun or --sky given: lighting with a white sky\n");
   }
-  scene.lights.sky_rays = o.sky_rays;
   absl::FPrintF(stderr,
                 "pbgi import: %s: %d meshes, %d placements, %d triangles placed, %d materials, "
                 "area %.6g\n",
@@ -179,11 +146,7 @@ CommandSetup Setup() {
         ->check(CountValidator(1));
     app->add_option("--density", o->density, "Surfels per unit area (instead of -n)");
     AddMeshFlags(app, &o->up, &o->orient);
-    app->add_option("--sun", o->sun,
-                    "Sun direction (towards the sun) and radiance: DX,DY,DZ[,R,G,B]");
-    app->add_option("--sky", o->sky, "Uniform sky radiance: R,G,B");
-    app->add_option("--sky-rays", o->sky_rays, "Shadow rays per surfel for the sky")
-        ->capture_default_str();
+    AddLightFlags(app, &o->lights, " (neither: a white sky)");
     app->add_option("--seed", o->seed, "Sampling seed")->capture_default_str();
     app->add_flag("--ascii", o->ascii, "Write ASCII PLY instead of binary");
     return [o]() { return Run(*o); };

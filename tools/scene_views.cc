@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstdio>
 #include <cstring>
 #include <filesystem>
 #include <functional>
@@ -88,6 +89,25 @@ absl::StatusOr<std::shared_ptr<const Scene>> LoadScene(const std::string& spec, 
   return std::make_shared<const Scene>(std::move(scene));
 }
 
+absl::StatusOr<std::shared_ptr<const Scene>> LoadLitScene(const std::string& spec, uint64_t seed,
+                                                          int size, UpAxis up, bool orient,
+                                                          const LightFlags& lights,
+                                                          const char* tool, ImportReport* report) {
+  PBGI_ASSIGN_OR_RETURN(std::shared_ptr<const Scene> scene,
+                        LoadScene(spec, seed, size, up, orient, report));
+  const std::vector<std::string> names = ProceduralSceneNames();
+  const bool mesh = std::find(names.begin(), names.end(), spec) == names.end();
+  if (!mesh && lights.sun.empty() && lights.sky.empty()) return scene;
+  auto lit = std::make_shared<Scene>(*scene);
+  bool white_sky = false;
+  PBGI_RETURN_IF_ERROR(ApplyLightFlags(lights, mesh, lit.get(), &white_sky));
+  if (white_sky) {
+    std::fprintf(stderr, "%s: %s brings no lights: lit by a white sky (--sun, --sky)\n", tool,
+                 spec.c_str());
+  }
+  return std::shared_ptr<const Scene>(std::move(lit));
+}
+
 std::map<std::string, std::string> SceneFingerprint(const Scene& scene, uint64_t seed, int size,
                                                     UpAxis up, bool oriented) {
   // FNV-1a over the bits of every instanced triangle's world-space vertices: equal for the same
@@ -137,6 +157,54 @@ std::map<std::string, std::string> SpecFingerprint(const Scene& scene, const std
   auto fingerprint = SceneFingerprint(scene, seed, size, up, oriented);
   if (fingerprint.count("scene.up") != 0) fingerprint["scene.file"] = spec;
   return fingerprint;
+}
+
+// "a,b,c" or "a,b,c,d,e,f" -> numbers; `what` names the option in errors.
+static absl::StatusOr<std::vector<float>> ParseLightFloats(const std::string& text,
+                                                           const char* what, size_t n1, size_t n2) {
+  std::vector<float> v;
+  for (absl::string_view part : absl::StrSplit(text, ',')) {
+    float f = 0.0f;
+    if (!absl::SimpleAtof(part, &f) || !std::isfinite(f)) {
+      return absl::InvalidArgumentError(
+          absl::StrFormat("%s: '%s' is not a number in '%s'", what, part, text));
+    }
+    v.push_back(f);
+  }
+  if (v.size() != n1 && v.size() != n2) {
+    return absl::InvalidArgumentError(
+        absl::StrFormat("%s wants %d or %d comma-separated numbers, got '%s'", what, n1, n2, text));
+  }
+  return v;
+}
+
+absl::Status ApplyLightFlags(const LightFlags& flags, bool mesh, Scene* scene, bool* defaulted) {
+  if (defaulted != nullptr) *defaulted = false;
+  if (!flags.sun.empty()) {
+    PBGI_ASSIGN_OR_RETURN(std::vector<float> v, ParseLightFloats(flags.sun, "--sun", 3, 6));
+    glm::vec3 d(v[0], v[1], v[2]);
+    if (!(glm::length(d) > 0.0f)) return absl::InvalidArgumentError("--sun: zero direction");
+    scene->lights.has_sun = true;
+    scene->lights.sun.direction = glm::normalize(d);
+    scene->lights.sun.radiance = v.size() == 6 ? glm::vec3(v[3], v[4], v[5]) : glm::vec3(1.0f);
+  }
+  if (!flags.sky.empty()) {
+    PBGI_ASSIGN_OR_RETURN(std::vector<float> v, ParseLightFloats(flags.sky, "--sky", 3, 3));
+    scene->lights.sky = glm::vec3(v[0], v[1], v[2]);
+  }
+  const bool given = !flags.sun.empty() || !flags.sky.empty();
+  if (!given && mesh) {
+    scene->lights.sky = glm::vec3(1.0f);
+    if (defaulted != nullptr) *defaulted = true;
+  }
+  if (given || mesh) {
+    if (flags.sky_rays < 1) {
+      return absl::InvalidArgumentError(
+          absl::StrFormat("--sky-rays %d: must be at least 1", flags.sky_rays));
+    }
+    scene->lights.sky_rays = flags.sky_rays;
+  }
+  return absl::OkStatus();
 }
 
 std::map<std::string, std::string> LightsProvenance(const Lights& lights) {

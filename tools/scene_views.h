@@ -15,6 +15,7 @@
 #include "pbgi/scene.h"
 #include "pbgi/shade.h"
 #include "tools/image_io.h"
+#include "tools/mesh_flags.h"
 
 namespace pbgi::tools {
 
@@ -32,6 +33,14 @@ absl::StatusOr<std::shared_ptr<const Scene>> LoadScene(const std::string& spec, 
                                                        int size, UpAxis up = UpAxis::kZ,
                                                        bool orient = true,
                                                        ImportReport* report = nullptr);
+// LoadScene() with ApplyLightFlags(): a mesh file without --sun or --sky is lit by a white sky,
+// and `tool` says so on stderr (irradiance and glossy light would otherwise be zero
+// everywhere, and compare as exact).
+absl::StatusOr<std::shared_ptr<const Scene>> LoadLitScene(const std::string& spec, uint64_t seed,
+                                                          int size, UpAxis up, bool orient,
+                                                          const LightFlags& lights,
+                                                          const char* tool,
+                                                          ImportReport* report = nullptr);
 // "--orient auto|none" -> whether to orient.
 absl::StatusOr<bool> ParseOrient(const std::string& text);
 // One line for a summary: what OrientScene() did.
@@ -51,6 +60,13 @@ std::map<std::string, std::string> SceneFingerprint(const Scene& scene, uint64_t
 std::map<std::string, std::string> SpecFingerprint(const Scene& scene, const std::string& spec,
                                                    uint64_t seed, int size, UpAxis up,
                                                    bool oriented);
+// Lights from --sun, --sky and --sky-rays (tools/mesh_flags.h) for `scene`: those given replace
+// the scene's. A mesh file (`mesh`) brings no lights: without --sun or --sky it is lit by a white
+// sky, and `*defaulted` (when given) says so; a procedural scene without either keeps its own
+// lights and sky rays. InvalidArgument names a malformed option.
+absl::Status ApplyLightFlags(const LightFlags& flags, bool mesh, Scene* scene,
+                             bool* defaulted = nullptr);
+
 // The lights that baked an imported mesh's surfels ("light.sun": DX,DY,DZ,R,G,B; "light.sky":
 // R,G,B), kept with its fingerprint so that a view of the mesh is lit the same way; and back.
 std::map<std::string, std::string> LightsProvenance(const Lights& lights);

@@ -150,8 +150,9 @@ absl::Status RunViewEval(const ViewEvalArgs& a) {
   PBGI_ASSIGN_OR_RETURN(const UpAxis up, ParseUpAxis(a.up));
   PBGI_ASSIGN_OR_RETURN(const bool orient, ParseOrient(a.orient));
   ImportReport import;
-  PBGI_ASSIGN_OR_RETURN(std::shared_ptr<const Scene> scene,
-                        LoadScene(a.scene, a.seed, a.size, up, orient, &import));
+  PBGI_ASSIGN_OR_RETURN(
+      std::shared_ptr<const Scene> scene,
+      LoadLitScene(a.scene, a.seed, a.size, up, orient, a.lights, "pbgi eval --view", &import));
   if (import.oriented) {
     std::printf("%s: orientation: %s\n", a.scene.c_str(),
                 DescribeOrientation(import.orientation).c_str());
@@ -268,6 +269,24 @@ absl::Status RunViewEval(const ViewEvalArgs& a) {
   for (const Receiver& r : cr.receivers) {
     const float v[6] = {r.position.x, r.position.y, r.position.z,
                         r.normal.x,   r.normal.y,   r.normal.z};
+    unsigned char bytes[sizeof(v)];
+    std::memcpy(bytes, v, sizeof(v));
+    for (unsigned char c : bytes) receivers_hash = (receivers_hash ^ c) * 1099511628211ull;
+  }
+  // And the lights, which --sun and --sky change (they light what the rays hit).
+  if (!occlusion) {
+    const Lights& l = scene->lights;
+    const float v[11] = {l.has_sun ? 1.0f : 0.0f,
+                         l.sun.direction.x,
+                         l.sun.direction.y,
+                         l.sun.direction.z,
+                         l.sun.radiance.x,
+                         l.sun.radiance.y,
+                         l.sun.radiance.z,
+                         l.sky.x,
+                         l.sky.y,
+                         l.sky.z,
+                         static_cast<float>(l.sky_rays)};
     unsigned char bytes[sizeof(v)];
     std::memcpy(bytes, v, sizeof(v));
     for (unsigned char c : bytes) receivers_hash = (receivers_hash ^ c) * 1099511628211ull;

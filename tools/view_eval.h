@@ -14,6 +14,7 @@
 #include "glm/vec3.hpp"
 #include "pbgi/scene.h"
 #include "tools/image_io.h"
+#include "tools/mesh_flags.h"
 #include "tools/sharing_flags.h"
 
 namespace pbgi::tools {
@@ -46,6 +47,7 @@ Image ErrorHeatMap(int width, int height, const std::vector<double>& got,
 
 struct ViewEvalArgs {
   std::string scene = "city";
+  LightFlags lights;  // a mesh file's lights, or a procedural scene's replaced (LoadLitScene)
   std::string out_dir = "out/eval-view";
   std::string mode = "occlusion";  // occlusion | irradiance | glossy
   // glossy: the lobe around each pixel's mirrored view direction (CameraReceivers::shade),

@@ -260,6 +260,18 @@ refuse view_up_mismatch "up: database y, view z.*--up y" \
 run view_up_y "$pbgi" shade "$dir/wy.pbgi" --scene "$assimp_ply/Wuson.ply" --up y -o "$dir/wy.png" \
   --mode occlusion --width 16 --height 16
 [ -s "$dir/wy.png" ] && ok || fail "shade --up y wrote no image"
+# eval --mode irradiance of a mesh file: lit by a white sky as `pbgi import` lights it, and said
+# so; before, a mesh had no lights in eval, every irradiance was 0 and compared as exact
+# (regression mesh_irradiance_compares_zeros).
+run eval_mesh_irr "$pbgi" eval "$assimp_ply/Wuson.ply" --mode irradiance -o "$dir/ewi" \
+  --points 20000 --receivers 30 --rays 256 --ray-sweep 16 --solid-angles 0.03 --raster-res 8
+grep -q "brings no lights: lit by a white sky" "$dir/eval_mesh_irr.err" && ok ||
+  fail "eval of a mesh does not say how it is lit: $(head -c 300 "$dir/eval_mesh_irr.err")"
+mean=$(grep -o 'of the mean irradiance [0-9.e+-]*' "$dir/eval_mesh_irr.out" | awk '{print $NF}')
+awk -v m="$mean" 'BEGIN {exit !(m > 0.02)}' && ok ||
+  fail "eval of a mesh: mean irradiance '$mean', not above 0.02"
+refuse eval_bad_sun "sun: zero direction" "$pbgi" eval "$assimp_ply/Wuson.ply" \
+  --mode irradiance -o "$dir/ewb" --points 2000 --receivers 4 --rays 16 --sun 0,0,0
 # spider.obj has 4 triangles wound against their neighbours: --orient none keeps them.
 spider="$(dirname "$assimp_ply")/OBJ/spider.obj"
 run orient_none "$pbgi" import "$spider" -n 5k -o "$dir/sn.ply" --orient none

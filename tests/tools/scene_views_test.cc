@@ -253,6 +253,56 @@ TEST(SceneViewsTest, MeshFingerprintRecordsUpAndOrientAndSaysWhatDiffers) {
   EXPECT_NE(s.message().find("--orient none"), std::string::npos) << s;
 }
 
+// A mesh file brings no lights: without --sun or --sky it is lit by a white sky (as `pbgi
+// import` lights it); a procedural scene keeps its own unless the flags replace them.
+TEST(SceneViewsTest, MeshFilesAreLitAsImportLightsThem) {
+  const testing_common::ScratchDir dir;
+  const std::string path = dir.Sub("wedge.obj");
+  std::ofstream(path) << "v 0 0 0\nv 2 0 0\nv 0 1 0\nv 0 0 3\nf 1 2 3\nf 1 2 4\nf 1 4 3\n"
+                         "f 2 3 4\n";
+  auto plain = LoadScene(path, 1, 0);
+  ASSERT_TRUE(plain.ok()) << plain.status();
+  EXPECT_EQ((*plain)->lights.sky, glm::vec3(0.0f));  // what eval compared as zeros
+  auto lit = LoadLitScene(path, 1, 0, UpAxis::kZ, true, LightFlags{}, "test");
+  ASSERT_TRUE(lit.ok()) << lit.status();
+  EXPECT_EQ((*lit)->lights.sky, glm::vec3(1.0f));
+  EXPECT_FALSE((*lit)->lights.has_sun);
+  EXPECT_EQ((*lit)->lights.sky_rays, 8);
+  LightFlags sun;
+  sun.sun = "0,0,2,3,2,1";
+  sun.sky_rays = 4;
+  auto sunny = LoadLitScene(path, 1, 0, UpAxis::kZ, true, sun, "test");
+  ASSERT_TRUE(sunny.ok()) << sunny.status();
+  EXPECT_TRUE((*sunny)->lights.has_sun);
+  EXPECT_EQ((*sunny)->lights.sun.direction, glm::vec3(0.0f, 0.0f, 1.0f));
+  EXPECT_EQ((*sunny)->lights.sun.radiance, glm::vec3(3.0f, 2.0f, 1.0f));
+  EXPECT_EQ((*sunny)->lights.sky, glm::vec3(0.0f));  // only what is given
+  EXPECT_EQ((*sunny)->lights.sky_rays, 4);
+  // A procedural scene keeps its lights without flags, and takes what the flags give.
+  auto city = LoadScene("city", 1, 0);
+  auto city_lit = LoadLitScene("city", 1, 0, UpAxis::kZ, true, LightFlags{}, "test");
+  ASSERT_TRUE(city.ok() && city_lit.ok());
+  EXPECT_EQ((*city_lit)->lights.sky, (*city)->lights.sky);
+  EXPECT_EQ((*city_lit)->lights.sun.direction, (*city)->lights.sun.direction);
+  EXPECT_EQ((*city_lit)->lights.sky_rays, (*city)->lights.sky_rays);
+  LightFlags grey;
+  grey.sky = "0.5,0.5,0.5";
+  auto city_grey = LoadLitScene("city", 1, 0, UpAxis::kZ, true, grey, "test");
+  ASSERT_TRUE(city_grey.ok());
+  EXPECT_EQ((*city_grey)->lights.sky, glm::vec3(0.5f));
+  EXPECT_TRUE((*city_grey)->lights.has_sun);
+  // Malformed flags are refused, naming the flag.
+  LightFlags bad;
+  bad.sun = "0,0,0";
+  auto s = LoadLitScene(path, 1, 0, UpAxis::kZ, true, bad, "test");
+  EXPECT_EQ(s.status().code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_NE(s.status().message().find("--sun: zero direction"), std::string::npos) << s.status();
+  bad = LightFlags{};
+  bad.sky = "1,2";
+  s = LoadLitScene(path, 1, 0, UpAxis::kZ, true, bad, "test");
+  EXPECT_NE(s.status().message().find("--sky"), std::string::npos) << s.status();
+}
+
 TEST(SceneViewsTest, YUpMeshesTurnToZUp) {
   Scene s;
   s.meshes.push_back(Mesh{{{0, 0, 0}, {1, 0, 0}, {0, 2, 0}}, {{0, 1, 2}}, {0}});
