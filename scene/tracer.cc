@@ -520,6 +520,40 @@ float Tracer::ReferenceOcclusionPackets(const glm::vec3& p, const glm::vec3& n, 
   return static_cast<float>(hits) / static_cast<float>(rays);
 }
 
+// The reference's hit points and the radiance they send back along the ray: a front side's
+// SurfaceRadiance(); the back of a thin sheet is a surface of its own, lit from its side
+// (albedo times its direct light, no emission, which is one-sided); the back of any other
+// triangle is the inside of a solid, dark.
+class Tracer::HitRadiance {
+ public:
+  void Add(const Hit& h, const Scene& scene) {
+    if (!h.hit) return;
+    if (h.front) {
+      points_.push_back(h.position), normals_.push_back(h.normal);
+      materials_.push_back(h.material);
+    } else if (scene.materials[h.material].thin) {
+      back_points_.push_back(h.position), back_normals_.push_back(-h.normal);
+      back_materials_.push_back(h.material);
+    }
+  }
+  glm::vec3 Sum(const Tracer& tracer, uint64_t key) const {
+    glm::vec3 sum(0.0f);
+    std::vector<glm::vec3> l(points_.size());
+    tracer.SurfaceRadiance(points_, normals_, materials_, key, absl::MakeSpan(l));
+    for (const glm::vec3& x : l) sum += x;
+    l.assign(back_points_.size(), glm::vec3(0.0f));
+    tracer.SurfaceRadiance(back_points_, back_normals_, back_materials_,
+                           internal::HashCombine(key, 0x6261636bu), absl::MakeSpan(l));
+    const auto& mats = tracer.impl_->scene.materials;
+    for (size_t i = 0; i < l.size(); ++i) sum += l[i] - mats[back_materials_[i]].emission;
+    return sum;
+  }
+
+ private:
+  std::vector<glm::vec3> points_, normals_, back_points_, back_normals_;
+  std::vector<uint32_t> materials_, back_materials_;
+};
+
 glm::vec3 Tracer::ReferenceIrradiance(const glm::vec3& p, const glm::vec3& n, int rays,
                                       uint64_t seed) const {
   if (rays <= 0) return glm::vec3(0.0f);
@@ -527,22 +561,13 @@ glm::vec3 Tracer::ReferenceIrradiance(const glm::vec3& p, const glm::vec3& n, in
   internal::OrthonormalBasis(n, &t, &b);
   const float r0 = internal::Random(seed, 0), r1 = internal::Random(seed, 1);
   const glm::vec3 origin = p + n * impl_->eps;
-  std::vector<glm::vec3> points, normals, radiance;
-  std::vector<uint32_t> materials;
+  HitRadiance hits;
   for (int i = 0; i < rays; ++i) {
     glm::vec3 d = internal::CosineDirection(n, t, b, internal::RotatedHammersley(i, rays, r0, r1));
-    Hit h = Intersect(origin, d, impl_->far);
-    if (!h.hit || !h.front) continue;  // a surfel radiates from its front side only
-    points.push_back(h.position);
-    normals.push_back(h.normal);
-    materials.push_back(h.material);
+    hits.Add(Intersect(origin, d, impl_->far), impl_->scene);
   }
-  radiance.resize(points.size());
   // The hit points' radiance is the very lighting function that baked the surfels.
-  SurfaceRadiance(points, normals, materials, internal::HashCombine(seed, 2),
-                  absl::MakeSpan(radiance));
-  glm::vec3 sum(0.0f);
-  for (const glm::vec3& l : radiance) sum += l;
+  const glm::vec3 sum = hits.Sum(*this, internal::HashCombine(seed, 2));
   // Cosine-weighted estimator of the integral of L cos: pi / N * sum L.
   return sum * (internal::kPiFloat / static_cast<float>(rays));
 }
@@ -557,8 +582,7 @@ glm::vec3 Tracer::ReferenceGlossy(const glm::vec3& p, const glm::vec3& n,
   internal::OrthonormalBasis(r, &t, &b);
   const float r0 = internal::Random(seed, 0), r1 = internal::Random(seed, 1);
   const glm::vec3 origin = p + n * impl_->eps;
-  std::vector<glm::vec3> points, normals, radiance;
-  std::vector<uint32_t> materials;
+  HitRadiance hits;
   int kept = 0;
   for (int i = 0; i < rays; ++i) {
     const glm::vec2 u = internal::RotatedHammersley(i, rays, r0, r1);
@@ -572,19 +596,10 @@ glm::vec3 Tracer::ReferenceGlossy(const glm::vec3& p, const glm::vec3& n,
     // The rasterizer's glossy sums only the pixels above the receiver's horizon.
     if (!(glm::dot(d, n) > 0.0f)) continue;
     ++kept;
-    Hit h = Intersect(origin, d, impl_->far);
-    if (!h.hit || !h.front) continue;  // a surfel radiates from its front side only
-    points.push_back(h.position);
-    normals.push_back(h.normal);
-    materials.push_back(h.material);
+    hits.Add(Intersect(origin, d, impl_->far), impl_->scene);
   }
   if (kept == 0) return glm::vec3(0.0f);
-  radiance.resize(points.size());
-  SurfaceRadiance(points, normals, materials, internal::HashCombine(seed, 2),
-                  absl::MakeSpan(radiance));
-  glm::vec3 sum(0.0f);
-  for (const glm::vec3& l : radiance) sum += l;
-  return sum / static_cast<float>(kept);
+  return hits.Sum(*this, internal::HashCombine(seed, 2)) / static_cast<float>(kept);
 }
 
 std::vector<float> Tracer::ReferenceOcclusion(absl::Span<const Receiver> receivers, int rays,

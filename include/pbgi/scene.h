@@ -213,9 +213,10 @@ class Tracer {
   // Reference integrator (Embree against the scene geometry): `rays` stratified
   // cosine-weighted rays from p around n. Occlusion: the fraction that hit something within
   // max_distance (any side). Irradiance: the integral of incident radiance times cos over the
-  // hemisphere (one diffuse bounce: the radiance of each hit point is SurfaceRadiance(), zero on
-  // back sides; rays that miss contribute nothing, the sky being direct light). Divide by pi
-  // for RenderMan's "average radiance" convention.
+  // hemisphere (one diffuse bounce: the radiance of each hit point is SurfaceRadiance(); the
+  // back of a thin sheet (Material::thin) is lit from its own side, albedo * DirectLight(p, -n);
+  // other back sides are 0, the inside of a solid; rays that miss contribute nothing, the sky
+  // being direct light). Divide by pi for RenderMan's "average radiance" convention.
   float ReferenceOcclusion(const glm::vec3& p, const glm::vec3& n, int rays, float max_distance,
                            uint64_t seed = 1) const;
   glm::vec3 ReferenceIrradiance(const glm::vec3& p, const glm::vec3& n, int rays,
@@ -225,12 +226,12 @@ class Tracer {
   // the lobe's (r.w > 0), r = normalize(reflection),
   //   integral L(w) D(angle(w, r)) dw / integral D(angle(w, r)) dw,
   // with L the same one-bounce radiance as ReferenceIrradiance (SurfaceRadiance() on front
-  // sides, 0 on back sides and misses). `rays` stratified directions are drawn from D itself over
-  // r's hemisphere (each lobe's own inverse CDF in cos(angle to r), see scene/sample_math.h);
-  // those below n's horizon are dropped, so the estimate is the mean L of the rest: both
-  // integrals of the ratio estimated with the same samples (consistent; its bias is O(1/rays)).
-  // 0 when no direction is left or the reflection is zero. REQUIRES: a valid lobe (GlossyLobe
-  // kPhong or kGgx, the ranges of GlossyParams).
+  // sides, a thin sheet's back lit from its side, 0 on other back sides and misses). `rays`
+  // stratified directions are drawn from D itself over r's hemisphere (each lobe's own inverse CDF
+  // in cos(angle to r), see scene/sample_math.h); those below n's horizon are dropped, so the
+  // estimate is the mean L of the rest: both integrals of the ratio estimated with the same samples
+  // (consistent; its bias is O(1/rays)). 0 when no direction is left or the reflection is zero.
+  // REQUIRES: a valid lobe (GlossyLobe kPhong or kGgx, the ranges of GlossyParams).
   glm::vec3 ReferenceGlossy(const glm::vec3& p, const glm::vec3& n, const glm::vec3& reflection,
                             const GlossyParams& lobe, int rays, uint64_t seed = 1) const;
   // ReferenceOcclusion with the same rays traced as Embree 16-wide packets (rtcOccluded16) instead
@@ -256,6 +257,7 @@ class Tracer {
   // Shadow rays for up to kGroup points: blocked[i] for the active ones.
   void OccludedGroup(int count, const glm::vec3* origin, const glm::vec3* dir, const float* tfar,
                      const bool* active, bool* blocked) const;
+  class HitRadiance;  // the reference's hits and their radiance (tracer.cc)
   std::unique_ptr<Impl> impl_;
 };
 

@@ -196,6 +196,34 @@ double GroupErrorRatio(const Tracer& tracer, const glm::vec3& p, const glm::vec3
   return std::sqrt(group2 / single2);
 }
 
+// The back of a thin sheet is a surface of its own, lit from its side: the reference's rays
+// that meet it see albedo * DirectLight(p, -n). Before, every back side was 0, so a receiver
+// under a card lit from below saw nothing; the inside of a solid stays dark.
+TEST(ReferenceTest, AThinSheetsBackIsLitFromItsOwnSide) {
+  // The unit quad at z = 0 facing +z (Quad), thin, albedo 0.5; the sun straight below.
+  Scene s = Quad(glm::mat4(1.0f), glm::vec3(0.5f));
+  s.materials[0].thin = true;
+  s.lights.has_sun = true;
+  s.lights.sun.direction = glm::vec3(0.0f, 0.0f, -1.0f);
+  s.lights.sun.radiance = glm::vec3(2.0f);
+  // A receiver 0.3 under the quad's centre, facing up at its back side. The quad does not shade
+  // its own back from the sun: the sheet's back radiance is 0.5 * 2 = 1.
+  const glm::dvec3 p(0.5, 0.5, -0.3);
+  const double f = PolygonFormFactor(glm::dvec3(0.5, 0.5, 0.3),
+                                     {{0, 0, 0.6}, {1, 0, 0.6}, {1, 1, 0.6}, {0, 1, 0.6}});
+  auto tracer = Tracer::Create(s);
+  ASSERT_TRUE(tracer.ok()) << tracer.status();
+  const glm::vec3 e =
+      (*tracer)->ReferenceIrradiance(glm::vec3(p), glm::vec3(0.0f, 0.0f, 1.0f), 16384, 5);
+  EXPECT_NEAR(e.x, 3.14159265 * 1.0 * f, 0.01 * 3.14159265 * f);
+  // Not thin: the back is the inside of a solid, dark.
+  s.materials[0].thin = false;
+  auto solid = Tracer::Create(s);
+  ASSERT_TRUE(solid.ok());
+  EXPECT_EQ((*solid)->ReferenceIrradiance(glm::vec3(p), glm::vec3(0.0f, 0.0f, 1.0f), 4096, 5).x,
+            0.0f);
+}
+
 TEST(BakeTest, AGroupsPointsDrawTheirOwnSkySamples) {
   // A ground point under a square roof [-0.5, 0.5]^2 at height 0.4; a sky of radiance 1 and
   // albedo 1: the radiance is the cosine-weighted open share of the sky.
