@@ -89,15 +89,20 @@ absl::StatusOr<std::shared_ptr<const Scene>> LoadScene(const std::string& spec, 
   return std::make_shared<const Scene>(std::move(scene));
 }
 
-absl::StatusOr<std::shared_ptr<const Scene>> LoadLitScene(const std::string& spec, uint64_t seed,
-                                                          int size, UpAxis up, bool orient,
-                                                          const LightFlags& lights,
-                                                          const char* tool, ImportReport* report) {
+absl::StatusOr<std::shared_ptr<const Scene>> LoadLitScene(
+    const std::string& spec, uint64_t seed, int size, UpAxis up, bool orient,
+    const LightFlags& lights, const char* tool, ImportReport* report,
+    const std::map<std::string, std::string>* recorded) {
   PBGI_ASSIGN_OR_RETURN(std::shared_ptr<const Scene> scene,
                         LoadScene(spec, seed, size, up, orient, report));
   const std::vector<std::string> names = ProceduralSceneNames();
   const bool mesh = std::find(names.begin(), names.end(), spec) == names.end();
-  if (!mesh && lights.sun.empty() && lights.sky.empty()) return scene;
+  const bool given = !lights.sun.empty() || !lights.sky.empty();
+  if (!mesh && !given) return scene;
+  if (mesh && !given && recorded != nullptr && recorded->count("light.sky") != 0) {
+    std::fprintf(stderr, "%s: %s lit by the lights recorded in the database\n", tool, spec.c_str());
+    return WithRecordedLights(scene, *recorded);
+  }
   auto lit = std::make_shared<Scene>(*scene);
   bool white_sky = false;
   PBGI_RETURN_IF_ERROR(ApplyLightFlags(lights, mesh, lit.get(), &white_sky));

@@ -36,11 +36,13 @@ absl::StatusOr<std::shared_ptr<const Scene>> LoadScene(const std::string& spec, 
 // LoadScene() with ApplyLightFlags(): a mesh file without --sun or --sky is lit by a white sky,
 // and `tool` says so on stderr (irradiance and glossy light would otherwise be zero
 // everywhere, and compare as exact).
-absl::StatusOr<std::shared_ptr<const Scene>> LoadLitScene(const std::string& spec, uint64_t seed,
-                                                          int size, UpAxis up, bool orient,
-                                                          const LightFlags& lights,
-                                                          const char* tool,
-                                                          ImportReport* report = nullptr);
+// `recorded`, when given: a database's stats; a mesh file without --sun or --sky then takes the
+// lights recorded there (LightsProvenance(), as `pbgi import` or `eval --view` baked it), not a
+// white sky, as `pbgi shade` does (WithRecordedLights()).
+absl::StatusOr<std::shared_ptr<const Scene>> LoadLitScene(
+    const std::string& spec, uint64_t seed, int size, UpAxis up, bool orient,
+    const LightFlags& lights, const char* tool, ImportReport* report = nullptr,
+    const std::map<std::string, std::string>* recorded = nullptr);
 // "--orient auto|none" -> whether to orient.
 absl::StatusOr<bool> ParseOrient(const std::string& text);
 // One line for a summary: what OrientScene() did.

@@ -9,6 +9,7 @@
 #include <filesystem>
 #include <fstream>
 #include <limits>
+#include <map>
 #include <memory>
 
 #include "absl/strings/numbers.h"
@@ -150,9 +151,16 @@ absl::Status RunViewEval(const ViewEvalArgs& a) {
   PBGI_ASSIGN_OR_RETURN(const UpAxis up, ParseUpAxis(a.up));
   PBGI_ASSIGN_OR_RETURN(const bool orient, ParseOrient(a.orient));
   ImportReport import;
+  // --db: the lights that baked it, when it recorded them (a mesh file brings none).
+  std::map<std::string, std::string> recorded;
+  if (!a.db.empty()) {
+    PBGI_ASSIGN_OR_RETURN(std::unique_ptr<Database> built, Database::Open(a.db, {}));
+    recorded = built->meta().stats;
+  }
   PBGI_ASSIGN_OR_RETURN(
       std::shared_ptr<const Scene> scene,
-      LoadLitScene(a.scene, a.seed, a.size, up, orient, a.lights, "pbgi eval --view", &import));
+      LoadLitScene(a.scene, a.seed, a.size, up, orient, a.lights, "pbgi eval --view", &import,
+                   a.db.empty() ? nullptr : &recorded));
   if (import.oriented) {
     std::printf("%s: orientation: %s\n", a.scene.c_str(),
                 DescribeOrientation(import.orientation).c_str());
@@ -192,6 +200,10 @@ absl::Status RunViewEval(const ViewEvalArgs& a) {
     bo.channels = occlusion ? Channels::kOcclusion : Channels::kRadiance;
     bo.tmp_dir = a.out_dir;
     bo.provenance = SceneFingerprint(*scene, a.seed, a.size, up, orient);
+    // The lights that bake it, so that a later --db view lights the scene the same way.
+    if (!occlusion) {
+      for (const auto& [k, v] : LightsProvenance(scene->lights)) bo.provenance[k] = v;
+    }
     bo.provenance["source"] = "pbgi eval --view";
     bo.provenance["tool"] = kToolVersion;
     bo.provenance["built_at"] = NowIso8601();

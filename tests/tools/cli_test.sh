@@ -270,6 +270,11 @@ grep -q "brings no lights: lit by a white sky" "$dir/eval_mesh_irr.err" && ok ||
 mean=$(grep -o 'of the mean irradiance [0-9.e+-]*' "$dir/eval_mesh_irr.out" | awk '{print $NF}')
 awk -v m="$mean" 'BEGIN {exit !(m > 0.02)}' && ok ||
   fail "eval of a mesh: mean irradiance '$mean', not above 0.02"
+# eval --view --db of an imported mesh: lit by the lights recorded in the database, as shade is.
+run eval_view_db_lights "$pbgi" eval "$assimp_ply/Wuson.ply" --up y --view --db "$dir/wy.pbgi" \
+  --mode irradiance -o "$dir/evdb" --width 16 --height 16 --rays 16 --exact
+grep -q "lit by the lights recorded in the database" "$dir/eval_view_db_lights.err" && ok ||
+  fail "eval --view --db of a mesh ignores the recorded lights: $(head -c 300 "$dir/eval_view_db_lights.err")"
 refuse eval_bad_sun "sun: zero direction" "$pbgi" eval "$assimp_ply/Wuson.ply" \
   --mode irradiance -o "$dir/ewb" --points 2000 --receivers 4 --rays 16 --sun 0,0,0
 # spider.obj has 4 triangles wound against their neighbours: --orient none keeps them.

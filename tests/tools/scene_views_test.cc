@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <cmath>
 #include <fstream>
+#include <map>
 #include <string>
 #include <vector>
 
@@ -278,6 +279,19 @@ TEST(SceneViewsTest, MeshFilesAreLitAsImportLightsThem) {
   EXPECT_EQ((*sunny)->lights.sun.radiance, glm::vec3(3.0f, 2.0f, 1.0f));
   EXPECT_EQ((*sunny)->lights.sky, glm::vec3(0.0f));  // only what is given
   EXPECT_EQ((*sunny)->lights.sky_rays, 4);
+  // A database's recorded lights (pbgi import --sun ..., eval --view's build) light a mesh
+  // that no flag lights, as `pbgi shade` reads them; flags still win.
+  const std::map<std::string, std::string> recorded = {
+      {"light.sun", "0,0,1,2,2,2"}, {"light.sky", "0.25,0.5,0.75"}, {"light.sky_rays", "4"}};
+  auto rec = LoadLitScene(path, 1, 0, UpAxis::kZ, true, LightFlags{}, "test", nullptr, &recorded);
+  ASSERT_TRUE(rec.ok()) << rec.status();
+  EXPECT_EQ((*rec)->lights.sky, glm::vec3(0.25f, 0.5f, 0.75f));
+  EXPECT_TRUE((*rec)->lights.has_sun);
+  EXPECT_EQ((*rec)->lights.sky_rays, 4);
+  auto flagged = LoadLitScene(path, 1, 0, UpAxis::kZ, true, sun, "test", nullptr, &recorded);
+  ASSERT_TRUE(flagged.ok());
+  EXPECT_EQ((*flagged)->lights.sky, glm::vec3(0.0f));
+  EXPECT_EQ((*flagged)->lights.sun.radiance, glm::vec3(3.0f, 2.0f, 1.0f));
   // A procedural scene keeps its lights without flags, and takes what the flags give.
   auto city = LoadScene("city", 1, 0);
   auto city_lit = LoadLitScene("city", 1, 0, UpAxis::kZ, true, LightFlags{}, "test");
