@@ -555,7 +555,7 @@ class Tracer::HitRadiance {
 };
 
 glm::vec3 Tracer::ReferenceIrradiance(const glm::vec3& p, const glm::vec3& n, int rays,
-                                      uint64_t seed) const {
+                                      uint64_t seed, float max_distance) const {
   if (rays <= 0) return glm::vec3(0.0f);
   glm::vec3 t, b;
   internal::OrthonormalBasis(n, &t, &b);
@@ -564,7 +564,7 @@ glm::vec3 Tracer::ReferenceIrradiance(const glm::vec3& p, const glm::vec3& n, in
   HitRadiance hits;
   for (int i = 0; i < rays; ++i) {
     glm::vec3 d = internal::CosineDirection(n, t, b, internal::RotatedHammersley(i, rays, r0, r1));
-    hits.Add(Intersect(origin, d, impl_->far), impl_->scene);
+    hits.Add(Intersect(origin, d, std::min(impl_->far, max_distance)), impl_->scene);
   }
   // The hit points' radiance is the very lighting function that baked the surfels.
   const glm::vec3 sum = hits.Sum(*this, internal::HashCombine(seed, 2));

@@ -9,7 +9,7 @@
 //        [--seed K] [--hitsides front|both] [--detail]
 //        pixel_error SCENE|MESH DATABASE --at X,Y,Z --normal X,Y,Z [--msa A] [--res R] [--sub S]
 //        [--hitsides front|both] [--pixel-diff D] [--pixel P] [--keep-above H] [--keep-within D]
-//        [--detail] [--radiance]
+//        [--detail] [--radiance] [--bands D1,D2,... [--band-rays N]]
 // The second form is one receiver pixel by pixel (a `pbgi eval --dump-receivers` row): the
 // pixels whose coverage differs from the rays' by more than D, with what the rays hit there;
 // --pixel P lists each cluster and each leaf that covers P when drawn alone, and the gathered
@@ -17,7 +17,9 @@
 // --keep-above/--keep-within shade only the surfels that high above the receiver's plane and
 // that near (no clusters); --radiance compares each pixel's radiance (the mean of the channels,
 // PBGI's coverage-weighted pixel against the lighting function at the rays' front hits) instead
-// of its coverage, --pixel-diff then in units of 1e-3 of the pixel's cosine-weighted share.
+// of its coverage, --pixel-diff then in units of 1e-3 of the pixel's cosine-weighted share;
+// --bands: occlusion and irradiance from what lies within each distance, rays against PBGI
+// (RunBands). --radiance shades with the tools' radiance contrast.
 // DATABASE: one built from the same scene (`pbgi eval ... -o DIR` leaves DIR/NAME.pbgi). Meshes
 // are read z-up as the file has them, or with --up y rotated as `pbgi eval --up y` does.
 // docs/eval.md ("Session 8") has what it showed.
@@ -26,14 +28,19 @@
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
+#include <limits>
 #include <memory>
 #include <string>
 #include <vector>
 
+#include "absl/strings/numbers.h"
+#include "absl/strings/str_split.h"
 #include "base/math.h"
 #include "pbgi/query.h"
 #include "pbgi/raster.h"
 #include "pbgi/scene.h"
+#include "pbgi/shade.h"
+#include "pbgi/status.h"
 #include "raster/cube.h"
 
 namespace pbgi {
@@ -54,6 +61,8 @@ struct Args {
   float keep_within = 1e30f;  // --keep-within D: and within D of the receiver
   bool up_y = false;          // --up y: the mesh is y-up (pbgi eval --up y rotates it)
   bool radiance = false;      // --radiance: compare the pixels' radiance (irradiance mode)
+  std::vector<float> bands;   // --bands D1,D2,...: what lies within each distance (one receiver)
+  int band_rays = 16384;      // --band-rays N: the reference's rays per band
 };
 
 struct Worst {
@@ -186,6 +195,60 @@ RasterOptions ToolRaster(const Args& a) {
   return ro;
 }
 
+// The tools' radiance contrast (`--radiance-contrast` 16, its floor from the database's mean
+// radiance, as ShadeBatch sets it) where radiance is compared.
+absl::Status ApplyToolContrast(const Args& a, Reader& reader, Cut* cut) {
+  if (!a.radiance) return absl::OkStatus();
+  PBGI_ASSIGN_OR_RETURN(const float mean, reader.MeanRadiance());
+  cut->radiance_contrast = 16.0f;
+  cut->contrast_floor = kContrastFloorScale * mean;
+  return absl::OkStatus();
+}
+
+// One receiver, band by band (--bands): its occlusion and irradiance from what lies within each
+// distance D, rays (Tracer::ReferenceOcclusion / ReferenceIrradiance with max_distance D)
+// against PBGI (Cut::max_distance and RasterOptions::max_distance D: elements whose centre lies
+// within D), and what each band between two distances adds. Coverage right in a band but
+// irradiance not says its clusters' radiance is off, not their coverage (docs/eval.md, Session
+// 22, the tall walls).
+int RunBands(const Args& a, Reader& reader, const Tracer& tracer) {
+  const glm::vec3 n = glm::normalize(a.normal);
+  const glm::vec3 p = a.at;
+  MicroBuffer mb;
+  if (absl::Status s = mb.Prepare(a.res); !s.ok()) return Fail(s);
+  std::printf("receiver %.6f,%.6f,%.6f normal %.4f,%.4f,%.4f, %d rays, msa %g, res %d\n", p.x, p.y,
+              p.z, n.x, n.y, n.z, a.band_rays, a.msa, a.res);
+  std::printf("%10s %10s %10s %10s %10s | %-12s %10s %10s %10s %10s\n", "within", "occ rays",
+              "occ pbgi", "irr rays", "irr pbgi", "band", "occ rays", "occ pbgi", "irr rays",
+              "irr pbgi");
+  double prev[4] = {0, 0, 0, 0};
+  float prev_d = 0.0f;
+  std::vector<float> bands = a.bands;
+  bands.push_back(std::numeric_limits<float>::infinity());
+  for (float d : bands) {
+    Cut cut = ToolCut(a);
+    if (absl::Status s = ApplyToolContrast(a, reader, &cut); !s.ok()) return Fail(s);
+    cut.max_distance = d;
+    RasterOptions ro = ToolRaster(a);
+    ro.max_distance = d;
+    ro.compute_radiance = true;
+    Gathered g;
+    if (absl::Status s = reader.Gather({p, n}, cut, &g); !s.ok()) return Fail(s);
+    ShadeResult r;
+    if (absl::Status s = Shade(g, ShadeReceiver{p, n, n, 0}, ro, &mb, &r); !s.ok()) return Fail(s);
+    const glm::vec3 e = tracer.ReferenceIrradiance(p, n, a.band_rays, 5, d);
+    const double now[4] = {tracer.ReferenceOcclusion(p, n, a.band_rays, d, 5), r.occlusion,
+                           (e.x + e.y + e.z) / 3.0,
+                           (r.irradiance.x + r.irradiance.y + r.irradiance.z) / 3.0};
+    std::printf("%10g %10.4f %10.4f %10.4f %10.4f | %5g-%-6g %10.4f %10.4f %10.4f %10.4f\n", d,
+                now[0], now[1], now[2], now[3], prev_d, d, now[0] - prev[0], now[1] - prev[1],
+                now[2] - prev[2], now[3] - prev[3]);
+    std::copy(now, now + 4, prev);
+    prev_d = d;
+  }
+  return 0;
+}
+
 // One receiver, pixel by pixel: every pixel whose coverage differs from the rays' by more than
 // `a.pixel_diff`, with its direction in the receiver's frame, what PBGI drew there (coverage,
 // nearest depth) and what its central rays hit first (distance, side, normals' cosine,
@@ -193,7 +256,8 @@ RasterOptions ToolRaster(const Args& a) {
 int RunOne(const Args& a, Reader& reader, const Tracer& tracer) {
   const glm::vec3 n = glm::normalize(a.normal);
   const glm::vec3 p = a.at;
-  const Cut cut = ToolCut(a);
+  Cut cut = ToolCut(a);
+  if (absl::Status s = ApplyToolContrast(a, reader, &cut); !s.ok()) return Fail(s);
   const RasterOptions ro = ToolRaster(a);
   MicroBuffer mb;
   if (absl::Status s = mb.Prepare(a.res); !s.ok()) return Fail(s);
@@ -377,6 +441,7 @@ int Run(const Args& a) {
   if (!db.ok()) return Fail(db.status());
   auto reader = (*db)->NewReader();
   if (!reader.ok()) return Fail(reader.status());
+  if (a.one && !a.bands.empty()) return RunBands(a, **reader, **tracer);
   if (a.one) return RunOne(a, **reader, **tracer);
   SamplerOptions rs;
   rs.count = a.receivers;
@@ -525,6 +590,18 @@ int main(int argc, char** argv) {
       a.pixel = std::atoi(value());
     else if (arg == "--pixel-diff")
       a.pixel_diff = std::strtof(value(), nullptr);
+    else if (arg == "--bands") {
+      for (absl::string_view part : absl::StrSplit(value(), ',')) {
+        float d = 0.0f;
+        if (!absl::SimpleAtof(part, &d) || !(d > 0.0f)) {
+          std::fprintf(stderr, "pixel_error: --bands wants positive distances D1,D2,...\n");
+          return 2;
+        }
+        a.bands.push_back(d);
+      }
+      std::sort(a.bands.begin(), a.bands.end());
+    } else if (arg == "--band-rays")
+      a.band_rays = std::atoi(value());
     else if (positional == 0)
       a.scene = arg, ++positional;
     else if (positional == 1)

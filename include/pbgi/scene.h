@@ -20,6 +20,7 @@
 #define PBGI_SCENE_H_
 
 #include <cstdint>
+#include <limits>
 #include <memory>
 #include <string>
 #include <vector>
@@ -219,8 +220,10 @@ class Tracer {
   // being direct light). Divide by pi for RenderMan's "average radiance" convention.
   float ReferenceOcclusion(const glm::vec3& p, const glm::vec3& n, int rays, float max_distance,
                            uint64_t seed = 1) const;
-  glm::vec3 ReferenceIrradiance(const glm::vec3& p, const glm::vec3& n, int rays,
-                                uint64_t seed = 1) const;
+  // `max_distance`: hits farther than this count as misses (what lies within a distance band;
+  // pixel_error --bands).
+  glm::vec3 ReferenceIrradiance(const glm::vec3& p, const glm::vec3& n, int rays, uint64_t seed = 1,
+                                float max_distance = std::numeric_limits<float>::infinity()) const;
   // Glossy radiance as pbgi/raster.h defines it for ShadeResult::glossy: the lobe-weighted
   // mean radiance over the directions w above both the receiver's tangent plane (n.w > 0) and
   // the lobe's (r.w > 0), r = normalize(reflection),

@@ -42,6 +42,14 @@ TEST(ReferenceTest, DiskIrradianceIsPiLeFormFactor) {
   EXPECT_NEAR(mean.x, kPi * 2.0f * f, kPi * 2.0f * f * 0.01f);
   EXPECT_NEAR(mean.y, kPi * 1.0f * f, kPi * 1.0f * f * 0.01f);
   EXPECT_NEAR(mean.z, kPi * 0.5f * f, kPi * 0.5f * f * 0.01f);
+  // Within a distance band: the disk's nearest point is h away, its rim sqrt(2) h.
+  EXPECT_EQ((*tracer)->ReferenceIrradiance({0, 0, -h}, {0, 0, 1}, 512, 5, 0.99f * h),
+            glm::vec3(0.0f));
+  EXPECT_EQ((*tracer)->ReferenceIrradiance({0, 0, -h}, {0, 0, 1}, 512, 5, 1.5f * h),
+            (*tracer)->ReferenceIrradiance({0, 0, -h}, {0, 0, 1}, 512, 5));
+  const glm::vec3 inner = (*tracer)->ReferenceIrradiance({0, 0, -h}, {0, 0, 1}, 2048, 5, 1.2f * h);
+  // Hits within 1.2 h: the disk of radius sqrt(1.2^2 - 1) h = 0.663 h, form factor 0.306.
+  EXPECT_NEAR(inner.x, kPi * 2.0f * 0.3056f, kPi * 2.0f * 0.3056f * 0.02f);
   // Seen from behind, the one-sided emitter gives no light but still occludes.
   glm::vec3 back = (*tracer)->ReferenceIrradiance({0, 0, 1}, {0, 0, -1}, 512);
   EXPECT_EQ(back, glm::vec3(0.0f));
