@@ -251,13 +251,13 @@ template <bool kRad>
                     : sides == HitSides::kBack ? back
                     : odd[0] >= 0.0f           ? front
                                                : back;
-    // Lane 0: the plain SH area and its mean (not clamped, as in ClusterRadiance).
-    const V4 mean = Max4(zero, c0 * kY0);
-    const float den = seen[0] + kRadianceBlend * (kY0 * sa[0]);
+    // Axis-aligned content from its faces; else the SH ratio, lane 0 the plain SH area and its
+    // mean (not clamped, as in ClusterRadiance).
     glm::vec3 axis;
     if (AxisFacesRadiance(c, w, sides, &axis)) {
       out.rgb1 = V4{1.0f, axis.x, axis.y, axis.z};
-    } else if (den > 0.0f) {
+    } else if (const float den = seen[0] + kRadianceBlend * (kY0 * sa[0]); den > 0.0f) {
+      const V4 mean = Max4(zero, c0 * kY0);
       const V4 den4 = {den, den, den, den};
       out.rgb1 = (seen + kRadianceBlend * mean) / den4;
     } else {

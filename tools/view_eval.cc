@@ -9,7 +9,6 @@
 #include <filesystem>
 #include <fstream>
 #include <limits>
-#include <map>
 #include <memory>
 
 #include "absl/strings/numbers.h"
@@ -151,16 +150,17 @@ absl::Status RunViewEval(const ViewEvalArgs& a) {
   PBGI_ASSIGN_OR_RETURN(const UpAxis up, ParseUpAxis(a.up));
   PBGI_ASSIGN_OR_RETURN(const bool orient, ParseOrient(a.orient));
   ImportReport import;
-  // --db: the lights that baked it, when it recorded them (a mesh file brings none).
-  std::map<std::string, std::string> recorded;
+  // --db: a database that is already built (a 128 M-surfel city takes minutes to build and
+  // fits the disk once), checked below to be of this scene; its recorded lights light a mesh
+  // file (which brings none). Closed again before the view opens it with its cache.
+  std::unique_ptr<Database> built;
   if (!a.db.empty()) {
-    PBGI_ASSIGN_OR_RETURN(std::unique_ptr<Database> built, Database::Open(a.db, {}));
-    recorded = built->meta().stats;
+    PBGI_ASSIGN_OR_RETURN(built, Database::Open(a.db, {}));
   }
   PBGI_ASSIGN_OR_RETURN(
       std::shared_ptr<const Scene> scene,
       LoadLitScene(a.scene, a.seed, a.size, up, orient, a.lights, "pbgi eval --view", &import,
-                   a.db.empty() ? nullptr : &recorded));
+                   built != nullptr ? &built->meta().stats : nullptr));
   if (import.oriented) {
     std::printf("%s: orientation: %s\n", a.scene.c_str(),
                 DescribeOrientation(import.orientation).c_str());
@@ -170,13 +170,11 @@ absl::Status RunViewEval(const ViewEvalArgs& a) {
         absl::StrFormat("scene %s has no radiance: use --mode occlusion", scene->name));
   }
   auto t = Clock::now();
-  // --db: a database that is already built (a 128 M-surfel city takes minutes to build and
-  // fits the disk once), checked to be of this scene; else one is built from the scene.
+  // Without --db, a database is built from the scene.
   std::string db_path = a.out_dir + "/" + scene->name + ".pbgi";
   uint64_t points = 0;
-  if (!a.db.empty()) {
+  if (built != nullptr) {
     db_path = a.db;
-    PBGI_ASSIGN_OR_RETURN(std::unique_ptr<Database> built, Database::Open(db_path, {}));
     std::string warning;
     PBGI_RETURN_IF_ERROR(CheckSceneMatchesDatabase(
         *scene, SpecFingerprint(*scene, a.scene, a.seed, a.size, up, orient), built->meta(),
@@ -187,6 +185,7 @@ absl::Status RunViewEval(const ViewEvalArgs& a) {
           "--db %s stores occlusion only: --mode %s needs radiance", db_path, a.mode));
     }
     points = built->meta().point_count;
+    built.reset();
     std::fprintf(stderr, "eval --view: %s, %llu surfels from %s (not rebuilt)\n",
                  scene->name.c_str(), static_cast<unsigned long long>(points), db_path.c_str());
   } else {

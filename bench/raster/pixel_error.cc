@@ -225,13 +225,13 @@ int RunBands(const Args& a, Reader& reader, const Tracer& tracer) {
   float prev_d = 0.0f;
   std::vector<float> bands = a.bands;
   bands.push_back(std::numeric_limits<float>::infinity());
+  Cut cut = ToolCut(a);
+  if (absl::Status s = ApplyToolContrast(a, reader, &cut); !s.ok()) return Fail(s);
+  RasterOptions ro = ToolRaster(a);
+  ro.compute_radiance = true;
   for (float d : bands) {
-    Cut cut = ToolCut(a);
-    if (absl::Status s = ApplyToolContrast(a, reader, &cut); !s.ok()) return Fail(s);
     cut.max_distance = d;
-    RasterOptions ro = ToolRaster(a);
     ro.max_distance = d;
-    ro.compute_radiance = true;
     Gathered g;
     if (absl::Status s = reader.Gather({p, n}, cut, &g); !s.ok()) return Fail(s);
     ShadeResult r;
