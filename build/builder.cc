@@ -285,16 +285,20 @@ absl::StatusOr<BuildStats> BuildToSink(SurfelSource& source, PageSink& sink,
   sort_options.merge_bytes = plan.merge_bytes;
   sort_options.threads = plan.threads;
   if (CompactSpill(options)) {
-    sort_options.compact = SpillCodec{options.channels, GridOfCube(MortonCube(bounds))};
+    sort_options.compact = SpillCodec{SpillChannels(options), GridOfCube(MortonCube(bounds))};
     sort_options.packed_input = true;
     sort_options.packed_output = true;
   }
+  // Whether some two-sided surfel's back radiance differs from its front, as stored: the
+  // database then stores Channels::kRadianceBothSides.
+  bool back_radiance = resume && kept.back_radiance;
   ExternalSorter::RunsWritten runs_written;
   if (!run_dir.empty() && !resume) {
     runs_written = [&](const std::vector<KeptRun>& runs) -> absl::Status {
       RunManifest m = ManifestFor(options, bounds, declared);
       for (const KeptRun& r : runs) m.records += r.records;
       m.skipped = stats.skipped;
+      m.back_radiance = back_radiance;
       m.known_count = known;
       m.run_capacity = plan.run_capacity;
       m.seconds_bounds = stats.seconds_bounds;
@@ -349,7 +353,11 @@ absl::StatusOr<BuildStats> BuildToSink(SurfelSource& source, PageSink& sink,
           }
           if (options.estimate.radius) s.radius = 0.0f;
           if (!radiance) s.radiance = glm::vec3(0.0f);
-          slots[used++] = MakeSortRecord(quant.Key(s.position), s);
+          slots[used] = MakeSortRecord(quant.Key(s.position), s);
+          if (radiance && s.two_sided && !back_radiance) {
+            back_radiance = RecordBackDiffers(slots[used]);
+          }
+          ++used;
           if (used - packed == kPackChunk) pack();
           return absl::OkStatus();
         }));
@@ -385,12 +393,13 @@ absl::StatusOr<BuildStats> BuildToSink(SurfelSource& source, PageSink& sink,
   t.Restart();
   // Positions and node bounds are stored on the grid of the Morton keys' cube (tree/format.h).
   const PositionGrid grid = GridOfCube(MortonCube(bounds));
-  NodePacker packer(options.layout, options.channels, &sink, options.shuffle_seed, grid);
+  const Channels channels = back_radiance ? Channels::kRadianceBothSides : options.channels;
+  NodePacker packer(options.layout, channels, &sink, options.shuffle_seed, grid);
   packer.set_upper_limit_bytes(plan.upper_bytes);
-  PointPageWriter points(options.channels, &sink, grid);
+  PointPageWriter points(channels, &sink, grid);
   points.set_input_quantized(sorter.output_quantized());
   points.set_input_packed(sorter.output_packed());
-  OctreeBuilder octree(options.leaf_size, options.channels, &points, &packer);
+  OctreeBuilder octree(options.leaf_size, channels, &points, &packer);
   const bool estimate = options.estimate.radius || options.estimate.normals;
   NeighbourEstimator estimator(options.estimate, bounds);
   uint64_t estimated = 0;
@@ -399,7 +408,9 @@ absl::StatusOr<BuildStats> BuildToSink(SurfelSource& source, PageSink& sink,
       Surfel s;
       s.position = glm::vec3(r.position[0], r.position[1], r.position[2]);
       s.radius = std::fabs(r.radius);  // the sign bit is the two-sided flag
-      s.radiance = glm::vec3(r.radiance[0], r.radiance[1], r.radiance[2]);
+      float front[3], back[3];
+      RecordRadiances(r.radius, r.radiance, front, back);
+      s.radiance = glm::vec3(front[0], front[1], front[2]);
       PBGI_RETURN_IF_ERROR(range.AddEstimated(s, estimated++, radiance));
     }
     return octree.Add(r);
@@ -451,7 +462,7 @@ absl::StatusOr<BuildStats> BuildToSink(SurfelSource& source, PageSink& sink,
 
   *meta = StoreMeta{};
   meta->page_size = sink.page_size();
-  meta->channels = options.channels;
+  meta->channels = channels;
   meta->sh_order = 2;
   meta->leaf_size = options.leaf_size;
   meta->bounds = os.bounds;

@@ -41,6 +41,8 @@ absl::Status PointPageWriter::AddPacked(const SortRecord& r) {
   uint8_t* dst = buf_.data() + size_t{count_} * record_size_;
   if (record_size_ == kPointRecordRadianceBytes) {
     std::memcpy(dst, SpillCodec::PackedBytes(&r), kPointRecordRadianceBytes);
+  } else if (record_size_ == kPointRecordBothSidesBytes) {
+    std::memcpy(dst, SpillCodec::PackedBytes(&r), kPointRecordBothSidesBytes);
   } else {
     std::memcpy(dst, SpillCodec::PackedBytes(&r), kPointRecordOcclusionBytes);
   }
@@ -93,14 +95,35 @@ void NodeAggregate::AddPoint(const SortRecord& r, bool radiance) {
   const double a = sh::kPi * radius * radius;
   area += a;
   auto c = sh::ProjectClampedCosine<double>(r.normal[0], r.normal[1], r.normal[2], a);
-  // A two-sided surfel is the pair (n, -n): A |n.w|, band 1 cancels and the even bands double.
-  if (RadiusTwoSided(r.radius)) {
-    for (int k = 0; k < 9; ++k) c[k] = (k >= 1 && k <= 3) ? 0.0 : 2.0 * c[k];
+  if (!RadiusTwoSided(r.radius)) {
+    Add9(c.data(), sh_area.data());
+    if (radiance) {
+      for (int ch = 0; ch < 3; ++ch) AddScaled9(c.data(), r.radiance[ch], sh_power[ch].data());
+      const double l = (double{r.radiance[0]} + r.radiance[1] + r.radiance[2]) / 3.0;
+      lum_min = std::min(lum_min, l);
+      lum_max = std::max(lum_max, l);
+    }
+    return;
   }
-  Add9(c.data(), sh_area.data());
+  // A two-sided surfel is the pair (n, -n): A |n.w|, band 1 cancels and the even bands double.
+  // Its power is the front's radiance times n's lobe plus the back's times -n's: the even bands
+  // take the sum of the radiances, band 1 their difference (sh::ProjectTwoSided).
+  float front[3], back[3];
+  RecordRadiances(r.radius, r.radiance, front, back);
+  std::array<double, 9> area2;
+  for (int k = 0; k < 9; ++k) area2[k] = (k >= 1 && k <= 3) ? 0.0 : 2.0 * c[k];
+  Add9(area2.data(), sh_area.data());
   if (radiance) {
-    for (int ch = 0; ch < 3; ++ch) AddScaled9(c.data(), r.radiance[ch], sh_power[ch].data());
-    const double l = (double{r.radiance[0]} + r.radiance[1] + r.radiance[2]) / 3.0;
+    for (int ch = 0; ch < 3; ++ch) {
+      std::array<double, 9> p;
+      sh::ProjectTwoSided(c.data(), double{front[ch]}, double{back[ch]}, p.data());
+      Add9(p.data(), sh_power[ch].data());
+    }
+    // Its luminance for the contrast is that of its mean radiance, band 0 of its power over
+    // band 0 of its area, (front + back) / 2, as a node's is: how its sides differ is in band
+    // 1, which the cluster model shows (counted here, it refined every node of a lit sheet).
+    const double l =
+        ((double{front[0]} + front[1] + front[2]) + (double{back[0]} + back[1] + back[2])) / 6.0;
     lum_min = std::min(lum_min, l);
     lum_max = std::max(lum_max, l);
   }

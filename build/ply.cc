@@ -175,6 +175,9 @@ enum Field {
   kRz,
   kTwoSided,
   kSheet,
+  kBackR,
+  kBackG,
+  kBackB,
   kNumFields,
   kSkip = -1
 };
@@ -200,7 +203,10 @@ int FieldOf(absl::string_view name) {
                                                        {"ry", kRy},
                                                        {"rz", kRz},
                                                        {"two_sided", kTwoSided},
-                                                       {"sheet", kSheet}};
+                                                       {"sheet", kSheet},
+                                                       {"back_r", kBackR},
+                                                       {"back_g", kBackG},
+                                                       {"back_b", kBackB}};
   for (const auto& [n, f] : kNames) {
     if (name == n) return f;
   }
@@ -538,6 +544,11 @@ class PlyFileReader final : public PlySource {
     header_.has_radius = have_[kRadius];
     header_.has_reflection = have_[kRx] && have_[kRy] && have_[kRz];
     header_.has_two_sided = have_[kTwoSided];
+    has_back_ = have_[kBackR] && have_[kBackG] && have_[kBackB];
+    if ((have_[kBackR] || have_[kBackG] || have_[kBackB]) && !has_back_) {
+      return HeaderError("a back radiance needs all three of back_r back_g back_b");
+    }
+    header_.has_back_radiance = has_back_;
     if (!header_only) {
       static const char* kRequired[] = {"x", "y", "z", "nx", "ny", "nz", "radius"};
       for (int f = kX; f <= kRadius; ++f) {
@@ -685,6 +696,10 @@ class PlyFileReader final : public PlySource {
     s->sheet = s->two_sided && v[kSheet] >= 1.0 && v[kSheet] <= 255.0
                    ? static_cast<uint8_t>(v[kSheet])
                    : uint8_t{0};
+    // Without back_r back_g back_b a two-sided surfel shows its radiance on both sides.
+    s->back_radiance = !s->two_sided ? glm::vec3(0.0f)
+                       : has_back_   ? glm::vec3(v[kBackR], v[kBackG], v[kBackB])
+                                     : s->radiance;
   }
 
   absl::Status ReadBinaryRecord(Surfel* s, glm::vec3* reflection) {
@@ -726,6 +741,7 @@ class PlyFileReader final : public PlySource {
         if (!has_color_) s.radiance = glm::vec3(0.0f);
         s.two_sided = false;
         s.sheet = 0;
+        s.back_radiance = glm::vec3(0.0f);
       }
       buf_pos_ += k * stride;
       file_pos_ += static_cast<long>(k * stride);
@@ -801,6 +817,7 @@ class PlyFileReader final : public PlySource {
   bool all_float_in_order_ = false;
   size_t float_prefix_bytes_ = 0;
   bool have_[kNumFields] = {};
+  bool has_back_ = false;
   std::vector<Property> props_;
   int stride_ = 0;
   uint64_t count_ = 0;
@@ -915,6 +932,9 @@ absl::StatusOr<std::unique_ptr<PlyWriter>> PlyWriter::Create(const std::string& 
                (options.colors == PlyColors::kRadiance && options.radiance);
   if (w->colors_) h += "property uchar red\nproperty uchar green\nproperty uchar blue\n";
   if (options.two_sided) h += "property uchar two_sided\nproperty uchar sheet\n";
+  if (options.two_sided && options.radiance) {
+    h += "property float back_r\nproperty float back_g\nproperty float back_b\n";
+  }
   h += "end_header\n";
   if (std::fwrite(h.data(), 1, h.size(), w->file_) != h.size()) {
     return absl::InternalError(
@@ -963,6 +983,10 @@ absl::Status PlyWriter::Write(absl::Span<const Surfel> surfels, absl::Span<const
       }
       if (colors_) absl::StrAppendFormat(&buf_, " %d %d %d", c[0], c[1], c[2]);
       if (options_.two_sided) absl::StrAppend(&buf_, s.two_sided ? " 1 " : " 0 ", s.sheet);
+      if (options_.two_sided && options_.radiance) {
+        const glm::vec3 b = s.two_sided ? s.back_radiance : glm::vec3(0.0f);
+        absl::StrAppendFormat(&buf_, " %.9g %.9g %.9g", b.x, b.y, b.z);
+      }
       buf_ += '\n';
     } else {
       buf_.append(reinterpret_cast<const char*>(v.data()), v.size() * sizeof(float));
@@ -970,6 +994,10 @@ absl::Status PlyWriter::Write(absl::Span<const Surfel> surfels, absl::Span<const
       if (options_.two_sided) {
         buf_ += static_cast<char>(s.two_sided ? 1 : 0);
         buf_ += static_cast<char>(s.sheet);
+        if (options_.radiance) {
+          const glm::vec3 b = s.two_sided ? s.back_radiance : glm::vec3(0.0f);
+          buf_.append(reinterpret_cast<const char*>(&b), sizeof b);
+        }
       }
     }
   }

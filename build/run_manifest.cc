@@ -42,7 +42,7 @@ absl::Status SyncPath(const std::string& path, int flags) {
 RunManifest ManifestFor(const BuildOptions& o, const Bounds& key_bounds, bool declared_bounds) {
   RunManifest m;
   m.input = o.resumable.input_identity;
-  m.record_bytes = CompactSpill(o) ? 8 + PointRecordSize(o.channels) : sizeof(SortRecord);
+  m.record_bytes = CompactSpill(o) ? 8 + PointRecordSize(SpillChannels(o)) : sizeof(SortRecord);
   m.key_bounds = key_bounds;
   m.declared_bounds = declared_bounds;
   m.radiance = HasRadiance(o.channels);
@@ -68,6 +68,7 @@ absl::Status WriteManifest(const std::string& dir, const RunManifest& m) {
                         m.declared_bounds, m.radiance, m.estimate_radius);
   absl::StrAppendFormat(&t, "estimate_normals %d\nskip_invalid %d\n", m.estimate_normals,
                         m.skip_invalid);
+  absl::StrAppendFormat(&t, "back_radiance %d\n", m.back_radiance);
   absl::StrAppendFormat(&t, "records %d\nskipped %d\nknown_count %d\nrun_capacity %d\n",
                         m.records, m.skipped, m.known_count, m.run_capacity);
   absl::StrAppendFormat(&t, "seconds_bounds %.6f\nseconds_sort %.6f\n", m.seconds_bounds,
@@ -150,6 +151,8 @@ absl::StatusOr<RunManifest> ReadManifest(const std::string& dir) {
       ok = flag(v, &m.estimate_normals);
     } else if (key == "skip_invalid") {
       ok = flag(v, &m.skip_invalid);
+    } else if (key == "back_radiance") {
+      ok = flag(v, &m.back_radiance);
     } else if (key == "records") {
       ok = absl::SimpleAtoi(v, &m.records);
     } else if (key == "skipped") {

@@ -21,7 +21,7 @@ namespace pbgi::internal {
 struct RunManifest {
   // What decides the records: compared field by field on resume.
   std::string input;  // BuildOptions::Resumable::input_identity
-  uint32_t record_bytes = 0;  // 48: raw runs; 22 or 28: compact runs (key + point record)
+  uint32_t record_bytes = 0;  // 48: raw runs; 22 or 34: compact runs (key + point record)
   Bounds key_bounds;
   bool declared_bounds = false;  // the source's KnownBounds (else a bounds pass)
   bool radiance = false;
@@ -29,6 +29,7 @@ struct RunManifest {
   bool estimate_normals = false;
   bool skip_invalid = false;
   // What the input pass found.
+  bool back_radiance = false;  // a two-sided surfel whose back differs (kRadianceBothSides)
   uint64_t records = 0;
   uint64_t skipped = 0;
   int64_t known_count = -1;
@@ -42,6 +43,13 @@ struct RunManifest {
 // or normals, which read the unquantized positions after the sort.
 inline bool CompactSpill(const BuildOptions& o) {
   return !o.estimate.radius && !o.estimate.normals;
+}
+
+// The channels of a build's compact runs: a radiance build's carry the back radiance, as the
+// input pass does not know yet whether the database will store it (one-sided records leave it
+// zero, which zstd takes to almost nothing).
+inline Channels SpillChannels(const BuildOptions& o) {
+  return HasRadiance(o.channels) ? Channels::kRadianceBothSides : Channels::kOcclusion;
 }
 
 // The manifest of the records `options` would make from an input with these bounds.

@@ -1,6 +1,7 @@
 // The record that the external sort moves around: a Morton key and the surfel it belongs to,
 // its two-sided flag in the radius's sign bit and its sheet tag in that radius's low bits
-// (tree/format.h, EncodeRadius).
+// (tree/format.h, EncodeRadius), and a two-sided surfel's front and back radiance as their
+// stored codes in the radiance floats (PackSidesRadiance; RecordRadiances reads them).
 #ifndef PBGI_BUILD_SORT_RECORD_H_
 #define PBGI_BUILD_SORT_RECORD_H_
 
@@ -28,11 +29,30 @@ struct KeyIndex {
 };
 
 inline SortRecord MakeSortRecord(uint64_t key, const Surfel& s) {
+  if (s.two_sided) {
+    return SortRecord{key,
+                      {s.position.x, s.position.y, s.position.z},
+                      {s.normal.x, s.normal.y, s.normal.z},
+                      EncodeRadius(s.radius, true, s.sheet),
+                      {PackSidesRadiance(s.radiance.x, s.back_radiance.x),
+                       PackSidesRadiance(s.radiance.y, s.back_radiance.y),
+                       PackSidesRadiance(s.radiance.z, s.back_radiance.z)}};
+  }
   return SortRecord{key,
                     {s.position.x, s.position.y, s.position.z},
                     {s.normal.x, s.normal.y, s.normal.z},
-                    EncodeRadius(s.radius, s.two_sided, s.sheet),
+                    EncodeRadius(s.radius, false, s.sheet),
                     {s.radiance.x, s.radiance.y, s.radiance.z}};
+}
+
+// Whether a sort record is two-sided with a back radiance that differs from its front, as
+// stored: what makes the builder store Channels::kRadianceBothSides.
+inline bool RecordBackDiffers(const SortRecord& r) {
+  if (!RadiusTwoSided(r.radius)) return false;
+  for (int k = 0; k < 3; ++k) {
+    if (FrontCode(r.radiance[k]) != BackCode(r.radiance[k])) return true;
+  }
+  return false;
 }
 
 // Why a surfel cannot be stored, or nullptr when it can. `use_radiance`: radiance is checked
@@ -50,6 +70,9 @@ inline const char* InvalidSurfelReason(const Surfel& s, bool use_radiance,
               double(s.normal.z) * s.normal.z;
   if (!estimate_normal && !(n2 > 1e-12)) return "normal is zero";
   if (use_radiance && !finite3(s.radiance)) return "radiance is NaN or infinite";
+  if (use_radiance && s.two_sided && !finite3(s.back_radiance)) {
+    return "back radiance is NaN or infinite";
+  }
   return nullptr;
 }
 

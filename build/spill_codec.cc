@@ -16,14 +16,15 @@ namespace {
 
 // Offsets of the field columns in a block of n records (see the header).
 struct Columns {
-  size_t keys, cells, normals, radii, radiance, end;
-  Columns(size_t n, bool radiance_on) {
+  size_t keys, cells, normals, radii, radiance, back, end;
+  Columns(size_t n, Channels ch) {
     keys = 0;
     cells = keys + 8 * n;
     normals = cells + 8 * n;
     radii = normals + 4 * n;
     radiance = radii + 2 * n;
-    end = radiance + (radiance_on ? 6 * n : 0);
+    back = radiance + (HasRadiance(ch) ? 6 * n : 0);
+    end = back + (ch == Channels::kRadianceBothSides ? 6 * n : 0);
   }
 };
 
@@ -344,11 +345,12 @@ absl::StatusOr<size_t> SpillBlockWriter::EncodeBlock(size_t n, const Record& rec
   if (cctx_ == nullptr) cctx_ = ZSTD_createCCtx();
   if (cctx_ == nullptr) return absl::ResourceExhaustedError("zstd: no memory for a context");
   const bool radiance = HasRadiance(codec_.channels);
-  const Columns c(n, radiance);
+  const bool back = codec_.channels == Channels::kRadianceBothSides;
+  const Columns c(n, codec_.channels);
   raw_.resize(c.end);
   uint8_t* raw = raw_.data();
   uint64_t prev = 0;
-  uint8_t encoded[kPointRecordRadianceBytes];
+  uint8_t encoded[kPointRecordBothSidesBytes];
   for (size_t i = 0; i < n; ++i) {
     const SortRecord& r = record(i);
     const uint64_t delta = r.key - prev;
@@ -366,6 +368,7 @@ absl::StatusOr<size_t> SpillBlockWriter::EncodeBlock(size_t n, const Record& rec
     std::memcpy(raw + c.normals + 4 * i, rec + 8, 4);
     std::memcpy(raw + c.radii + 2 * i, rec + 12, 2);
     if (radiance) std::memcpy(raw + c.radiance + 6 * i, rec + 14, 6);
+    if (back) std::memcpy(raw + c.back + 6 * i, rec + 20, 6);
   }
   const size_t z = ZSTD_compressCCtx(static_cast<ZSTD_CCtx*>(cctx_), dst + kSpillBlockHeaderBytes,
                                      codec_.max_block_bytes() - kSpillBlockHeaderBytes, raw, c.end,
@@ -431,7 +434,8 @@ absl::Status SpillBlockReader::Decode(absl::Span<const uint8_t> frame, uint32_t 
   if (dctx_ == nullptr) dctx_ = ZSTD_createDCtx();
   if (dctx_ == nullptr) return absl::ResourceExhaustedError("zstd: no memory for a context");
   const bool radiance = HasRadiance(codec_.channels);
-  const Columns c(records, radiance);
+  const bool back = codec_.channels == Channels::kRadianceBothSides;
+  const Columns c(records, codec_.channels);
   raw_.resize(c.end);
   const size_t got = ZSTD_decompressDCtx(static_cast<ZSTD_DCtx*>(dctx_), raw_.data(), c.end,
                                          frame.data(), frame.size());
@@ -442,7 +446,7 @@ absl::Status SpillBlockReader::Decode(absl::Span<const uint8_t> frame, uint32_t 
   }
   const uint8_t* raw = raw_.data();
   uint64_t key = 0;
-  uint8_t plain[kPointRecordRadianceBytes];
+  uint8_t plain[kPointRecordBothSidesBytes];
   for (uint32_t i = 0; i < records; ++i) {
     uint8_t* rec = plain;
     if (packed) {
@@ -460,6 +464,7 @@ absl::Status SpillBlockReader::Decode(absl::Span<const uint8_t> frame, uint32_t 
     std::memcpy(rec + 8, raw + c.normals + 4 * size_t{i}, 4);
     std::memcpy(rec + 12, raw + c.radii + 2 * size_t{i}, 2);
     if (radiance) std::memcpy(rec + 14, raw + c.radiance + 6 * size_t{i}, 6);
+    if (back) std::memcpy(rec + 20, raw + c.back + 6 * size_t{i}, 6);
     if (packed) {
       out[i].key = key;
     } else {

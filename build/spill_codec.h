@@ -13,8 +13,9 @@
 // A run is a sequence of blocks, each:
 //   u32 frame_bytes, u32 records (1..kSpillBlockRecords), then a zstd frame of
 //   records x u64 key deltas (key - previous key of the block, mod 2^64; the first from 0),
-//   then the point records split by field (cells, normals, radii, radiance), records each; the
-//   cell word XORed with the key's own depth-21 cell (they differ only by rounding).
+//   then the point records split by field (cells, normals, radii, radiance, back radiance),
+//   records each; the cell word XORed with the key's own depth-21 cell (they differ only by
+//   rounding).
 //
 // A SpillCodec is immutable and may be shared; a SpillBlockWriter or SpillBlockReader belongs
 // to one thread.
@@ -72,7 +73,7 @@ struct SpillCodec {
     return reinterpret_cast<const uint8_t*>(r->position);
   }
 };
-static_assert(sizeof(SortRecord) - sizeof(uint64_t) >= kPointRecordRadianceBytes);
+static_assert(sizeof(SortRecord) - sizeof(uint64_t) >= kPointRecordBothSidesBytes);
 
 // The depth-21 cell of a Morton key (tree/morton.h), packed as a point record's cell (PackCell):
 // a stored cell is XORed with its key's cell, which leaves a column of mostly zeros (a position's

@@ -84,7 +84,16 @@ int main(int argc, char** argv) {
   // store.
   for (uint32_t page_size : {1024u, 4080u, 16368u}) {
     const std::string db = (scratch / absl::StrCat("db", page_size)).string();
-    VectorSurfelSource src(surfels);
+    // The largest page size's store holds back radiances (Channels::kRadianceBothSides): a
+    // third of its surfels two-sided, their backs dimmer than their fronts.
+    std::vector<Surfel> input = surfels;
+    if (page_size > 8192) {
+      for (size_t i = 0; i < input.size(); i += 3) {
+        input[i].two_sided = true;
+        input[i].back_radiance = 0.25f * input[i].radiance;
+      }
+    }
+    VectorSurfelSource src(input);
     BuildOptions o;
     o.page_size = page_size;
     o.channels = page_size < 1760 ? Channels::kOcclusion : Channels::kRadiance;
@@ -109,8 +118,10 @@ int main(int argc, char** argv) {
     const std::string point_payload(reinterpret_cast<const char*>(points->payload.data()),
                                     points->payload.size());
     std::string in;
-    const uint8_t flags = (o.channels == Channels::kRadiance ? 1 : 0) |
-                          static_cast<uint8_t>(((*store)->meta().root & 7) << 1) | (3 << 4);
+    const Channels ch = (*store)->meta().channels;
+    const uint8_t flags = (HasRadiance(ch) ? 1 : 0) |
+                          static_cast<uint8_t>(((*store)->meta().root & 7) << 1) | (3 << 4) |
+                          (ch == Channels::kRadianceBothSides ? 0x80 : 0);
     in.push_back(static_cast<char>(flags));
     const float rec[6] = {0.5f, 0.5f, 0.5f, 0.0f, 0.0f, 1.0f};
     in.append(reinterpret_cast<const char*>(rec), sizeof(rec));

@@ -2,7 +2,8 @@
 // bytes: one node page and one point page made of the input, a receiver from it, a gather from
 // a root slot in it. Errors (DataLoss naming the page, InvalidArgument for the receiver), never
 // a crash, an endless walk or a read outside a page.
-//   input: [flags u8][receiver: 6 x f32][node records u16][node payload bytes u16][payloads...]
+//   input: [flags u8][receiver: 6 x f32][node records u16][node payload bytes u16][payloads...];
+//   flags: bit 0 radiance, bits 1-3 the root slot, bits 4-6 the depth, bit 7 back radiance.
 #include <algorithm>
 #include <cstring>
 #include <memory>
@@ -43,7 +44,9 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   const std::vector<uint8_t> point_payload(p + node_bytes, end);
 
   StoreMeta m;
-  m.channels = (flags & 1) ? Channels::kRadiance : Channels::kOcclusion;
+  m.channels = !(flags & 1)     ? Channels::kOcclusion
+               : (flags & 0x80) ? Channels::kRadianceBothSides
+                                : Channels::kRadiance;
   const size_t biggest = std::max({node_payload.size(), point_payload.size(),
                                    size_t{NodeRecordSize(m.channels)} + 8});
   m.page_size = static_cast<uint32_t>((sizeof(PageHeader) + biggest + 7) / 8 * 8);

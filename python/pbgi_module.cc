@@ -250,6 +250,7 @@ py::dtype SurfelDtype() {
       .Field("radiance", "(3,)f4", offsetof(Surfel, radiance))
       .Field("two_sided", "?", offsetof(Surfel, two_sided))
       .Field("sheet", "u1", offsetof(Surfel, sheet))
+      .Field("back_radiance", "(3,)f4", offsetof(Surfel, back_radiance))
       .Make(sizeof(Surfel));
 }
 

@@ -289,6 +289,7 @@ struct SurfelGroup {
   glm::vec3 n0{0.0f};  // the first surfel's unit normal
   double area = 0.0;
   glm::dvec3 nsum{0.0}, csum{0.0}, lsum{0.0};
+  glm::dvec3 back_lsum{0.0};  // a two-sided group's back radiance times area
   Bounds centres;
   // The least height of a centre above the receiver's tangent plane (its box's lowest corner
   // lies lower where the plane is not along an axis).
@@ -1094,11 +1095,13 @@ bool Rasterizer::BuildClusterFootprint(const Cluster& c, PreparedSplat& s) {
 // wall with the sunlit part's light, and a receiver low on the wall saw it fill half its view
 // (city, +0.2 of 0.56 irradiance; bug: a_groups_mean_radiance_smears_shadows).
 namespace {
-int RadiancePieces(const Gathered& g, const uint32_t* members, int count, const glm::vec3& mean) {
+int RadiancePieces(const Gathered& g, const uint32_t* members, int count, const glm::vec3& mean,
+                   bool back) {
   if (count < 2) return 1;
   const float limit = kPieceContrast * std::max({mean.x, mean.y, mean.z});
   for (int i = 0; i < count; ++i) {
-    const glm::vec3 d = glm::abs(g.surfels[members[i]].radiance - mean);
+    const Surfel& m = g.surfels[members[i]];
+    const glm::vec3 d = glm::abs((back ? m.back_radiance : m.radiance) - mean);
     if (std::max({d.x, d.y, d.z}) > limit) return count;
   }
   return 1;
@@ -1209,7 +1212,7 @@ void Rasterizer::PrepareSurfelGroups(const Gathered& g, ShadeResult* out) {
       const glm::vec3 n0 = first.normal / nn0;
       const float sp0 = 1.7724539f * first.radius;  // sqrt(pi) r: its spacing
       double area = 0;
-      glm::dvec3 nsum(0.0), csum(0.0), lsum(0.0);
+      glm::dvec3 nsum(0.0), csum(0.0), lsum(0.0), back_lsum(0.0);
       Bounds centres;
       float hmin = std::numeric_limits<float>::infinity();
       int count = 0;
@@ -1227,6 +1230,7 @@ void Rasterizer::PrepareSurfelGroups(const Gathered& g, ShadeResult* out) {
         nsum += a * glm::dvec3(nj);
         csum += a * glm::dvec3(sf.position);
         lsum += a * glm::dvec3(sf.radiance);
+        back_lsum += a * glm::dvec3(sf.back_radiance);
         centres.Extend(sf.position);
         hmin = std::min(hmin, glm::dot(n_, sf.position - origin_));
         ++count;
@@ -1241,6 +1245,7 @@ void Rasterizer::PrepareSurfelGroups(const Gathered& g, ShadeResult* out) {
       gr.nsum = nsum;
       gr.csum = csum;
       gr.lsum = lsum;
+      gr.back_lsum = back_lsum;
       gr.centres = centres;
       gr.hmin = hmin;
       gr.Finish();
@@ -1271,7 +1276,6 @@ void Rasterizer::PrepareSurfelGroups(const Gathered& g, ShadeResult* out) {
       const size_t end = gr.end;
       const int count = gr.count;
       const double area = gr.area;
-      const glm::dvec3 lsum = gr.lsum;
       const Bounds& centres = gr.centres;
       const Surfel& first = g.surfels[order[end - count]];
       const glm::vec3 n0 = gr.n0;
@@ -1407,9 +1411,11 @@ void Rasterizer::PrepareSurfelGroups(const Gathered& g, ShadeResult* out) {
           alpha = std::max(alpha, std::min(1.0f, static_cast<float>(area / fa)));
         }
       }
-      const glm::vec3 rad = glm::vec3(lsum / area);
+      // A two-sided group seen from behind shows its back radiance.
+      const bool back = first.two_sided && side < 0.0f;
+      const glm::vec3 rad = glm::vec3((back ? gr.back_lsum : gr.lsum) / area);
       // One piece per member where the members' radiance differs (RadiancePieces), else one.
-      const int pieces = radiance_ ? RadiancePieces(g, &order[end - count], count, rad) : 1;
+      const int pieces = radiance_ ? RadiancePieces(g, &order[end - count], count, rad, back) : 1;
       bool drawn = false;
       for (int piece = 0; piece < pieces; ++piece) {
         Polygon q;
@@ -1418,7 +1424,7 @@ void Rasterizer::PrepareSurfelGroups(const Gathered& g, ShadeResult* out) {
           // The member's share of the footprint: the points nearer its centre than any other
           // member's (a Voronoi cell, by the bisecting planes).
           const Surfel& m = g.surfels[order[end - count + piece]];
-          piece_rad = m.radiance;
+          piece_rad = back ? m.back_radiance : m.radiance;
           const glm::vec3 ci = m.position - from;
           q = p;
           for (int j = 0; j < count && q.n >= 3; ++j) {

@@ -130,7 +130,9 @@ void Rasterizer::PrepareSurfel(const Surfel& sf, ShadeResult* out) {
   s.depth = d;
   s.extent = r;
   if (radiance_) {
-    Store4(s.rgb1, V4{1.0f, sf.radiance.x, sf.radiance.y, sf.radiance.z});
+    // A two-sided surfel seen from behind shows its back radiance.
+    const glm::vec3& l = sf.two_sided && side < 0.0f ? sf.back_radiance : sf.radiance;
+    Store4(s.rgb1, V4{1.0f, l.x, l.y, l.z});
   } else {
     Store4(s.rgb1, V4{1.0f, 0.0f, 0.0f, 0.0f});
   }

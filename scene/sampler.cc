@@ -322,6 +322,7 @@ class SceneSurfelSource final : public SurfelSource {
       sf.normal = normal;
       sf.radius = radius_;
       sf.radiance = glm::vec3(0.0f);
+      sf.back_radiance = glm::vec3(0.0f);
       sf.two_sided = thin;
       sf.sheet = sheet;
       materials[s - begin] = material;
@@ -371,6 +372,27 @@ class SceneSurfelSource final : public SurfelSource {
                                  absl::MakeSpan(l, count), absl::MakeConstSpan(slot, count));
       }
       for (int i = 0; i < count; ++i) out[at[i]].radiance = l[i];
+      // A two-sided surfel's back is lit from its own side, without emission, as the reference
+      // shades a thin sheet's back (Tracer::ReferenceIrradiance); its own group of samples.
+      int backs = 0;
+      for (int i = 0; i < count; ++i) {
+        if (!out[at[i]].two_sided) continue;
+        p[backs] = p[i];
+        n[backs] = -n[i];
+        m[backs] = m[i];
+        slot[backs] = slot[i];
+        at[backs] = at[i];
+        ++backs;
+      }
+      if (backs > 0) {
+        tracer_->SurfaceRadiance(absl::MakeConstSpan(p, backs), absl::MakeConstSpan(n, backs),
+                                 absl::MakeConstSpan(m, backs),
+                                 HashCombine(options_.seed ^ 0x6b636162u, static_cast<uint64_t>(q)),
+                                 absl::MakeSpan(l, backs), absl::MakeConstSpan(slot, backs));
+        for (int i = 0; i < backs; ++i) {
+          out[at[i]].back_radiance = l[i] - scene_->materials[m[i]].emission;
+        }
+      }
       first = last;
     }
   }

@@ -113,9 +113,10 @@ absl::StatusOr<DecodedMeta> DecodeMeta(absl::string_view bytes, absl::string_vie
   }
   if (version < kOldestReadableStoreFormatVersion) {
     return absl::FailedPreconditionError(absl::StrFormat(
-        "%s: store format version %d is too old: this library reads version %d (compact pages, "
-        "sheet tags) only; rebuild the database from its points with this version of pbgi",
-        where, version, kStoreFormatVersion));
+        "%s: store format version %d is too old: this library reads versions %d to %d (compact "
+        "pages, sheet tags, radiance contrast) only; rebuild the database from its points with "
+        "this version of pbgi",
+        where, version, kOldestReadableStoreFormatVersion, kStoreFormatVersion));
   }
   if (bytes.size() < kMetaHeaderBytes) {
     return absl::DataLossError(
@@ -159,7 +160,8 @@ absl::StatusOr<DecodedMeta> DecodeMeta(absl::string_view bytes, absl::string_vie
     return absl::DataLossError(
         absl::StrFormat("%s: meta record body is truncated or malformed", where));
   }
-  if (channels > static_cast<uint32_t>(Channels::kRadiance)) {
+  if (channels > static_cast<uint32_t>(Channels::kRadianceBothSides) ||
+      (channels == static_cast<uint32_t>(Channels::kRadianceBothSides) && m.version < 6)) {
     return absl::DataLossError(
         absl::StrFormat("%s: meta record names unknown channels %d", where, channels));
   }

@@ -56,6 +56,7 @@ void PrintJson(const PageStore& store) {
   j["version"] = m.version;
   j["page_size"] = m.page_size;
   j["channels"] = ChannelsName(m.channels);
+  j["back_radiance"] = m.channels == Channels::kRadianceBothSides;
   j["sh_order"] = m.sh_order;
   j["leaf_size"] = m.leaf_size;
   // An empty box's float limits are finite, so they print as they are.
@@ -85,7 +86,9 @@ void PrintTable(const PageStore& store) {
   row("format", absl::StrFormat("version %d (magic 0x%016x)", m.version, m.magic));
   row("file", absl::StrFormat("%s (%d bytes)", FormatBytes(store.FileBytes()), store.FileBytes()));
   row("page size", absl::StrFormat("%d bytes", m.page_size));
-  row("channels", ChannelsName(m.channels));
+  row("channels", m.channels == Channels::kRadianceBothSides
+                      ? "radiance, and a back radiance on two-sided surfels"
+                      : ChannelsName(m.channels));
   row("sh order", absl::StrFormat("%d", m.sh_order));
   row("leaf size", absl::StrFormat("%d", m.leaf_size));
   row("bounds", absl::StrFormat("(%g, %g, %g) .. (%g, %g, %g)", m.bounds.lo.x, m.bounds.lo.y,

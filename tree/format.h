@@ -251,8 +251,8 @@ inline glm::vec3 DecodeOctahedral(const int16_t in[2]) {
                           static_cast<float>(in[1]) * (1.0f / 32767.0f));
 }
 // A two-sided point record's normal (format version 4): 12-bit octahedral coordinates (angular
-// error below 1e-3 rad) in the high bits of each i16, the sheet tag's high and low nibbles in
-// their low 4 bits.
+// error up to about 1.0e-3 rad) in the high bits of each i16, the sheet tag's high and low nibbles
+// in their low 4 bits.
 inline void EncodeOctahedralSheet(const float n[3], uint8_t sheet, int16_t out[2]) {
   float x, y;
   OctahedralCoords(n, &x, &y);
@@ -267,27 +267,72 @@ inline glm::vec3 DecodeOctahedralSheet(const int16_t in[2], uint8_t* sheet) {
                           static_cast<float>(in[1] >> 4) * (1.0f / 2047.0f));
 }
 
-// Point records, version 4. Little-endian, packed, no alignment:
+// Point records, version 4 (version 6 adds the back radiance). Little-endian, packed, no
+// alignment:
 //   0  u64    cell (x | y << 21 | z << 42) of the position; bit 63: two-sided
 //   8  i16[2] octahedral normal (two-sided: EncodeOctahedralSheet, the sheet tag in its low bits)
 //   12 u16    radius (EncodeRadius16)
 //   14 u16[3] radiance (EncodeRadiance16), radiance databases only
+//   20 u16[3] back radiance (EncodeRadiance16), Channels::kRadianceBothSides only: a two-sided
+//             surfel's (Surfel::back_radiance), 0 on one-sided ones. Without it a two-sided
+//             surfel's back radiance is its front's.
 inline constexpr uint32_t kPointRecordOcclusionBytes = 14;
 inline constexpr uint32_t kPointRecordRadianceBytes = 20;
+inline constexpr uint32_t kPointRecordBothSidesBytes = 26;
 
 inline uint32_t PointRecordSize(Channels c) {
-  return HasRadiance(c) ? kPointRecordRadianceBytes : kPointRecordOcclusionBytes;
+  switch (c) {
+    case Channels::kOcclusion:
+      return kPointRecordOcclusionBytes;
+    case Channels::kRadianceBothSides:
+      return kPointRecordBothSidesBytes;
+    default:
+      return kPointRecordRadianceBytes;
+  }
+}
+
+// The builder's sort records (build/sort_record.h) carry a two-sided surfel's two radiances as
+// their stored codes, front << 16 | back, in the bits of each radiance float (the stored values
+// are those codes' anyway), as the radius carries the flag and the tag.
+inline float PackSidesRadiance(float front, float back) {
+  const uint32_t bits = (uint32_t{EncodeRadiance16(front)} << 16) | EncodeRadiance16(back);
+  float out;
+  std::memcpy(&out, &bits, 4);
+  return out;
+}
+inline uint16_t FrontCode(float packed) {
+  uint32_t bits;
+  std::memcpy(&bits, &packed, 4);
+  return static_cast<uint16_t>(bits >> 16);
+}
+inline uint16_t BackCode(float packed) {
+  uint32_t bits;
+  std::memcpy(&bits, &packed, 4);
+  return static_cast<uint16_t>(bits & 0xffffu);
+}
+// A sort record's front and back radiance (`radius` its stored radius: two-sided or not).
+inline void RecordRadiances(float radius, const float radiance[3], float front[3], float back[3]) {
+  for (int k = 0; k < 3; ++k) {
+    if (RadiusTwoSided(radius)) {
+      front[k] = DecodeRadiance16(FrontCode(radiance[k]));
+      back[k] = DecodeRadiance16(BackCode(radiance[k]));
+    } else {
+      front[k] = back[k] = radiance[k];
+    }
+  }
 }
 
 // Encodes one surfel (radius sign = two-sided, as in the builder's sort records, and the sheet
-// tag in a two-sided radius's low bits: EncodeRadius) at `dst`.
+// tag in a two-sided radius's low bits: EncodeRadius) at `dst`. `radiance` as in a sort record:
+// a two-sided surfel's floats are PackSidesRadiance codes.
 inline void EncodePointRecord(const float position[3], const float normal[3], float radius,
                               const float radiance[3], Channels c, const PositionGrid& grid,
                               uint8_t* dst) {
   uint64_t cell = PackCell(grid.Nearest(0, position[0]), grid.Nearest(1, position[1]),
                            grid.Nearest(2, position[2]));
   int16_t oct[2];
-  if (RadiusTwoSided(radius)) {
+  const bool two_sided = RadiusTwoSided(radius);
+  if (two_sided) {
     cell |= uint64_t{1} << 63;
     EncodeOctahedralSheet(normal, RadiusSheet(radius), oct);
   } else {
@@ -298,10 +343,30 @@ inline void EncodePointRecord(const float position[3], const float normal[3], fl
   const uint16_t r = EncodeRadius16(radius);
   std::memcpy(dst + 12, &r, 2);
   if (HasRadiance(c)) {
-    const uint16_t l[3] = {EncodeRadiance16(radiance[0]), EncodeRadiance16(radiance[1]),
-                           EncodeRadiance16(radiance[2])};
+    uint16_t l[3], b[3] = {0, 0, 0};
+    for (int k = 0; k < 3; ++k) {
+      if (two_sided) {
+        l[k] = FrontCode(radiance[k]);
+        b[k] = BackCode(radiance[k]);
+      } else {
+        l[k] = EncodeRadiance16(radiance[k]);
+      }
+    }
     std::memcpy(dst + 14, l, 6);
+    if (c == Channels::kRadianceBothSides) std::memcpy(dst + 20, b, 6);
   }
+}
+
+// One surfel's record, as the builder stores it from its sort record.
+inline void EncodeSurfelRecord(const Surfel& s, Channels c, const PositionGrid& grid,
+                               uint8_t* dst) {
+  const float pos[3] = {s.position.x, s.position.y, s.position.z};
+  const float nrm[3] = {s.normal.x, s.normal.y, s.normal.z};
+  float rad[3] = {s.radiance.x, s.radiance.y, s.radiance.z};
+  if (s.two_sided) {
+    for (int k = 0; k < 3; ++k) rad[k] = PackSidesRadiance(s.radiance[k], s.back_radiance[k]);
+  }
+  EncodePointRecord(pos, nrm, EncodeRadius(s.radius, s.two_sided, s.sheet), rad, c, grid, dst);
 }
 
 inline Surfel DecodePointRecord(const uint8_t* src, Channels c, const PositionGrid& grid) {
@@ -321,8 +386,17 @@ inline Surfel DecodePointRecord(const uint8_t* src, Channels c, const PositionGr
     uint16_t l[3];
     std::memcpy(l, src + 14, 6);
     s.radiance = {DecodeRadiance16(l[0]), DecodeRadiance16(l[1]), DecodeRadiance16(l[2])};
+    if (!s.two_sided) {
+      s.back_radiance = glm::vec3(0.0f);
+    } else if (c == Channels::kRadianceBothSides) {
+      std::memcpy(l, src + 20, 6);
+      s.back_radiance = {DecodeRadiance16(l[0]), DecodeRadiance16(l[1]), DecodeRadiance16(l[2])};
+    } else {
+      s.back_radiance = s.radiance;
+    }
   } else {
     s.radiance = glm::vec3(0.0f);
+    s.back_radiance = glm::vec3(0.0f);
   }
   return s;
 }

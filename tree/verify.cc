@@ -270,7 +270,10 @@ class Verifier {
       for (uint64_t i = c.first_point; i < c.first_point + c.point_count; ++i) {
         PBGI_ASSIGN_OR_RETURN(Surfel p, ReadPoint(i));
         if (radiance_) {
-          parts.push_back({(double(p.radiance[0]) + p.radiance[1] + p.radiance[2]) / 3.0, 0.0});
+          // A two-sided surfel's mean radiance is that of its two sides, as the builder has it.
+          const double front = double(p.radiance[0]) + p.radiance[1] + p.radiance[2];
+          const double back = double(p.back_radiance[0]) + p.back_radiance[1] + p.back_radiance[2];
+          parts.push_back({p.two_sided ? (front + back) / 6.0 : front / 3.0, 0.0});
         }
         const float pos[3] = {p.position.x, p.position.y, p.position.z};
         if (!Contains(c, pos, pos)) {
@@ -278,18 +281,30 @@ class Verifier {
               absl::StrFormat("%s: point %d lies outside the node's bounds", where(), i));
         }
         const double a = sh::kPi * double(p.radius) * double(p.radius);
-        auto y = sh::ProjectClampedCosine<double>(p.normal.x, p.normal.y, p.normal.z, a);
-        if (p.two_sided) {  // the pair (n, -n), as the builder aggregates it
-          for (int k = 0; k < 9; ++k) y[k] = (k >= 1 && k <= 3) ? 0.0 : 2.0 * y[k];
+        const auto y = sh::ProjectClampedCosine<double>(p.normal.x, p.normal.y, p.normal.z, a);
+        // A two-sided surfel is the pair (n, -n), its front radiance on n's lobe and its back
+        // radiance on -n's, as the builder aggregates it.
+        std::array<double, 9> area = y;
+        std::array<std::array<double, 9>, 3> power;
+        for (int ch = 0; ch < 3; ++ch) {
+          if (p.two_sided) {
+            sh::ProjectTwoSided(y.data(), double{p.radiance[ch]}, double{p.back_radiance[ch]},
+                                power[ch].data());
+          } else {
+            for (int k = 0; k < 9; ++k) power[ch][k] = y[k] * p.radiance[ch];
+          }
+        }
+        if (p.two_sided) {
+          for (int k = 0; k < 9; ++k) area[k] = (k >= 1 && k <= 3) ? 0.0 : 2.0 * y[k];
         }
         s.area += a;
         s.area_abs += a;
         for (int k = 0; k < 9; ++k) {
-          s.sh[k] += y[k];
-          s.sh_abs[k] += std::abs(y[k]);
+          s.sh[k] += area[k];
+          s.sh_abs[k] += std::abs(area[k]);
           for (int ch = 0; ch < 3; ++ch) {
-            s.pw[ch][k] += y[k] * p.radiance[ch];
-            s.pw_abs[ch][k] += std::abs(y[k] * p.radiance[ch]);
+            s.pw[ch][k] += power[ch][k];
+            s.pw_abs[ch][k] += std::abs(power[ch][k]);
           }
         }
       }

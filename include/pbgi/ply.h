@@ -7,7 +7,8 @@
 // receiver may also carry its reflection direction (the centre of the glossy lobe) as `rx ry rz`.
 // A surfel is two-sided (Surfel::two_sided) when it has a nonzero `two_sided` property (any
 // numeric type); files without one hold one-sided surfels. A two-sided surfel's `sheet`
-// property (1-255) is its Surfel::sheet; absent, out of range or on a one-sided surfel, 0.
+// property (1-255) is its Surfel::sheet; absent, out of range or on a one-sided surfel, 0. Its
+// `back_r back_g back_b` are its Surfel::back_radiance; absent, its radiance (both sides alike).
 // Files from scanners and point tools (Open3D, PCL) often lack `radius`, or normals:
 // PlyReadOptions says whether to accept them (the builder then estimates what is missing, see
 // BuildOptions::estimate). Other properties are skipped; the vertex element must come first;
@@ -59,6 +60,7 @@ struct PlyHeader {
   bool has_color = false;
   bool has_reflection = false;  // rx ry rz
   bool has_two_sided = false;   // two_sided
+  bool has_back_radiance = false;  // back_r back_g back_b
   // From a `comment pbgi bounds XMIN YMIN ZMIN XMAX YMAX ZMAX` line (what pbgi generate and
   // pbgi import write: the box of the sampled triangles, which holds every point); empty when
   // the header has none. The source's KnownBounds(), so the builder needs no bounds pass.
@@ -127,8 +129,9 @@ struct PlyWriterOptions {
   std::vector<std::string> extra;
   // Header comments, one line each (e.g. "pbgi scene.name cornell": see PlyHeader::Provenance).
   std::vector<std::string> comments;
-  // Write each surfel's Surfel::two_sided and Surfel::sheet as the last properties `uchar
-  // two_sided` (0 or 1) and `uchar sheet`.
+  // Write each surfel's Surfel::two_sided and Surfel::sheet as properties `uchar two_sided` (0
+  // or 1) and `uchar sheet`, and with `radiance` its Surfel::back_radiance as the last, `float
+  // back_r back_g back_b` (0 on one-sided surfels).
   bool two_sided = false;
   // When not empty: a `comment pbgi bounds ...` line (PlyHeader::bounds), floats written exactly.
   // REQUIRES: every written position inside (the writer does not check; the builder does).
@@ -140,10 +143,11 @@ struct PlyWriterOptions {
 };
 
 // Streams surfels to a PLY file with float properties x y z nx ny nz radius [r g b] [extra...]
-// [uchar red green blue] [uchar two_sided sheet]. The vertex count is patched into the header by
-// Close(), so the count need not be known in advance, except for path "-": standard output, written
-// in place, with PlyWriterOptions::vertex_count. REQUIRES: Close() to finish the file; a writer
-// destroyed without Close() removes its temporary file and leaves `path` as it was.
+// [uchar red green blue] [uchar two_sided sheet [float back_r back_g back_b]]. The vertex count is
+// patched into the header by Close(), so the count need not be known in advance, except for path
+// "-": standard output, written in place, with PlyWriterOptions::vertex_count. REQUIRES: Close() to
+// finish the file; a writer destroyed without Close() removes its temporary file and leaves `path`
+// as it was.
 class PlyWriter {
  public:
   static absl::StatusOr<std::unique_ptr<PlyWriter>> Create(const std::string& path,

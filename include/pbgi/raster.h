@@ -74,8 +74,9 @@ namespace pbgi {
 // Which sides of a one-sided surfel occlude and emit (RenderMan's `hitsides`). A surfel's front
 // is the side its normal points to. With kBack or kBoth, a surfel seen from behind shows the
 // same radiance as its front. A two-sided surfel (Surfel::two_sided) shows both sides in every
-// mode. A cluster with kBoth shows the larger of its two sides' projected areas, not their sum,
-// so that a closed object's silhouette counts once (see "Cluster model" above).
+// mode, its back with Surfel::back_radiance. A cluster with kBoth shows the larger of its two
+// sides' projected areas, not their sum, so that a closed object's silhouette counts once (see
+// "Cluster model" above).
 enum class HitSides : uint8_t { kFront, kBack, kBoth };
 
 // The glossy lobe D around the reflection direction r, with a = angle(w, r):

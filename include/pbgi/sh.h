@@ -53,6 +53,15 @@ inline std::array<T, 9> ProjectClampedCosine(T nx, T ny, T nz, T area) {
           a2 * y[5], a2 * y[6], a2 * y[7], a2 * y[8]};
 }
 
+// A two-sided surfel's power: front * (A max(0, n.w)) + back * (A max(0, -n.w)), from c =
+// ProjectClampedCosine(n, A). -n's lobe is c with band 1 negated (the odd band), so the even
+// bands take front + back and band 1 front - back.
+template <typename T>
+inline void ProjectTwoSided(const T* c, T front, T back, T* out) {
+  const T sum = front + back, diff = front - back;
+  for (int k = 0; k < 9; ++k) out[k] = c[k] * ((k >= 1 && k <= 3) ? diff : sum);
+}
+
 // Value of the function with coefficients c in the unit direction w (may ring slightly negative
 // where the true function is zero: callers clamp at 0).
 template <typename T, typename C>

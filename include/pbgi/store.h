@@ -62,7 +62,9 @@ inline constexpr uint64_t kStoreMagic = 0x3130424447425050ull;  // "PPBGDB01" li
 // two-sided normals have no tag there, is refused the same way.
 // Version 5: a radiance database's node record ends with its radiance contrast (one byte,
 // tree/format.h), which the cut reads (Cut::radiance_contrast); a version-4 store is refused.
-inline constexpr uint32_t kStoreFormatVersion = 5;
+// Version 6: Channels::kRadianceBothSides, whose point records add a two-sided surfel's back
+// radiance (tree/format.h). A version-5 store is a version-6 store without it and is read.
+inline constexpr uint32_t kStoreFormatVersion = 6;
 inline constexpr uint32_t kOldestReadableStoreFormatVersion = 5;
 
 // The efficient page sizes are k*4096 - 16: LMDB stores a large value in a run of 4 KiB overflow

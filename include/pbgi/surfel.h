@@ -21,8 +21,9 @@ namespace pbgi {
 // A surfel is a disk: position, unit normal, radius, and (with the radiance channel) the
 // diffusely reflected radiance the renderer baked into it (direct light * albedo + emission).
 // A two-sided surfel (a piece of a thin sheet: a leaf, a card, an open mesh part) occludes and
-// shows its radiance from both sides whatever RasterOptions::hitsides says; a one-sided one
-// only from the side its normal points to (or as hitsides selects).
+// shows a radiance on each side whatever RasterOptions::hitsides says (`radiance` on the side
+// its normal points to, `back_radiance` on the other); a one-sided one only from the side its
+// normal points to (or as hitsides selects, with `radiance` on both).
 struct Surfel {
   glm::vec3 position{0.0f};
   glm::vec3 normal{0.0f, 0.0f, 1.0f};
@@ -35,6 +36,11 @@ struct Surfel {
   // only when the tags do not tell them apart (docs/design.md, "Sheet tags"). One-sided
   // surfels carry 0. Stored since format version 4.
   uint8_t sheet = 0;
+  // A two-sided surfel's radiance on its back, the side its normal points away from: a leaf lit
+  // on one face is dark on the other (docs/design.md, "Two-sided surfels"). Unused on one-sided
+  // surfels (0). A source that knows one radiance for both sides sets it to `radiance` (a PLY
+  // without `back_r back_g back_b` reads so). Stored since format version 6.
+  glm::vec3 back_radiance{0.0f};
 
   float Area() const { return 3.14159265358979f * radius * radius; }
 };
@@ -43,9 +49,13 @@ struct Surfel {
 enum class Channels : uint32_t {
   kOcclusion = 0,  // position, normal, radius: ambient occlusion only
   kRadiance = 1,   // adds RGB radiance per surfel and power SH per node
+  // kRadiance, and a back radiance on two-sided surfels (Surfel::back_radiance). The builder
+  // stores it in place of kRadiance when some two-sided surfel's back differs from its front
+  // (as stored), so a scene without such surfels pays nothing for it. Format version 6.
+  kRadianceBothSides = 2,
 };
 
-inline bool HasRadiance(Channels c) { return c == Channels::kRadiance; }
+inline bool HasRadiance(Channels c) { return c != Channels::kOcclusion; }
 
 // Axis-aligned box. An empty box has lo > hi.
 struct Bounds {

@@ -29,6 +29,12 @@ namespace {
 
 using testing_build::ScratchDir;
 
+// A position as the store holds it: its cell's centre on the store's grid (format version 3).
+std::tuple<float, float, float> OnGrid(const internal::PositionGrid& grid, const glm::vec3& p) {
+  return {grid.Coord(0, grid.Nearest(0, p.x)), grid.Coord(1, grid.Nearest(1, p.y)),
+          grid.Coord(2, grid.Nearest(2, p.z))};
+}
+
 // Two-sided surfels (their flag in the radius's sign bit) build a store that verifies (leaf SH
 // recomputed from the points with each two-sided one as the pair n, -n), whose root holds
 // band 1 of the one-sided surfels only and the even bands of both sides, and whose points read
@@ -62,11 +68,7 @@ TEST(BuildDatabaseTest, TwoSidedSurfelsBuildAVerifiableStore) {
     // Every point's flag, found by position (the store holds them in Morton order).
     // Positions are stored on the store's grid (format version 3, tree/format.h).
     const internal::PositionGrid grid = internal::PositionGrid::Of((*store)->meta());
-    auto on_grid = [&](const glm::vec3& p) {
-      return std::tuple<float, float, float>(grid.Coord(0, grid.Nearest(0, p.x)),
-                                             grid.Coord(1, grid.Nearest(1, p.y)),
-                                             grid.Coord(2, grid.Nearest(2, p.z)));
-    };
+    auto on_grid = [&](const glm::vec3& p) { return OnGrid(grid, p); };
     std::map<std::tuple<float, float, float>, int> want;
     for (const Surfel& s : cloud)
       want[on_grid(s.position)] += s.two_sided ? 1 + 2 * s.sheet : 0x1000;
@@ -86,6 +88,97 @@ TEST(BuildDatabaseTest, TwoSidedSurfelsBuildAVerifiableStore) {
     }
     EXPECT_EQ(seen, cloud.size());
     EXPECT_EQ(got, want);
+  }
+}
+
+// A two-sided surfel's back radiance (Surfel::back_radiance) is stored where some two-sided
+// surfel's back differs from its front (Channels::kRadianceBothSides, 26-byte point records):
+// through the in-memory sort, compact spilled runs and raw runs (estimated radii) alike, and
+// VerifyTree checks each node's power SH against its points' fronts and backs. Where every
+// back equals its front, or no surfel is two-sided, the database stays kRadiance, its records
+// 20 bytes: nothing stored that the scene does not need.
+TEST(BuildDatabaseTest, BackRadianceIsStoredWhereATwoSidedSurfelsBackDiffers) {
+  ScratchDir dir("db_back");
+  auto cloud = testing_build::SurfaceCloud(6000, 12);
+  for (size_t i = 0; i < cloud.size(); ++i) {
+    cloud[i].two_sided = i % 3 == 1;
+    cloud[i].sheet = cloud[i].two_sided ? static_cast<uint8_t>(1 + i % 255) : 0;
+    if (cloud[i].two_sided) {
+      cloud[i].back_radiance = glm::vec3(0.1f + 0.5f * cloud[i].radiance.z, 0.02f * (i % 7), 3.0f);
+    }
+  }
+  uint64_t both_sides_pages = 0;
+  for (const auto& [estimate, memory] :
+       {std::pair{false, 64 << 20}, std::pair{true, 64 << 20}, std::pair{false, 1}}) {
+    SCOPED_TRACE(estimate ? "estimated radius" : "given radius");
+    SCOPED_TRACE(memory);
+    BuildOptions o;
+    o.memory_bytes = memory;
+    o.tmp_dir = dir.Sub("tmp");
+    std::filesystem::create_directories(o.tmp_dir);
+    o.channels = Channels::kRadiance;
+    o.estimate.radius = estimate;
+    VectorSurfelSource src(cloud, /*has_radiance=*/true);
+    const std::string db = dir.Sub(estimate ? "db_est" : memory == 1 ? "db_spill" : "db");
+    auto stats = BuildDatabase(src, db, o);
+    ASSERT_TRUE(stats.ok()) << stats.status();
+    auto store = PageStore::Open(db);
+    ASSERT_TRUE(store.ok()) << store.status();
+    const StoreMeta& m = (*store)->meta();
+    EXPECT_EQ(m.channels, Channels::kRadianceBothSides);
+    EXPECT_TRUE(VerifyTree(**store).ok()) << VerifyTree(**store);
+    if (!estimate) both_sides_pages = m.point_pages;
+    // Every point's back radiance, found by position.
+    const internal::PositionGrid grid = internal::PositionGrid::Of(m);
+    auto on_grid = [&](const glm::vec3& p) { return OnGrid(grid, p); };
+    std::map<std::tuple<float, float, float>, const Surfel*> input;
+    for (const Surfel& s : cloud) input[on_grid(s.position)] = &s;
+    auto txn = (*store)->BeginRead();
+    ASSERT_TRUE(txn.ok()) << txn.status();
+    uint64_t seen = 0, backs = 0;
+    for (uint64_t page = 0; page < m.point_pages; ++page) {
+      auto view = txn->Get(Section::kPoints, page);
+      ASSERT_TRUE(view.ok()) << view.status();
+      for (uint32_t i = 0; i < view->header->record_count; ++i, ++seen) {
+        const Surfel s = internal::DecodePoint(view->payload.data(), i, m.channels, grid);
+        const auto it = input.find({s.position.x, s.position.y, s.position.z});
+        ASSERT_NE(it, input.end());
+        const Surfel& in = *it->second;
+        ASSERT_EQ(s.two_sided, in.two_sided);
+        for (int k = 0; k < 3; ++k) {
+          ASSERT_NEAR(s.radiance[k], in.radiance[k], 1e-3f * std::fabs(in.radiance[k]) + 1e-9f);
+          if (in.two_sided) {
+            ASSERT_NEAR(s.back_radiance[k], in.back_radiance[k],
+                        1e-3f * std::fabs(in.back_radiance[k]) + 1e-9f);
+          } else {
+            ASSERT_EQ(s.back_radiance[k], 0.0f);
+          }
+        }
+        backs += in.two_sided;
+      }
+    }
+    EXPECT_EQ(seen, cloud.size());
+    EXPECT_EQ(backs, cloud.size() / 3);
+  }
+  // Backs equal to fronts, or one-sided only: kRadiance, fewer point pages.
+  for (bool two_sided : {true, false}) {
+    SCOPED_TRACE(two_sided);
+    auto same = cloud;
+    for (Surfel& s : same) {
+      s.back_radiance = s.radiance;
+      if (!two_sided) s.two_sided = false;
+    }
+    BuildOptions o;
+    o.tmp_dir = dir.Sub("tmp");
+    VectorSurfelSource src(same, /*has_radiance=*/true);
+    const std::string db = dir.Sub(two_sided ? "db_same" : "db_one");
+    auto stats = BuildDatabase(src, db, o);
+    ASSERT_TRUE(stats.ok()) << stats.status();
+    auto store = PageStore::Open(db);
+    ASSERT_TRUE(store.ok()) << store.status();
+    EXPECT_EQ((*store)->meta().channels, Channels::kRadiance);
+    EXPECT_TRUE(VerifyTree(**store).ok()) << VerifyTree(**store);
+    EXPECT_LT((*store)->meta().point_pages, both_sides_pages);
   }
 }
 

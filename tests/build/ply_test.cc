@@ -8,6 +8,7 @@
 #include <string>
 #include <vector>
 
+#include "gmock/gmock.h"
 #include "gtest/gtest.h"
 #include "pbgi/build.h"
 #include "tests/build/test_clouds.h"
@@ -81,6 +82,7 @@ TEST(PlyTest, TwoSidedFlagRoundTrips) {
   for (size_t i = 0; i < cloud.size(); ++i) {
     cloud[i].two_sided = (i * 7) % 3 == 0;
     cloud[i].sheet = cloud[i].two_sided ? static_cast<uint8_t>(i % 256) : 0;
+    if (cloud[i].two_sided) cloud[i].back_radiance = glm::vec3(0.125f * (i % 5), 0.3f, 7.0f);
   }
   for (bool ascii : {false, true}) {
     for (bool colour : {true, false}) {
@@ -108,7 +110,14 @@ TEST(PlyTest, TwoSidedFlagRoundTrips) {
           ASSERT_EQ(got[i].radius, cloud[i].radius) << i;
           ASSERT_EQ(got[i].two_sided, flag && cloud[i].two_sided) << i;
           ASSERT_EQ(got[i].sheet, flag ? cloud[i].sheet : 0) << i;
+          // The back radiance travels with the flag and the radiance (`back_r back_g
+          // back_b`); a two-sided surfel without it shows its radiance on both sides.
+          const glm::vec3 back = !(flag && cloud[i].two_sided) ? glm::vec3(0.0f)
+                                 : colour                      ? cloud[i].back_radiance
+                                                               : got[i].radiance;
+          ASSERT_EQ(got[i].back_radiance, back) << i;
         }
+        EXPECT_EQ((*src)->header().has_back_radiance, flag && colour);
       }
     }
   }
@@ -128,6 +137,16 @@ TEST(PlyTest, TwoSidedFlagRoundTrips) {
   EXPECT_EQ(got[0].sheet, 0);  // one-sided
   EXPECT_EQ(got[1].sheet, 0);  // out of range
   EXPECT_EQ(got[2].sheet, 17);
+  // A back radiance needs all three channels.
+  const std::string part = dir.Sub("g.ply");
+  WriteFile(part,
+            "ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\n"
+            "property float z\nproperty float nx\nproperty float ny\nproperty float nz\n"
+            "property float radius\nproperty uchar two_sided\nproperty float back_r\n"
+            "property float back_g\nend_header\n0 0 0 0 0 1 1 1 0.5 0.5\n");
+  auto bad = OpenPly(part);
+  ASSERT_FALSE(bad.ok());
+  EXPECT_THAT(bad.status().message(), ::testing::HasSubstr("back_r back_g back_b"));
 }
 
 TEST(PlyTest, ReadsUcharColoursExtraPropertiesAndOtherTypes) {

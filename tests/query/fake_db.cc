@@ -103,15 +103,11 @@ FakeDb BuildFakeDb(const std::vector<Surfel>& input, const FakeDbOptions& option
   // and aggregates are the decoded ones, and each page stores the code it was decoded from.
   const PositionGrid grid = GridOfCube(MortonCube(b));
   const uint32_t prec = PointRecordSize(options.channels);
-  std::vector<std::array<uint8_t, kPointRecordRadianceBytes>> codes(input.size());
+  std::vector<std::array<uint8_t, kPointRecordBothSidesBytes>> codes(input.size());
   std::vector<Surfel> quantized(input.size());
   for (size_t i = 0; i < input.size(); ++i) {
     const Surfel& s = input[i];
-    const float pos[3] = {s.position.x, s.position.y, s.position.z};
-    const float nrm[3] = {s.normal.x, s.normal.y, s.normal.z};
-    const float rad[3] = {s.radiance.x, s.radiance.y, s.radiance.z};
-    EncodePointRecord(pos, nrm, EncodeRadius(s.radius, s.two_sided), rad, options.channels, grid,
-                      codes[i].data());
+    EncodeSurfelRecord(s, options.channels, grid, codes[i].data());
     quantized[i] = DecodePointRecord(codes[i].data(), options.channels, grid);
   }
   const glm::vec3 ext = b.Extent();

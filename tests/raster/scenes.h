@@ -105,13 +105,23 @@ inline Cluster Aggregate(const std::vector<Surfel>& surfels) {
     const double a = s.Area();
     total += a;
     c.bounds.Extend(s.position);
-    auto y = sh::ProjectClampedCosine<double>(s.normal.x, s.normal.y, s.normal.z, a);
+    const auto c1 = sh::ProjectClampedCosine<double>(s.normal.x, s.normal.y, s.normal.z, a);
+    std::array<double, 9> y = c1;
+    std::array<std::array<double, 9>, 3> p;
+    for (int ch = 0; ch < 3; ++ch) {
+      if (s.two_sided) {  // front on n's lobe, back on -n's
+        sh::ProjectTwoSided(c1.data(), double{s.radiance[ch]}, double{s.back_radiance[ch]},
+                            p[ch].data());
+      } else {
+        for (int i = 0; i < 9; ++i) p[ch][i] = c1[i] * s.radiance[ch];
+      }
+    }
     if (s.two_sided) {  // the pair (n, -n)
       for (int i = 0; i < 9; ++i) y[i] = (i >= 1 && i <= 3) ? 0.0 : 2.0 * y[i];
     }
     for (int i = 0; i < 9; ++i) {
       area[i] += y[i];
-      for (int ch = 0; ch < 3; ++ch) power[ch][i] += y[i] * s.radiance[ch];
+      for (int ch = 0; ch < 3; ++ch) power[ch][i] += p[ch][i];
     }
   }
   c.area = static_cast<float>(total);

@@ -148,22 +148,34 @@ TEST(TwoSidedTest, TwoSidedCardOccludesTheSameFromBothSides) {
   }
 }
 
-// An emitting two-sided card seen from its back shows its radiance: the irradiance of a
-// one-sided card of radiance L seen from its front, pi L times the form factor.
-TEST(TwoSidedTest, TwoSidedCardShinesFromBothSides) {
-  const glm::vec3 l(0.5f, 1.0f, 2.0f);
-  const std::vector<Surfel> facing = SquareSurfels(0.5f, 1.0f, 0.02f, l);
+// A two-sided card shows its front radiance from the front and its back radiance from behind
+// (Surfel::back_radiance): the irradiance of a one-sided card of that radiance seen from its
+// front, pi L times the form factor. As surfels (one disk each, or the leaf's co-planar
+// groups) and as clusters (the power SH's band 1 holds front minus back).
+TEST(TwoSidedTest, TwoSidedCardShowsEachSidesRadiance) {
+  const glm::vec3 front(0.5f, 1.0f, 2.0f), back(1.5f, 0.25f, 0.0f);
+  const std::vector<Surfel> facing = SquareSurfels(0.5f, 1.0f, 0.02f, front);
   const double ff = RectangleFormFactor(-0.5, 0.5, -0.5, 0.5, 1.0);
-  const std::vector<Surfel> away = Flipped(facing, true);
-  for (Footprint fp : {Footprint::kSplats, Footprint::kPolygons}) {
-    for (int how = 0; how < 2; ++how) {
-      Gathered g;
-      if (how == 0) g.surfels = away;
-      if (how == 1) g.clusters = ClustersInCells(away, 0.25f);
-      const ShadeResult r = MustShade(g, glm::vec3(0.0f), Options(fp, HitSides::kFront, true));
-      for (int c = 0; c < 3; ++c) {
-        EXPECT_NEAR(r.irradiance[c], kPi * ff * l[c], 0.03 * kPi * ff * l[c])
-            << Name(fp) << " " << how << " channel " << c;
+  for (bool from_behind : {false, true}) {
+    // The side the receiver sees carries `front` and the other `back`. Seen from behind, the
+    // card's normal points away from the receiver, so its back radiance is `front`.
+    std::vector<Surfel> card = from_behind ? Flipped(facing, true) : facing;
+    for (Surfel& s : card) {
+      s.two_sided = true;
+      s.radiance = from_behind ? back : front;
+      s.back_radiance = from_behind ? front : back;
+    }
+    const glm::vec3 want = front;
+    for (Footprint fp : {Footprint::kSplats, Footprint::kPolygons}) {
+      for (int how = 0; how < 2; ++how) {
+        Gathered g;
+        if (how == 0) g.surfels = card;
+        if (how == 1) g.clusters = ClustersInCells(card, 0.25f);
+        const ShadeResult r = MustShade(g, glm::vec3(0.0f), Options(fp, HitSides::kFront, true));
+        for (int c = 0; c < 3; ++c) {
+          EXPECT_NEAR(r.irradiance[c], kPi * ff * want[c], 0.03 * kPi * ff * front[c])
+              << Name(fp) << " " << how << " behind " << from_behind << " channel " << c;
+        }
       }
     }
   }

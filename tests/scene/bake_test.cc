@@ -224,6 +224,42 @@ TEST(ReferenceTest, AThinSheetsBackIsLitFromItsOwnSide) {
             0.0f);
 }
 
+// A thin sheet's surfels are two-sided, and each side is baked with its own light
+// (Surfel::back_radiance), as the reference shades it: the unit quad facing +z with the sun
+// below it at 36.87 degrees from the axis (cos 0.8) lights its back, albedo * sun * 0.8, and
+// not its front; an emission shows on the front only. A one-sided quad's back is not baked.
+TEST(BakeTest, AThinSheetsBackIsBakedFromItsOwnSide) {
+  const glm::vec3 albedo(0.5f, 0.25f, 1.0f), emission(0.125f, 0.0f, 0.0f);
+  Scene s = Quad(glm::mat4(1.0f), albedo);
+  s.materials[0].emission = emission;
+  s.materials[0].thin = true;
+  s.lights.has_sun = true;
+  s.lights.sun.direction = glm::vec3(0.6f, 0.0f, -0.8f);
+  s.lights.sun.radiance = glm::vec3(2.0f);
+  const std::vector<Surfel> surfels = Sample(s, 256);
+  ASSERT_EQ(surfels.size(), 256u);
+  for (const Surfel& sf : surfels) {
+    ASSERT_TRUE(sf.two_sided);
+    for (int c = 0; c < 3; ++c) {
+      EXPECT_NEAR(sf.radiance[c], emission[c], 1e-5f) << c;
+      EXPECT_NEAR(sf.back_radiance[c], albedo[c] * 2.0f * 0.8f, 1e-4f) << c;
+    }
+  }
+  // The sun above: the front is lit, the back is dark.
+  s.lights.sun.direction = glm::vec3(0.6f, 0.0f, 0.8f);
+  for (const Surfel& sf : Sample(s, 64)) {
+    for (int c = 0; c < 3; ++c) {
+      EXPECT_NEAR(sf.radiance[c], albedo[c] * 2.0f * 0.8f + emission[c], 1e-4f) << c;
+      EXPECT_EQ(sf.back_radiance[c], 0.0f) << c;
+    }
+  }
+  s.materials[0].thin = false;
+  for (const Surfel& sf : Sample(s, 64)) {
+    EXPECT_FALSE(sf.two_sided);
+    EXPECT_EQ(sf.back_radiance, glm::vec3(0.0f));
+  }
+}
+
 TEST(BakeTest, AGroupsPointsDrawTheirOwnSkySamples) {
   // A ground point under a square roof [-0.5, 0.5]^2 at height 0.4; a sky of radiance 1 and
   // albedo 1: the radiance is the cosine-weighted open share of the sky.

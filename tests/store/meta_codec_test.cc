@@ -73,21 +73,43 @@ TEST(MetaCodecTest, FutureVersionIsRefusedWithBothNumbers) {
   EXPECT_THAT(d.status().message(), HasSubstr("store X"));
 }
 
-// Versions 1 and 2 stored plain float records, version 3 compact ones without sheet tags;
-// version 4 (tree/format.h) does not read them: the message names both versions and says to
-// rebuild.
+// Versions 1 and 2 stored plain float records, version 3 compact ones without sheet tags,
+// version 4 nodes without a radiance contrast; this library (tree/format.h) does not read them:
+// the message names the version and the versions it reads, and says to rebuild.
 TEST(MetaCodecTest, OldVersionsAreRefusedWithBothNumbersAndRebuild) {
-  for (uint32_t old : {1u, 2u, 3u}) {
+  for (uint32_t old : {1u, 2u, 3u, 4u}) {
     std::string bytes = EncodeMeta(SampleMeta(), true);
     std::memcpy(&bytes[8], &old, 4);
     absl::StatusOr<DecodedMeta> d = DecodeMeta(bytes, "store Y");
     ASSERT_FALSE(d.ok()) << old;
     EXPECT_EQ(d.status().code(), absl::StatusCode::kFailedPrecondition);
     EXPECT_THAT(d.status().message(), HasSubstr("version " + std::to_string(old)));
-    EXPECT_THAT(d.status().message(), HasSubstr("version " + std::to_string(kStoreFormatVersion)));
+    EXPECT_THAT(d.status().message(),
+                HasSubstr("versions " + std::to_string(kOldestReadableStoreFormatVersion) + " to " +
+                          std::to_string(kStoreFormatVersion)));
     EXPECT_THAT(d.status().message(), HasSubstr("rebuild"));
     EXPECT_THAT(d.status().message(), HasSubstr("store Y"));
   }
+}
+
+// A version-5 store is a version-6 store without the back radiance: read as it is. Its meta
+// cannot name kRadianceBothSides, which version 6 added.
+TEST(MetaCodecTest, VersionFiveIsReadAndCannotHoldBothSides) {
+  StoreMeta m = SampleMeta();
+  m.version = 5;
+  m.channels = Channels::kRadiance;
+  absl::StatusOr<DecodedMeta> d = DecodeMeta(EncodeMeta(m, true), "store V");
+  ASSERT_TRUE(d.ok()) << d.status();
+  EXPECT_EQ(d->meta.version, 5u);
+  EXPECT_EQ(d->meta.channels, Channels::kRadiance);
+  m.channels = Channels::kRadianceBothSides;
+  d = DecodeMeta(EncodeMeta(m, true), "store V");
+  ASSERT_FALSE(d.ok());
+  EXPECT_THAT(d.status().message(), HasSubstr("unknown channels 2"));
+  m.version = 6;
+  d = DecodeMeta(EncodeMeta(m, true), "store V");
+  ASSERT_TRUE(d.ok()) << d.status();
+  EXPECT_EQ(d->meta.channels, Channels::kRadianceBothSides);
 }
 
 TEST(MetaCodecTest, GridRoundTrips) {
