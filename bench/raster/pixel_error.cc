@@ -42,6 +42,7 @@
 #include "pbgi/shade.h"
 #include "pbgi/status.h"
 #include "raster/cube.h"
+#include "tools/scene_views.h"
 
 namespace pbgi {
 namespace {
@@ -424,21 +425,18 @@ int RunOne(const Args& a, Reader& reader, const Tracer& tracer) {
 }
 
 int Run(const Args& a) {
-  ImportReport report;
-  auto scene =
-      a.scene.find('.') != std::string::npos ? ImportMesh(a.scene, &report) : MakeScene(a.scene);
-  if (!scene.ok()) return Fail(scene.status());
-  if (a.up_y) {
-    // As pbgi eval --up y: (x, y, z) -> (x, -z, y), +90 degrees about x.
-    const glm::mat4 r(glm::vec4(1, 0, 0, 0), glm::vec4(0, 0, 1, 0), glm::vec4(0, -1, 0, 0),
-                      glm::vec4(0, 0, 0, 1));
-    for (Instance& i : scene->instances) i.transform = r * i.transform;
-  }
-  auto shared = std::make_shared<const Scene>(std::move(scene).value());
-  auto tracer = Tracer::Create(*shared);
-  if (!tracer.ok()) return Fail(tracer.status());
   auto db = Database::Open(a.db);
   if (!db.ok()) return Fail(db.status());
+  // The scene as pbgi eval has it: a mesh oriented (its open parts thin, two-sided) and lit as
+  // the database recorded it (a white sky unless it says otherwise), `--up y` turned z-up.
+  ImportReport report;
+  auto scene = tools::LoadLitScene(
+      a.scene, /*seed=*/1, /*size=*/0, a.up_y ? tools::UpAxis::kY : tools::UpAxis::kZ,
+      /*orient=*/true, tools::LightFlags{}, "pixel_error", &report, &(*db)->meta().stats);
+  if (!scene.ok()) return Fail(scene.status());
+  std::shared_ptr<const Scene> shared = *std::move(scene);
+  auto tracer = Tracer::Create(*shared);
+  if (!tracer.ok()) return Fail(tracer.status());
   auto reader = (*db)->NewReader();
   if (!reader.ok()) return Fail(reader.status());
   if (a.one && !a.bands.empty()) return RunBands(a, **reader, **tracer);
