@@ -324,12 +324,17 @@ absl::Status RunReleased(const std::function<absl::Status()>& work, std::atomic<
 class ArraySource final : public SurfelSource {
  public:
   ArraySource(FloatView positions, FloatView normals, FloatView radii, FloatView radiance,
-              bool has_radiance)
+              bool has_radiance, FloatView two_sided, bool has_two_sided, FloatView back,
+              bool has_back)
       : p_(std::move(positions)),
         n_(std::move(normals)),
         r_(std::move(radii)),
         c_(std::move(radiance)),
-        has_radiance_(has_radiance) {}
+        t_(std::move(two_sided)),
+        b_(std::move(back)),
+        has_radiance_(has_radiance),
+        has_two_sided_(has_two_sided),
+        has_back_(has_back) {}
   absl::StatusOr<size_t> Next(absl::Span<Surfel> out) override {
     const size_t k = std::min(out.size(), static_cast<size_t>(p_.size()) - pos_);
     for (size_t j = 0; j < k; ++j) {
@@ -339,6 +344,9 @@ class ArraySource final : public SurfelSource {
       s.normal = n_.Vec3(i);
       s.radius = r_.At(i);
       s.radiance = has_radiance_ ? c_.Vec3(i) : glm::vec3(0.0f);
+      // A two-sided surfel without a back radiance shows its radiance on both sides.
+      s.two_sided = has_two_sided_ && t_.At(i) != 0.0f;
+      s.back_radiance = !s.two_sided ? glm::vec3(0.0f) : has_back_ ? b_.Vec3(i) : s.radiance;
     }
     pos_ += k;
     return k;
@@ -351,8 +359,8 @@ class ArraySource final : public SurfelSource {
   bool HasRadiance() const override { return has_radiance_; }
 
  private:
-  FloatView p_, n_, r_, c_;
-  bool has_radiance_;
+  FloatView p_, n_, r_, c_, t_, b_;
+  bool has_radiance_, has_two_sided_, has_back_;
   size_t pos_ = 0;
 };
 
@@ -467,23 +475,33 @@ BuildArgs ToBuildArgs(uint64_t memory_bytes, uint32_t leaf_size, uint32_t page_s
 }
 
 py::dict BuildArrays(const std::string& path, py::handle positions, py::handle normals,
-                     py::handle radii, py::handle radiance, const BuildArgs& a) {
+                     py::handle radii, py::handle radiance, py::handle two_sided,
+                     py::handle back_radiance, const BuildArgs& a) {
   FloatView p(positions, "positions", 3);
   FloatView n(normals, "normals", 3, p.size(), "positions");
   FloatView r(radii, "radii", 0, p.size(), "positions");
-  FloatView c;
+  FloatView c, t, b;
   if (!radiance.is_none()) c = FloatView(radiance, "radiance", 3, p.size(), "positions");
+  if (!two_sided.is_none()) t = FloatView(two_sided, "two_sided", 0, p.size(), "positions");
+  if (!back_radiance.is_none()) {
+    if (two_sided.is_none() || radiance.is_none()) {
+      Invalid("back_radiance needs two_sided and radiance (a back is a two-sided surfel's)");
+    }
+    b = FloatView(back_radiance, "back_radiance", 3, p.size(), "positions");
+  }
   if (p.size() == 0) Invalid("positions: no surfels (an empty input is an error)");
   if (!a.skip_invalid) {
     CheckVec3s(p, false);
     CheckVec3s(n, true);
     CheckRadii(r);
     if (!radiance.is_none()) CheckVec3s(c, false);
+    if (!back_radiance.is_none()) CheckVec3s(b, false);
   }
   if (a.channels == "radiance" && radiance.is_none()) {
     Invalid("channels='radiance' needs a radiance array (n, 3)");
   }
-  ArraySource source(std::move(p), std::move(n), std::move(r), std::move(c), !radiance.is_none());
+  ArraySource source(std::move(p), std::move(n), std::move(r), std::move(c), !radiance.is_none(),
+                     std::move(t), !two_sided.is_none(), std::move(b), !back_radiance.is_none());
   return Build(path, source, a);
 }
 
@@ -500,6 +518,7 @@ py::dict MetaDict(const StoreMeta& m, const std::string& path, uint64_t file_byt
   d["version"] = m.version;
   d["page_size"] = m.page_size;
   d["channels"] = HasRadiance(m.channels) ? "radiance" : "occlusion";
+  d["back_radiance"] = m.channels == Channels::kRadianceBothSides;
   d["sh_order"] = m.sh_order;
   d["leaf_size"] = m.leaf_size;
   d["bounds_lo"] = std::vector<float>{m.bounds.lo.x, m.bounds.lo.y, m.bounds.lo.z};
@@ -796,20 +815,21 @@ void Init(py::module_& m) {
   m.def(
       "build_arrays",
       [build_args](const std::string& path, py::handle positions, py::handle normals,
-                   py::handle radii, py::handle radiance, uint64_t memory_bytes, uint32_t leaf_size,
+                   py::handle radii, py::handle radiance, py::handle two_sided,
+                   py::handle back_radiance, uint64_t memory_bytes, uint32_t leaf_size,
                    uint32_t page_size, const std::string& channels, const std::string& layout,
                    int threads, const std::string& tmp_dir, bool skip_invalid,
                    uint64_t shuffle_seed, py::object progress, double progress_interval) {
         return BuildArrays(
-            path, positions, normals, radii, radiance,
+            path, positions, normals, radii, radiance, two_sided, back_radiance,
             build_args(memory_bytes, leaf_size, page_size, channels, layout, threads, tmp_dir,
                        skip_invalid, shuffle_seed, std::move(progress), progress_interval));
       },
       py::arg("path"), py::arg("positions"), py::arg("normals"), py::arg("radii"),
-      py::arg("radiance"), py::arg("memory_bytes"), py::arg("leaf_size"), py::arg("page_size"),
-      py::arg("channels"), py::arg("layout"), py::arg("threads"), py::arg("tmp_dir"),
-      py::arg("skip_invalid"), py::arg("shuffle_seed"), py::arg("progress"),
-      py::arg("progress_interval"));
+      py::arg("radiance"), py::arg("two_sided"), py::arg("back_radiance"), py::arg("memory_bytes"),
+      py::arg("leaf_size"), py::arg("page_size"), py::arg("channels"), py::arg("layout"),
+      py::arg("threads"), py::arg("tmp_dir"), py::arg("skip_invalid"), py::arg("shuffle_seed"),
+      py::arg("progress"), py::arg("progress_interval"));
   m.def(
       "build_ply",
       [build_args](const std::string& path, const std::string& ply_path, uint64_t memory_bytes,

@@ -29,6 +29,8 @@ import re as _re
 import sys as _sys
 import threading as _threading
 
+import numpy as _np
+
 from . import _errors
 from ._errors import (  # noqa: F401  (re-exported)
     AbortedError,
@@ -155,12 +157,16 @@ def _build_kwargs(memory, leaf_size, page_size, channels, layout, threads, tmp_d
     )
 
 
-def build(path, positions, normals, radii, radiance=None, *, memory="1G", leaf_size=16,
-          page_size=None, channels=None, layout="coherent", threads=0, tmp_dir=None,
-          skip_invalid=False, shuffle_seed=12345, progress=None, progress_interval=0.1):
+def build(path, positions, normals, radii, radiance=None, *, two_sided=None, back_radiance=None,
+          memory="1G", leaf_size=16, page_size=None, channels=None, layout="coherent", threads=0,
+          tmp_dir=None, skip_invalid=False, shuffle_seed=12345, progress=None,
+          progress_interval=0.1):
     """Builds a database at ``path`` (a directory, replaced only when the build succeeds) from
     surfels given as arrays: positions (n, 3), normals (n, 3), radii (n,), and optionally the
-    baked radiance (n, 3); float32 or float64, any strides. The options are those of
+    baked radiance (n, 3); float32 or float64, any strides. ``two_sided`` (n,), nonzero for a
+    surfel of a thin sheet seen from both sides (a leaf, a card), and ``back_radiance`` (n, 3),
+    the radiance of a two-sided surfel's back (the side its normal points away from; without
+    it a two-sided surfel shows its radiance on both sides). The options are those of
     ``pbgi build``: ``memory`` bounds the build's memory (bytes or '512M'); ``leaf_size``,
     ``page_size`` (default 32752), ``layout`` ('coherent', 'postorder', 'breadth-first',
     'shuffled'), ``channels`` (None: 'radiance' when radiance is given, else 'occlusion'),
@@ -170,8 +176,11 @@ def build(path, positions, normals, radii, radiance=None, *, memory="1G", leaf_s
     """
     cb, closer = _progress(progress, "points")
     try:
+        if two_sided is not None:
+            two_sided = _np.asarray(two_sided, dtype=_np.float32)
         return _pbgi.build_arrays(
-            str(path), positions, normals, radii, radiance, progress=cb,
+            str(path), positions, normals, radii, radiance, two_sided, back_radiance,
+            progress=cb,
             **_build_kwargs(memory, leaf_size, page_size, channels, layout, threads, tmp_dir,
                             skip_invalid, shuffle_seed, progress_interval))
     finally:
