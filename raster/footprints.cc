@@ -641,6 +641,110 @@ bool CrossLeafConvexClip(uint32_t ai, absl::Span<const SurfelGroup> all,
   return clipped;
 }
 
+// The runs of one leaf's surfels in a gather (the gather emits a leaf's surfels together) and a
+// uniform grid over their leaf cells, so that SheetCell looks only at the runs whose cells lie
+// near a group's: it looked at every run for every two-sided group, and a receiver of
+// 2CylinderEngine that gathers thousands of leaves spent half its time there.
+class LeafRunIndex {
+ public:
+  void Build(const Gathered& g, absl::Span<const uint32_t> runs) {
+    runs_ = runs;
+    n_ = g.surfels.size();
+    const size_t count = runs.size();
+    boxes_.resize(count);
+    Bounds all;
+    for (size_t r = 0; r < count; ++r) {
+      boxes_[r] = g.leaf_cells[g.surfel_leaf[runs[r]]];
+      all.Extend(boxes_[r]);
+    }
+    // About two runs per grid cell, at most 32 cells per axis.
+    dim_ = std::clamp(static_cast<int>(std::cbrt(static_cast<double>(count) / 2.0)), 1, 32);
+    lo_ = all.lo;
+    const glm::vec3 extent = glm::max(all.hi - all.lo, glm::vec3(1e-30f));
+    inv_ = static_cast<float>(dim_) / extent;
+    first_.assign(size_t(dim_) * dim_ * dim_ + 1, 0);
+    big_.clear();
+    // Two passes: count, then fill (CSR). A run whose cell spans more than 64 grid cells is
+    // always a candidate.
+    for (int pass = 0; pass < 2; ++pass) {
+      if (pass == 1) {
+        for (size_t c = 1; c < first_.size(); ++c) first_[c] += first_[c - 1];
+        items_.resize(first_.back());
+        at_.assign(first_.begin(), first_.end() - 1);
+      }
+      for (size_t r = 0; r < count; ++r) {
+        int a[3], b[3];
+        Range(boxes_[r], a, b);
+        if ((b[0] - a[0] + 1) * (b[1] - a[1] + 1) * (b[2] - a[2] + 1) > 64) {
+          if (pass == 0) big_.push_back(static_cast<uint32_t>(r));
+          continue;
+        }
+        for (int z = a[2]; z <= b[2]; ++z) {
+          for (int y = a[1]; y <= b[1]; ++y) {
+            for (int x = a[0]; x <= b[0]; ++x) {
+              const size_t c = (size_t(z) * dim_ + y) * dim_ + x;
+              if (pass == 0) {
+                ++first_[c + 1];
+              } else {
+                items_[at_[c]++] = static_cast<uint32_t>(r);
+              }
+            }
+          }
+        }
+      }
+    }
+    stamp_.assign(count, 0);
+    epoch_ = 0;
+  }
+  // Calls f(first, end, cell) once for every run whose leaf cell may meet `query`: its surfels
+  // [first, end) of the gather and its leaf's cell.
+  template <typename F>
+  void ForNear(const Bounds& query, F&& f) {
+    if (++epoch_ == 0) {
+      std::fill(stamp_.begin(), stamp_.end(), 0);
+      epoch_ = 1;
+    }
+    auto visit = [&](uint32_t r) {
+      if (stamp_[r] == epoch_) return true;
+      stamp_[r] = epoch_;
+      return f(runs_[r], r + 1 < runs_.size() ? runs_[r + 1] : n_, boxes_[r]);
+    };
+    for (uint32_t r : big_) {
+      if (!visit(r)) return;
+    }
+    int a[3], b[3];
+    Range(query, a, b);
+    for (int z = a[2]; z <= b[2]; ++z) {
+      for (int y = a[1]; y <= b[1]; ++y) {
+        for (int x = a[0]; x <= b[0]; ++x) {
+          const size_t c = (size_t(z) * dim_ + y) * dim_ + x;
+          for (uint32_t k = first_[c]; k < first_[c + 1]; ++k) {
+            if (!visit(items_[k])) return;
+          }
+        }
+      }
+    }
+  }
+
+ private:
+  // The grid cells [a, b] per axis that box `x` meets, clamped to the grid.
+  void Range(const Bounds& x, int a[3], int b[3]) const {
+    for (int k = 0; k < 3; ++k) {
+      const float u = (x.lo[k] - lo_[k]) * inv_[k], v = (x.hi[k] - lo_[k]) * inv_[k];
+      a[k] = std::clamp(static_cast<int>(std::floor(std::max(u, -1.0f))), 0, dim_ - 1);
+      b[k] = std::clamp(static_cast<int>(std::floor(std::min(v, float(dim_)))), 0, dim_ - 1);
+    }
+  }
+
+  absl::Span<const uint32_t> runs_;
+  size_t n_ = 0;
+  std::vector<Bounds> boxes_;
+  glm::vec3 lo_{0.0f}, inv_{1.0f};
+  int dim_ = 1;
+  std::vector<uint32_t> first_, at_, items_, big_, stamp_;
+  uint32_t epoch_ = 0;
+};
+
 // A two-sided co-planar group's footprint snaps to the sides of its leaf cell across which its
 // sheet goes on, and ends where its surfels end elsewhere (docs/design.md, "Two-sided sheets
 // across their cells"). A side goes on when two-sided surfels of other leaves lie beyond it
@@ -651,8 +755,8 @@ bool CrossLeafConvexClip(uint32_t ai, absl::Span<const SurfelGroup> all,
 // group allows (a faceted sheet's next facet goes on too). A sheet that goes on along a part of
 // the side only (a rim, a hole or a slot at the side) keeps the leaf's rule there. Returns the
 // cell with every other side moved out of reach, or an empty box when no side goes on.
-// `members`: the group's surfels' indices in g.surfels; `runs`: where each run of one leaf's
-// surfels starts in g.surfels.
+// `members`: the group's surfels' indices in g.surfels; `runs`: the gather's runs of one leaf's
+// surfels.
 constexpr float kSheetReach = 1.5f;
 constexpr float kSheetNext = 2.5f;
 constexpr float kSheetCos = 0.9f;     // the co-planar group's normal test
@@ -661,7 +765,7 @@ constexpr float kSheetSlope = 0.43f;  // sin 25.5 degrees
 // (the forest's at 2 M surfels, about two per leaf) says too little of where its leaf ends.
 constexpr int kSheetMinCount = 3;
 Bounds SheetCell(const Bounds& cell, uint32_t leaf, const SurfelGroup& gr, const Gathered& g,
-                 const uint32_t* members, absl::Span<const uint32_t> runs) {
+                 const uint32_t* members, LeafRunIndex& runs) {
   const float sp = gr.spacing, reach = kSheetReach * sp;
   bool in_plane[3], near[6], any = false;  // near[2 k] (near[2 k + 1]): the low (high) side of k
   for (int k = 0; k < 3; ++k) {
@@ -696,12 +800,13 @@ Bounds SheetCell(const Bounds& cell, uint32_t leaf, const SurfelGroup& gr, const
     return sides & open;
   };
   const float next2 = kSheetNext * kSheetNext * sp * sp, cos2 = kSheetCos * kSheetCos;
-  const size_t n = g.surfels.size();
-  for (size_t r = 0; r < runs.size() && open != 0; ++r) {
-    size_t j = runs[r];
-    const size_t end = r + 1 < runs.size() ? runs[r + 1] : n;
+  Bounds near_cell;
+  near_cell.lo = cell.lo - reach;
+  near_cell.hi = cell.hi + reach;
+  // The result does not depend on the order the runs come in: a side's box of next samples only
+  // grows, and a side that goes on stays on.
+  runs.ForNear(near_cell, [&](size_t j, size_t end, const Bounds& c) {
     const uint32_t l = g.surfel_leaf[j];
-    const Bounds& c = g.leaf_cells[l];
     bool touches = l != leaf;
     for (int k = 0; k < 3 && touches; ++k) {
       touches = c.lo[k] <= cell.hi[k] + reach && c.hi[k] >= cell.lo[k] - reach;
@@ -729,7 +834,8 @@ Bounds SheetCell(const Bounds& cell, uint32_t leaf, const SurfelGroup& gr, const
         break;
       }
     }
-  }
+    return open != 0;
+  });
   constexpr float kFar = std::numeric_limits<float>::max();
   Bounds out = cell;
   bool snaps = false;
@@ -1175,15 +1281,17 @@ void Rasterizer::PrepareSurfelGroups(const Gathered& g, ShadeResult* out) {
   // for every receiver (most see no two-sided surfels).
   auto& runs = mb_.leaf_runs_;
   runs.clear();
-  auto leaf_runs = [&]() -> absl::Span<const uint32_t> {
+  static thread_local LeafRunIndex run_index;
+  auto leaf_runs = [&]() -> LeafRunIndex& {
     if (runs.empty()) {
       for (size_t i = 0; i < n; ++i) {
         if (i == 0 || g.surfel_leaf[i] != g.surfel_leaf[i - 1]) {
           runs.push_back(static_cast<uint32_t>(i));
         }
       }
+      run_index.Build(g, runs);
     }
-    return runs;
+    return run_index;
   };
   // Every cell's groups are found first, then drawn: a group's footprint stops at the plane of
   // another that it meets, in its cell or a neighbouring one (CrossLeafConvexClip).
