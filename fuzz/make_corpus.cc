@@ -52,6 +52,26 @@ int main(int argc, char** argv) {
             Read(f));
     }
   }
+  // Two-sided surfels with sheet tags and back radiance (PlyWriterOptions::two_sided).
+  {
+    std::vector<Surfel> thin(surfels.begin(), surfels.begin() + 12);
+    for (size_t i = 0; i < thin.size(); i += 2) {
+      thin[i].two_sided = true;
+      thin[i].sheet = static_cast<uint8_t>(1 + i);
+      thin[i].back_radiance = 0.5f * thin[i].radiance;
+    }
+    for (bool ascii : {false, true}) {
+      const std::string f = (scratch / "t.ply").string();
+      PlyWriterOptions wo;
+      wo.ascii = ascii;
+      wo.two_sided = true;
+      auto w = PlyWriter::Create(f, wo);
+      (void)(*w)->Write(thin);
+      (void)(*w)->Close();
+      Write(root / "fuzz_ply" / absl::StrCat(ascii ? "ascii" : "binary", "_two_sided.ply"),
+            Read(f));
+    }
+  }
   Write(root / "fuzz_ply" / "uchar_colour_faces.ply",
         "ply\nformat ascii 1.0\ncomment hand-made\nelement vertex 2\nproperty double x\n"
         "property double y\nproperty double z\nproperty float nx\nproperty float ny\n"
