@@ -156,8 +156,21 @@ inline AxisSight AxisFacesSeen(const float f[6], const glm::vec3& w) {
           (f[0] * mx + f[1] * px) + (f[2] * my + f[3] * py) + (f[4] * mz + f[5] * pz)};
 }
 
+// The sum of the faces turned towards w (n_f.w > 0), and of those turned away (the back side's
+// faces): what the axis-aligned ratio regularises with, each side's own.
+inline AxisSight AxisFacesFacing(const float f[6], const glm::vec3& w) {
+  const float px = w.x > 0.0f ? 1.0f : 0.0f, mx = w.x < 0.0f ? 1.0f : 0.0f;
+  const float py = w.y > 0.0f ? 1.0f : 0.0f, my = w.y < 0.0f ? 1.0f : 0.0f;
+  const float pz = w.z > 0.0f ? 1.0f : 0.0f, mz = w.z < 0.0f ? 1.0f : 0.0f;
+  return {(f[0] * px + f[1] * mx) + (f[2] * py + f[3] * my) + (f[4] * pz + f[5] * mz),
+          (f[0] * mx + f[1] * px) + (f[2] * my + f[3] * py) + (f[4] * mz + f[5] * pz)};
+}
+
 // ClusterRadiance() for axis-aligned content, from its faces: false (and *out untouched) when
-// the content is not axis-aligned. The same side rule and regularisation as the SH ratio.
+// the content is not axis-aligned. The same side rule and regularisation weight as the SH
+// ratio, but the radiance it blends in is the mean of the seen side's faces (those turned
+// towards w for the front), not of all faces: a two-sided sheet's other side and the faces a
+// building turns away from the receiver stay out of it.
 inline bool AxisFacesRadiance(const Cluster& c, const glm::vec3& w, HitSides sides, glm::vec3* out);
 
 // What the rasterizer needs of a cluster seen from w, from one evaluation of the SH basis
@@ -181,6 +194,10 @@ constexpr float kY8 = static_cast<float>(sh::kY8);
 // faces, the shaded ones too, into the sunlit facade it shows (city irradiance 2.14 % -> 2.07 %
 // of the mean, its bias +0.0008 -> +0.0002; cornell 1.92 % -> 1.89 %; 0.01 gains 0.02 % more).
 constexpr float kRadianceBlend = 0.03f;
+// The axis-aligned ratio blends in the seen side's faces' mean radiance where those faces hold
+// more than this share of the regularisation's area (a quarter of the total); else the mean of
+// all faces, as the SH ratio does (a face of no area has no radiance to speak of).
+constexpr float kAxisOwnShare = 0.1f;
 }  // namespace cluster_model_internal
 
 // The moment model needs only scalars that band 2 of the SH holds directly, without the
@@ -280,18 +297,25 @@ inline bool AxisFacesRadiance(const Cluster& c, const glm::vec3& w, HitSides sid
   const AxisSight a = AxisFacesSeen(fa, w);
   // kBoth: the side whose area is the larger, as the SH ratio's rule.
   const bool front = sides == HitSides::kFront || (sides == HitSides::kBoth && a.front >= a.back);
-  const float den = (front ? a.front : a.back) + kRadianceBlend * (kY0 * c.sh_area[0]);
+  const float a_mean = kY0 * c.sh_area[0];
+  const float den = (front ? a.front : a.back) + kRadianceBlend * a_mean;
   if (!(den > 0.0f)) {
     *out = glm::vec3(0.0f);
     return true;
   }
+  // The regularisation's radiance: the seen side's faces' mean, where they hold some area.
+  const AxisSight af = AxisFacesFacing(fa, w);
+  const float facing = front ? af.front : af.back;
+  const bool own = facing > kAxisOwnShare * a_mean;
   for (int ch = 0; ch < 3; ++ch) {
     float fp[6];
     AxisFacesOf(c.sh_power[ch].data(), fp);
     for (float& x : fp) x = std::max(0.0f, x);
     const AxisSight p = AxisFacesSeen(fp, w);
-    const float p_mean = std::max(0.0f, kY0 * c.sh_power[ch][0]);
-    (*out)[ch] = ((front ? p.front : p.back) + kRadianceBlend * p_mean) / den;
+    const AxisSight pf = AxisFacesFacing(fp, w);
+    const float reg = own ? ((front ? pf.front : pf.back) / facing) * a_mean
+                          : std::max(0.0f, kY0 * c.sh_power[ch][0]);
+    (*out)[ch] = ((front ? p.front : p.back) + kRadianceBlend * reg) / den;
   }
   return true;
 }

@@ -174,9 +174,10 @@ def test_a_two_sided_disk_shows_each_sides_radiance(scratch):
     above = below.copy()
     above[:, 2] = 2.0 * DISK_HEIGHT - below[:, 2]
     want = form_factor(DISK_RADIUS, h)
-    # Clusters regularise P(w) / A(w) with a little of the mean over all directions, which
-    # holds both sides: about 1 % of the other side's radiance shows (docs/design.md, "Radiance
-    # per side"), hence the absolute term, 1.5 % of the brighter side's.
+    # Clusters that are not along the axes regularise P(w) / A(w) with a little of the mean over
+    # all directions, which holds both sides, and order 2 rings: some of the other side's
+    # radiance shows there (docs/design.md, "Radiance per side"), hence the absolute term, 1.5 %
+    # of the brighter side's. This disk lies along an axis: its clusters show each side's own.
     brightest = np.maximum(DISK_RADIANCE, back[0]).max()
     for where, normal, radiance in ((below, up, DISK_RADIANCE), (above, -up, back[0])):
         out = db.shade(where, normal, threads=2)

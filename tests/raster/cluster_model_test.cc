@@ -167,20 +167,25 @@ std::vector<Surfel> Building() {
   return out;
 }
 
-// The ratio P(w) / A(w) over the surfels, regularised as ClusterRadiance is.
+// The ratio P(w) / A(w) over the surfels, regularised as AxisFacesRadiance is: the weight of a
+// quarter of the total area, at the mean radiance of the faces of the side seen (those turned
+// towards w for the front).
 glm::dvec3 ExactRadiance(const std::vector<Surfel>& s, const glm::vec3& w, HitSides sides) {
-  double a = 0.0, a_all = 0.0;
-  glm::dvec3 p(0.0), p_all(0.0);
+  double a = 0.0, a_all = 0.0, a_facing = 0.0;
+  glm::dvec3 p(0.0), p_facing(0.0);
   for (const Surfel& x : s) {
     const double c = glm::dot(x.normal, w);
     const double seen = sides == HitSides::kBack ? std::max(0.0, -c) : std::max(0.0, c);
     a += x.Area() * seen;
     p += glm::dvec3(x.radiance) * (static_cast<double>(x.Area()) * seen);
     a_all += x.Area();
-    p_all += glm::dvec3(x.radiance) * static_cast<double>(x.Area());
+    if (seen > 0.0) {
+      a_facing += x.Area();
+      p_facing += glm::dvec3(x.radiance) * static_cast<double>(x.Area());
+    }
   }
   const double blend = internal::cluster_model_internal::kRadianceBlend;
-  return (p + blend * 0.25 * p_all) / (a + blend * 0.25 * a_all);
+  return (p + blend * 0.25 * a_all * (p_facing / a_facing)) / (a + blend * 0.25 * a_all);
 }
 
 // Content along the world axes shows each face's own radiance: the order-2 SH ratio let a
