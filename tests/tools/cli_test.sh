@@ -253,7 +253,21 @@ check props "$dir/wy.ply" two_sided && ok || fail "import wrote no two_sided pro
 check mean "$dir/wy.ply" two_sided 0.001 1.0 >/dev/null && ok || fail "import: no surfel two-sided: $(check mean "$dir/wy.ply" two_sided 0 1)"
 # Views of a Y-up mesh: --up y on shade matches the import; without it the mismatch names the
 # up axis (regression mesh_mismatch_names_up: both descriptions read alike) and the fix.
+# Each side of a thin part is baked with its own light: the PLY carries back_r back_g back_b, the
+# database keeps them (pbgi info: back_radiance), and an export carries them on to a rebuild.
+check props "$dir/wy.ply" back_r back_g back_b && ok || fail "import wrote no back radiance"
+check mean "$dir/wy.ply" back_g 0.0001 10 >/dev/null && ok ||
+  fail "import: no back radiance: $(check mean "$dir/wy.ply" back_g 0 10)"
 run up_y_build "$pbgi" build "$dir/wy.ply" -o "$dir/wy.pbgi" --memory 64M
+run back_info "$pbgi" info "$dir/wy.pbgi" --json
+[ "$(json "$dir/back_info.out" 'j["back_radiance"]')" = "True" ] && ok ||
+  fail "the database of a mesh with thin parts keeps no back radiance"
+run back_export "$pbgi" export "$dir/wy.pbgi" -o "$dir/wye.ply"
+check props "$dir/wye.ply" back_r back_g back_b && ok || fail "export wrote no back radiance"
+run back_rebuild "$pbgi" build "$dir/wye.ply" -o "$dir/wye.pbgi" --memory 64M
+run back_rebuild_info "$pbgi" info "$dir/wye.pbgi" --json
+[ "$(json "$dir/back_rebuild_info.out" 'j["back_radiance"]')" = "True" ] && ok ||
+  fail "a rebuild from the export lost the back radiance"
 refuse view_up_mismatch "up: database y, view z.*--up y" \
   "$pbgi" shade "$dir/wy.pbgi" --scene "$assimp_ply/Wuson.ply" -o "$dir/wy.png" --mode occlusion \
   --width 16 --height 16
