@@ -87,9 +87,14 @@ inline void Accumulate(const float* xs, const float* ys, int n, int x0, int y0, 
 inline constexpr int kMaxMaskRows = 64 * 8;
 
 // A polygon in a face's pixel coordinates.
+// Room for two splits (the 2x2-block path) of a polygon of kMaxPolygonVertices: Split() adds
+// one vertex per edge that crosses the line, so a part of an n-gon has at most 2n. A convex
+// one's has at most n + 1, but Project() clamps vertices to the face, which can leave a polygon
+// that is not quite convex; with n + 2 slots such a polygon's second split wrote past the end
+// (UBSan in PolygonTest.RasterizePolygonInLanesMatchesOneVertexAtATime).
 struct Poly2 {
   int n = 0;
-  float x[kMaxPolygonVertices + 2], y[kMaxPolygonVertices + 2];
+  float x[4 * kMaxPolygonVertices], y[4 * kMaxPolygonVertices];
 };
 
 // Twice the signed area (shoelace).
