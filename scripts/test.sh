@@ -15,7 +15,10 @@ build="out/ci${san:+-$san}"
 flags=(-DCMAKE_BUILD_TYPE=RelWithDebInfo -DPBGI_WERROR=ON)
 case "$san" in
   "") ;;
-  asan) flags+=(-DPBGI_ASAN=ON) ;;
+  asan)
+    flags+=(-DPBGI_ASAN=ON)
+    export LSAN_OPTIONS="suppressions=$here/tests/lsan.supp ${LSAN_OPTIONS:-}"
+    ;;
   tsan)
     flags+=(-DPBGI_TSAN=ON)
     export TSAN_OPTIONS="suppressions=$here/tests/tsan.supp ${TSAN_OPTIONS:-}"

@@ -43,7 +43,7 @@ std::vector<SortRecord> Records(size_t n, uint64_t seed, const Bounds& b, bool t
 
 // What a compact run hands back: the record as its point record decodes.
 SortRecord Quantized(const SortRecord& r, const SpillCodec& c) {
-  uint8_t rec[kPointRecordRadianceBytes];
+  uint8_t rec[kPointRecordBothSidesBytes];  // the largest record
   EncodePointRecord(r.position, r.normal, r.radius, r.radiance, c.channels, c.grid, rec);
   return MakeSortRecord(r.key, DecodePointRecord(rec, c.channels, c.grid));
 }

@@ -15,16 +15,23 @@ for threads in 1 2; do
     fail "build, $threads threads: $(tail -n 2 "$dir/f$threads.err")"
   runs=$(json "$dir/f$threads.json" runs_spilled) peak=$(json "$dir/f$threads.json" peak_rss_bytes)
   [ "$runs" -ge 10 ] && ok || fail "$threads threads: only $runs runs spilled"
-  [ "$peak" -le $((48 << 20)) ] && ok ||
-    fail "$threads threads: peak RSS $peak bytes above --memory 48M ($((48 << 20)) bytes)"
+  # Not under a sanitizer (PBGI_SANITIZED, set by CMake): its shadow memory and quarantine are
+  # in the RSS (530 MB here under ASan); the default suite measures the program itself.
+  if [ -z "${PBGI_SANITIZED:-}" ]; then
+    [ "$peak" -le $((48 << 20)) ] && ok ||
+      fail "$threads threads: peak RSS $peak bytes above --memory 48M ($((48 << 20)) bytes)"
+  fi
 done
 
-# The demo's split, and its refusal.
-"$pbgi" demo --scene forest --points 200k --memory 160M --cache 32M --width 64 --height 36 \
+# The demo's split, and its refusal. The scene's share is measured, so under a sanitizer (whose
+# shadow memory it includes: 172 MiB for the forest under ASan) the demo is given more.
+demo_mib=160
+[ -n "${PBGI_SANITIZED:-}" ] && demo_mib=768
+"$pbgi" demo --scene forest --points 200k --memory ${demo_mib}M --cache 32M --width 64 --height 36 \
   -o "$dir/demo" >"$dir/demo.out" 2>"$dir/demo.err" || fail "demo: $(tail -n 2 "$dir/demo.err")"
-grep -qE 'the scene holds [0-9.]+ MiB of --memory 160.0 MiB: the build gets [0-9.]+ MiB' \
+grep -qE "the scene holds [0-9.]+ MiB of --memory ${demo_mib}.0 MiB: the build gets [0-9.]+ MiB" \
   "$dir/demo.err" && ok || fail "demo did not say how --memory was split: $(head -c 300 "$dir/demo.err")"
-grep -qE 'build memory cap [0-9.]+ MiB \(--memory 160.0 MiB less the scene' "$dir/demo.out" && ok ||
+grep -qE "build memory cap [0-9.]+ MiB \(--memory ${demo_mib}.0 MiB less the scene" "$dir/demo.out" && ok ||
   fail "demo summary lacks the build's cap: $(grep build "$dir/demo.out")"
 if "$pbgi" demo --scene forest --points 200k --memory 40M -o "$dir/demo2" >/dev/null \
   2>"$dir/demo2.err"; then

@@ -41,7 +41,7 @@ glm::vec3 RandomUnit(std::mt19937& rng) {
 }
 
 struct Encoded {
-  uint8_t bytes[kPointRecordRadianceBytes];
+  uint8_t bytes[kPointRecordBothSidesBytes];  // the largest record
 };
 
 Encoded EncodeSurfel(const Surfel& s, Channels c, const PositionGrid& g) {
