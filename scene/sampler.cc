@@ -14,6 +14,7 @@
 #include <utility>
 
 #include "absl/strings/str_format.h"
+#include "base/tsan_region.h"
 #include "pbgi/scene.h"
 #include "pbgi/status.h"
 #include "scene/sample_math.h"
@@ -79,7 +80,10 @@ class SceneSurfelSource final : public SurfelSource {
         options_(options),
         bake_(options.bake && scene_->has_radiance) {}
 
-  ~SceneSurfelSource() override { pending_->wait(); }
+  ~SceneSurfelSource() override {
+    pending_->wait();
+    prefetch_region_.Joined();
+  }
 
   // Builds the cumulative area table, runs the pilot pass for hidden samples; returns an error
   // when the request cannot be met.
@@ -140,6 +144,7 @@ class SceneSurfelSource final : public SurfelSource {
       if (pos_ == size_) {
         if (end_ >= count_) break;
         pending_->wait();
+        prefetch_region_.Joined();
         std::swap(buffers_[0], buffers_[1]);
         end_ = next_end_;
         size_ = next_size_;
@@ -157,6 +162,7 @@ class SceneSurfelSource final : public SurfelSource {
 
   absl::Status Rewind() override {
     pending_->wait();
+    prefetch_region_.Joined();
     end_ = 0;
     size_ = 0;
     pos_ = 0;
@@ -213,14 +219,17 @@ class SceneSurfelSource final : public SurfelSource {
     const Layout pilot = MakeLayout(m, HashCombine(options_.seed, 0x70696c6fu));
     std::vector<Surfel> s(static_cast<size_t>(m));
     std::vector<uint32_t> mats(static_cast<size_t>(m));
+    const internal::TsanRegion region;
     const int64_t visible = tbb::parallel_reduce(
         tbb::blocked_range<int64_t>(0, m, kBlock), int64_t{0},
         [&](const tbb::blocked_range<int64_t>& r, int64_t acc) {
+          const internal::TsanRegion::Task task(region);
           Place(pilot, r.begin(), r.end(), s.data() + r.begin(), mats.data() + r.begin());
           for (int64_t i = r.begin(); i < r.end(); ++i) acc += Hidden(s[i]) ? 0 : 1;
           return acc;
         },
         std::plus<int64_t>(), tbb::simple_partitioner());
+    region.Joined();
     if (visible == 0) {
       return absl::FailedPreconditionError(absl::StrFormat(
           "scene '%s': all %d pilot samples lie inside solid geometry (back faces all round); "
@@ -247,18 +256,23 @@ class SceneSurfelSource final : public SurfelSource {
     next_end_ = first + std::max<int64_t>(0, std::min(options_.chunk_size, count_ - first));
     next_size_ = next_end_ - first;
     if (next_size_ == 0) return;
+    prefetch_region_.Fork();
     pending_->run([this, first] {
+      const internal::TsanRegion::Task task(prefetch_region_);
       const int64_t n = next_end_ - first;
       Surfel* dst = buffers_[1].data();
       uint8_t* keep = test_hidden_ ? keep_[1].data() : nullptr;
       // simple_partitioner: the same blocks for any thread count.
+      const internal::TsanRegion blocks;
       tbb::parallel_for(
           tbb::blocked_range<int64_t>(0, n, kBlock),
           [&](const tbb::blocked_range<int64_t>& r) {
+            const internal::TsanRegion::Task block(blocks);
             Generate(first + r.begin(), first + r.end(), dst + r.begin(),
                      keep ? keep + r.begin() : nullptr);
           },
           tbb::simple_partitioner());
+      blocks.Joined();
       if (keep != nullptr) {
         int64_t kept = 0;
         for (int64_t i = 0; i < n; ++i) {
@@ -422,6 +436,8 @@ class SceneSurfelSource final : public SurfelSource {
   int64_t next_end_ = 0, next_size_ = 0;
   // Held by pointer: tbb::task_group's destructor may throw, which SurfelSource's may not.
   std::unique_ptr<tbb::task_group> pending_ = std::make_unique<tbb::task_group>();
+  // The edges between this thread and the prefetch task, which TSan cannot see in libtbb.
+  internal::TsanRegion prefetch_region_;
 };
 
 }  // namespace

@@ -10,6 +10,7 @@
 
 #include "absl/strings/str_format.h"
 #include "absl/synchronization/mutex.h"
+#include "base/tsan_region.h"
 #include "pbgi/scene.h"
 #include "scene/sample_math.h"
 #include "scene/scene_index.h"
@@ -295,7 +296,9 @@ glm::vec3 Camera::Direction(float px, float py) const {
 std::vector<CameraHit> Tracer::TraceCamera(const Camera& camera) const {
   const int w = std::max(camera.width, 0), hgt = std::max(camera.height, 0);
   std::vector<CameraHit> out(static_cast<size_t>(w) * static_cast<size_t>(hgt));
+  const internal::TsanRegion region;
   tbb::parallel_for(tbb::blocked_range<int>(0, hgt), [&](const tbb::blocked_range<int>& rows) {
+    const internal::TsanRegion::Task task(region);
     for (int y = rows.begin(); y < rows.end(); ++y) {
       for (int x = 0; x < w; ++x) {
         glm::vec3 d = camera.Direction(static_cast<float>(x) + 0.5f, static_cast<float>(y) + 0.5f);
@@ -315,6 +318,7 @@ std::vector<CameraHit> Tracer::TraceCamera(const Camera& camera) const {
       }
     }
   });
+  region.Joined();
   return out;
 }
 
@@ -605,27 +609,33 @@ glm::vec3 Tracer::ReferenceGlossy(const glm::vec3& p, const glm::vec3& n,
 std::vector<float> Tracer::ReferenceOcclusion(absl::Span<const Receiver> receivers, int rays,
                                               float max_distance, uint64_t seed) const {
   std::vector<float> out(receivers.size());
+  const internal::TsanRegion region;
   tbb::parallel_for(tbb::blocked_range<size_t>(0, receivers.size(), 16),
                     [&](const tbb::blocked_range<size_t>& r) {
+                      const internal::TsanRegion::Task task(region);
                       for (size_t i = r.begin(); i < r.end(); ++i) {
                         out[i] =
                             ReferenceOcclusion(receivers[i].position, receivers[i].normal, rays,
                                                max_distance, internal::HashCombine(seed, i));
                       }
                     });
+  region.Joined();
   return out;
 }
 
 std::vector<glm::vec3> Tracer::ReferenceIrradiance(absl::Span<const Receiver> receivers, int rays,
                                                    uint64_t seed) const {
   std::vector<glm::vec3> out(receivers.size());
+  const internal::TsanRegion region;
   tbb::parallel_for(tbb::blocked_range<size_t>(0, receivers.size(), 4),
                     [&](const tbb::blocked_range<size_t>& r) {
+                      const internal::TsanRegion::Task task(region);
                       for (size_t i = r.begin(); i < r.end(); ++i) {
                         out[i] = ReferenceIrradiance(receivers[i].position, receivers[i].normal,
                                                      rays, internal::HashCombine(seed, i));
                       }
                     });
+  region.Joined();
   return out;
 }
 
@@ -633,14 +643,17 @@ std::vector<glm::vec3> Tracer::ReferenceGlossy(absl::Span<const ShadeReceiver> r
                                                const GlossyParams& lobe, int rays,
                                                uint64_t seed) const {
   std::vector<glm::vec3> out(receivers.size());
+  const internal::TsanRegion region;
   tbb::parallel_for(tbb::blocked_range<size_t>(0, receivers.size(), 4),
                     [&](const tbb::blocked_range<size_t>& r) {
+                      const internal::TsanRegion::Task task(region);
                       for (size_t i = r.begin(); i < r.end(); ++i) {
                         const ShadeReceiver& s = receivers[i];
                         out[i] = ReferenceGlossy(s.position, glm::normalize(s.normal), s.reflection,
                                                  lobe, rays, internal::HashCombine(seed, i));
                       }
                     });
+  region.Joined();
   return out;
 }
 

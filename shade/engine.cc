@@ -7,6 +7,7 @@
 #include <utility>
 
 #include "absl/strings/str_format.h"
+#include "base/tsan_region.h"
 #include "oneapi/tbb/blocked_range.h"
 #include "oneapi/tbb/parallel_for.h"
 #include "pbgi/sh.h"
@@ -125,9 +126,11 @@ absl::Status ShadeEngine::Shade(absl::Span<const uint32_t> indices, float* dista
   // and small enough that every thread gets about 16 of them, so that a small batch does not
   // wait for one thread's last block (docs/query.md).
   const size_t grain = std::clamp<size_t>(order.size() / (16 * size_t(threads_)), 1, 64);
+  const TsanRegion region;
   arena_.execute([&] {
     tbb::parallel_for(tbb::blocked_range<size_t>(0, order.size(), grain),
                       [&](const tbb::blocked_range<size_t>& range) {
+                        const TsanRegion::Task task(region);
                         if (failed_.load(std::memory_order_relaxed)) return;
                         if (!CheckCancel().ok()) return;
                         Worker* w = LocalWorker();
@@ -140,6 +143,7 @@ absl::Status ShadeEngine::Shade(absl::Span<const uint32_t> indices, float* dista
                         AddDone(range.size());
                       });
   });
+  region.Joined();
   return status();
 }
 
@@ -215,9 +219,11 @@ absl::Status ShadeEngine::ShadeGroups(const std::vector<uint32_t>& order, float*
   start.push_back(static_cast<uint32_t>(members.size()));
   const size_t groups = start.size() - 1;
   const size_t grain = std::clamp<size_t>(groups / (16 * size_t(threads_)), 1, 16);
+  const TsanRegion region;
   arena_.execute([&] {
     tbb::parallel_for(
         tbb::blocked_range<size_t>(0, groups, grain), [&](const tbb::blocked_range<size_t>& range) {
+          const TsanRegion::Task task(region);
           if (failed_.load(std::memory_order_relaxed)) return;
           if (!CheckCancel().ok()) return;
           Worker* wp = LocalWorker();
@@ -282,6 +288,7 @@ absl::Status ShadeEngine::ShadeGroups(const std::vector<uint32_t>& order, float*
           AddDone(done);
         });
   });
+  region.Joined();
   return status();
 }
 

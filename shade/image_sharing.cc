@@ -8,6 +8,7 @@
 #include <limits>
 #include <vector>
 
+#include "base/tsan_region.h"
 #include "glm/geometric.hpp"
 #include "glm/trigonometric.hpp"
 #include "oneapi/tbb/blocked_range.h"
@@ -220,14 +221,17 @@ absl::Status ShadeImageShared(ShadeEngine& engine, absl::Span<const ShadeReceive
     busy.local() += t.Seconds();
   };
   auto parallel = [&](size_t n, size_t grain, auto&& body) {
+    const TsanRegion region;
     engine.arena().execute([&] {
       tbb::parallel_for(tbb::blocked_range<size_t>(0, n, grain),
                         [&](const tbb::blocked_range<size_t>& range) {
+                          const TsanRegion::Task task(region);
                           timed([&] {
                             for (size_t k = range.begin(); k != range.end(); ++k) body(k);
                           });
                         });
     });
+    region.Joined();
   };
 
   Pixels px;

@@ -10,6 +10,7 @@
 
 #include "absl/container/flat_hash_map.h"
 #include "base/math.h"
+#include "base/tsan_region.h"
 #include "glm/geometric.hpp"
 #include "glm/trigonometric.hpp"
 #include "oneapi/tbb/blocked_range.h"
@@ -180,10 +181,12 @@ absl::Status ShadePointsShared(ShadeEngine& engine, absl::Span<const ShadeReceiv
     // 1.7 cells away) surround a receiver, and the agreement test spans no more than them.
     const float near = static_cast<float>(1.5 * side);
     const int cells_per_axis = 1 << level;
+    const TsanRegion region;
     engine.arena().execute([&] {
       tbb::parallel_for(
           tbb::blocked_range<size_t>(0, todo.size(), 64),
           [&](const tbb::blocked_range<size_t>& range) {
+            const TsanRegion::Task task(region);
             timed([&] {
               uint64_t done = 0;
               std::array<uint32_t, kMaxCandidates> cand;
@@ -252,6 +255,7 @@ absl::Status ShadePointsShared(ShadeEngine& engine, absl::Span<const ShadeReceiv
             });
           });
     });
+    region.Joined();
     timed([&] {
       size_t kept = 0;
       for (uint32_t r : todo) {

@@ -12,6 +12,7 @@
 #include "absl/strings/numbers.h"
 #include "absl/strings/str_format.h"
 #include "absl/strings/str_split.h"
+#include "base/tsan_region.h"
 #include "oneapi/tbb/blocked_range.h"
 #include "oneapi/tbb/parallel_for.h"
 #include "pbgi/status.h"
@@ -497,8 +498,10 @@ absl::StatusOr<ViewImages> RenderView(const Tracer& tracer, Database& db, const 
   std::fill(out.composite.pixels.begin(), out.composite.pixels.end(), sky);
   std::fill(out.direct.pixels.begin(), out.direct.pixels.end(), sky);
   std::fill(out.occlusion.pixels.begin(), out.occlusion.pixels.end(), glm::vec3(1.0f));
+  const internal::TsanRegion region;
   tbb::parallel_for(tbb::blocked_range<size_t>(0, receivers.size(), 1024),
                     [&](const tbb::blocked_range<size_t>& range) {
+                      const internal::TsanRegion::Task task(region);
                       for (size_t i = range.begin(); i != range.end(); ++i) {
                         const uint32_t p = pixel_of[i];
                         const uint32_t material = cr.surface[i];
@@ -521,6 +524,7 @@ absl::StatusOr<ViewImages> RenderView(const Tracer& tracer, Database& db, const 
                         }
                       }
                     });
+  region.Joined();
   out.compose_seconds = std::chrono::duration<double>(Clock::now() - t1).count();
   return out;
 }
