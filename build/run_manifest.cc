@@ -69,8 +69,8 @@ absl::Status WriteManifest(const std::string& dir, const RunManifest& m) {
   absl::StrAppendFormat(&t, "estimate_normals %d\nskip_invalid %d\n", m.estimate_normals,
                         m.skip_invalid);
   absl::StrAppendFormat(&t, "back_radiance %d\n", m.back_radiance);
-  absl::StrAppendFormat(&t, "records %d\nskipped %d\nknown_count %d\nrun_capacity %d\n",
-                        m.records, m.skipped, m.known_count, m.run_capacity);
+  absl::StrAppendFormat(&t, "records %d\nskipped %d\nknown_count %d\nrun_capacity %d\n", m.records,
+                        m.skipped, m.known_count, m.run_capacity);
   absl::StrAppendFormat(&t, "seconds_bounds %.6f\nseconds_sort %.6f\n", m.seconds_bounds,
                         m.seconds_sort);
   for (const KeptRun& r : m.runs) {

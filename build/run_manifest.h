@@ -20,7 +20,7 @@ namespace pbgi::internal {
 
 struct RunManifest {
   // What decides the records: compared field by field on resume.
-  std::string input;  // BuildOptions::Resumable::input_identity
+  std::string input;          // BuildOptions::Resumable::input_identity
   uint32_t record_bytes = 0;  // 48: raw runs; 22 or 34: compact runs (key + point record)
   Bounds key_bounds;
   bool declared_bounds = false;  // the source's KnownBounds (else a bounds pass)

@@ -1,5 +1,6 @@
 // Writes the seed corpus of the fuzz targets into fuzz/corpus/ (run by hand after a format
-// change: `cmake --build out/dev --target pbgi_fuzz_corpus && out/dev/fuzz/pbgi_make_corpus fuzz/corpus`).
+// change: `cmake --build out/dev --target pbgi_fuzz_corpus && out/dev/fuzz/pbgi_make_corpus
+// fuzz/corpus`).
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
@@ -48,7 +49,8 @@ int main(int argc, char** argv) {
       auto w = PlyWriter::Create(f, {ascii, colour});
       (void)(*w)->Write(absl::MakeConstSpan(surfels).subspan(0, 12));
       (void)(*w)->Close();
-      Write(root / "fuzz_ply" / absl::StrCat(ascii ? "ascii" : "binary", colour ? "_rgb" : "", ".ply"),
+      Write(root / "fuzz_ply" /
+                absl::StrCat(ascii ? "ascii" : "binary", colour ? "_rgb" : "", ".ply"),
             Read(f));
     }
   }

@@ -47,13 +47,12 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   m.channels = !(flags & 1)     ? Channels::kOcclusion
                : (flags & 0x80) ? Channels::kRadianceBothSides
                                 : Channels::kRadiance;
-  const size_t biggest = std::max({node_payload.size(), point_payload.size(),
-                                   size_t{NodeRecordSize(m.channels)} + 8});
+  const size_t biggest =
+      std::max({node_payload.size(), point_payload.size(), size_t{NodeRecordSize(m.channels)} + 8});
   m.page_size = static_cast<uint32_t>((sizeof(PageHeader) + biggest + 7) / 8 * 8);
   const uint32_t per_page = PointsPerPage(m.page_size, m.channels);
-  const uint32_t points =
-      std::min<uint32_t>(per_page, static_cast<uint32_t>(point_payload.size() /
-                                                         PointRecordSize(m.channels)));
+  const uint32_t points = std::min<uint32_t>(
+      per_page, static_cast<uint32_t>(point_payload.size() / PointRecordSize(m.channels)));
   m.point_count = std::max<uint32_t>(points, 1);
   m.point_pages = 1;
   m.node_count = std::max<uint16_t>(node_records, 1);

@@ -58,8 +58,8 @@ struct PlyHeader {
   bool has_normals = false;
   bool has_radius = false;
   bool has_color = false;
-  bool has_reflection = false;  // rx ry rz
-  bool has_two_sided = false;   // two_sided
+  bool has_reflection = false;     // rx ry rz
+  bool has_two_sided = false;      // two_sided
   bool has_back_radiance = false;  // back_r back_g back_b
   // From a `comment pbgi bounds XMIN YMIN ZMIN XMAX YMAX ZMAX` line (what pbgi generate and
   // pbgi import write: the box of the sampled triangles, which holds every point); empty when
