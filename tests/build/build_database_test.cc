@@ -35,6 +35,25 @@ std::tuple<float, float, float> OnGrid(const internal::PositionGrid& grid, const
           grid.Coord(2, grid.Nearest(2, p.z))};
 }
 
+// Builds `cloud` into dir/db (dir/db_est with an estimated radius, dir/db_spill at a memory
+// budget of a byte: every run spilled) and opens it.
+void BuildVariant(const std::vector<Surfel>& cloud, Channels channels, bool estimate, int memory,
+                  const ScratchDir& dir, std::string* db,
+                  absl::StatusOr<std::unique_ptr<PageStore>>* store) {
+  BuildOptions o;
+  o.memory_bytes = memory;
+  o.tmp_dir = dir.Sub("tmp");
+  std::filesystem::create_directories(o.tmp_dir);
+  o.channels = channels;
+  o.estimate.radius = estimate;
+  VectorSurfelSource src(cloud, /*has_radiance=*/channels != Channels::kOcclusion);
+  *db = dir.Sub(estimate ? "db_est" : memory == 1 ? "db_spill" : "db");
+  auto stats = BuildDatabase(src, *db, o);
+  ASSERT_TRUE(stats.ok()) << stats.status();
+  *store = PageStore::Open(*db);
+  ASSERT_TRUE(store->ok()) << store->status();
+}
+
 // Two-sided surfels (their flag in the radius's sign bit) build a store that verifies (leaf SH
 // recomputed from the points with each two-sided one as the pair n, -n), whose root holds
 // band 1 of the one-sided surfels only and the even bands of both sides, and whose points read
@@ -51,18 +70,9 @@ TEST(BuildDatabaseTest, TwoSidedSurfelsBuildAVerifiableStore) {
        {std::pair{false, 64 << 20}, std::pair{true, 64 << 20}, std::pair{false, 1}}) {
     SCOPED_TRACE(estimate ? "estimated radius" : "given radius");
     SCOPED_TRACE(memory);
-    BuildOptions o;
-    o.memory_bytes = memory;
-    o.tmp_dir = dir.Sub("tmp");
-    std::filesystem::create_directories(o.tmp_dir);
-    o.channels = Channels::kOcclusion;
-    o.estimate.radius = estimate;
-    VectorSurfelSource src(cloud, /*has_radiance=*/false);
-    const std::string db = dir.Sub(estimate ? "db_est" : memory == 1 ? "db_spill" : "db");
-    auto stats = BuildDatabase(src, db, o);
-    ASSERT_TRUE(stats.ok()) << stats.status();
-    auto store = PageStore::Open(db);
-    ASSERT_TRUE(store.ok()) << store.status();
+    std::string db;
+    absl::StatusOr<std::unique_ptr<PageStore>> store;
+    ASSERT_NO_FATAL_FAILURE(BuildVariant(cloud, Channels::kOcclusion, estimate, memory, dir, &db, &store));
     EXPECT_EQ((*store)->meta().version, kStoreFormatVersion);
     EXPECT_TRUE(VerifyTree(**store).ok()) << VerifyTree(**store);
     // Every point's flag, found by position (the store holds them in Morton order).
@@ -112,18 +122,9 @@ TEST(BuildDatabaseTest, BackRadianceIsStoredWhereATwoSidedSurfelsBackDiffers) {
        {std::pair{false, 64 << 20}, std::pair{true, 64 << 20}, std::pair{false, 1}}) {
     SCOPED_TRACE(estimate ? "estimated radius" : "given radius");
     SCOPED_TRACE(memory);
-    BuildOptions o;
-    o.memory_bytes = memory;
-    o.tmp_dir = dir.Sub("tmp");
-    std::filesystem::create_directories(o.tmp_dir);
-    o.channels = Channels::kRadiance;
-    o.estimate.radius = estimate;
-    VectorSurfelSource src(cloud, /*has_radiance=*/true);
-    const std::string db = dir.Sub(estimate ? "db_est" : memory == 1 ? "db_spill" : "db");
-    auto stats = BuildDatabase(src, db, o);
-    ASSERT_TRUE(stats.ok()) << stats.status();
-    auto store = PageStore::Open(db);
-    ASSERT_TRUE(store.ok()) << store.status();
+    std::string db;
+    absl::StatusOr<std::unique_ptr<PageStore>> store;
+    ASSERT_NO_FATAL_FAILURE(BuildVariant(cloud, Channels::kRadiance, estimate, memory, dir, &db, &store));
     const StoreMeta& m = (*store)->meta();
     EXPECT_EQ(m.channels, Channels::kRadianceBothSides);
     EXPECT_TRUE(VerifyTree(**store).ok()) << VerifyTree(**store);
