@@ -8,6 +8,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <utility>
 
 #include "base/math.h"
 #include "glm/geometric.hpp"
@@ -74,6 +75,67 @@ inline glm::vec3 TrianglePoint(const glm::vec3& a, const glm::vec3& b, const glm
                                glm::vec2 u) {
   glm::vec2 bc = SquareToTriangle(u);
   return a * (1.0f - bc.x - bc.y) + b * bc.x + c * bc.y;
+}
+
+// The triangle's longest edge: (p[e], p[(e + 1) % 3]), its opposite vertex p[(e + 2) % 3].
+inline int LongestEdge(const glm::dvec3 p[3]) {
+  const double l0 = glm::dot(p[1] - p[0], p[1] - p[0]);
+  const double l1 = glm::dot(p[2] - p[1], p[2] - p[1]);
+  const double l2 = glm::dot(p[0] - p[2], p[0] - p[2]);
+  return l0 >= l1 && l0 >= l2 ? 0 : (l1 >= l2 ? 1 : 2);
+}
+
+// The centroid of piece j of a partition of triangle (a, b, c) into k pieces of equal area:
+// the longest edge is cut where it splits the area k/2 : k - k/2, a line from the opposite
+// vertex, and each side is cut again for its share. The pieces are as compact as the triangle
+// allows, so a small triangle (a forest's leaf holds one to three surfels) gets its disks where
+// they cover it best; a rotated Hammersley set of so few points puts two in one corner, or a
+// disk far over an edge, as often as not (tests/scene/sampler_test.cc measures both).
+inline glm::vec3 EqualAreaPiecePoint(const glm::vec3& a, const glm::vec3& b, const glm::vec3& c,
+                                     uint64_t j, uint64_t k) {
+  glm::dvec3 p[3] = {glm::dvec3(a), glm::dvec3(b), glm::dvec3(c)};
+  while (k > 1) {
+    const int e = LongestEdge(p);
+    const glm::dvec3 u = p[e], v = p[(e + 1) % 3], o = p[(e + 2) % 3];
+    const uint64_t k1 = k / 2;
+    const glm::dvec3 m = u + (v - u) * (static_cast<double>(k1) / static_cast<double>(k));
+    if (j < k1) {  // the piece (u, m, o): k1 / k of the area
+      p[0] = u;
+      p[1] = m;
+      p[2] = o;
+      k = k1;
+    } else {
+      p[0] = m;
+      p[1] = v;
+      p[2] = o;
+      j -= k1;
+      k -= k1;
+    }
+  }
+  return glm::vec3((p[0] + p[1] + p[2]) * (1.0 / 3.0));
+}
+
+// Point j of k along a narrow triangle (one narrower than the surfel spacing across its longest
+// edge): at (j + 1/4) / k of that edge's length from the end where the triangle is wider, in the
+// middle of its section there. A narrow quad's two triangles are wide at opposite ends, so
+// their points interleave evenly along the quad, a spacing of length / (2k) apart (at area
+// quantiles each triangle's points crowd its wide end, and the quad's union left gaps of 1.6
+// disk diameters along a trunk's face); the pair's density along it is uniform, as its area is.
+inline glm::vec3 StripPoint(const glm::vec3& a, const glm::vec3& b, const glm::vec3& c, uint64_t j,
+                            uint64_t k) {
+  glm::dvec3 p[3] = {glm::dvec3(a), glm::dvec3(b), glm::dvec3(c)};
+  const int e = LongestEdge(p);
+  glm::dvec3 u = p[e], v = p[(e + 1) % 3];
+  const glm::dvec3 o = p[(e + 2) % 3];
+  if (!(glm::dot(v - u, v - u) > 0.0)) return a;
+  // The opposite vertex's foot nearer v: the triangle is wider toward v; measure from there.
+  if (glm::dot(o - u, v - u) > 0.5 * glm::dot(v - u, v - u)) std::swap(u, v);
+  const glm::dvec3 d = v - u;
+  const double to = std::clamp(glm::dot(o - u, d) / glm::dot(d, d), 0.0, 1.0);
+  const glm::dvec3 up = o - (u + d * to);  // from the foot of o to o
+  const double t = (static_cast<double>(j) + 0.25) / static_cast<double>(k);
+  const double h = t <= to ? (to > 0.0 ? t / to : 1.0) : (to < 1.0 ? (1.0 - t) / (1.0 - to) : 1.0);
+  return glm::vec3(u + d * t + up * (0.5 * h));
 }
 
 // A cosine-weighted direction around n (Malley's method: uniform on the disk, lifted).

@@ -2,11 +2,12 @@
 // scene's instanced triangles and bakes direct light into them (docs/design.md, "Scenes").
 //
 // Counts per triangle come from systematic sampling along the cumulative area, measured in
-// surfels: triangle i owns the surfels s with floor(C_i + u) <= s < floor(C_{i+1} + u), where
-// C_i is the area before triangle i times count / total area and u is one offset per seed. The
-// counts sum to the request exactly, a triangle gets its expected count rounded up or down, and
-// which triangle owns surfel s is a binary search: any surfel can be made on its own, so chunks
-// are generated in parallel and the stream is the same for any number of threads.
+// surfels (inside a triangle, SamplerOptions::placement says where they go): triangle i owns the
+// surfels s with floor(C_i + u) <= s < floor(C_{i+1} + u), where C_i is the area before triangle i
+// times count / total area and u is one offset per seed. The counts sum to the request exactly, a
+// triangle gets its expected count rounded up or down, and which triangle owns surfel s is a binary
+// search: any surfel can be made on its own, so chunks are generated in parallel and the stream is
+// the same for any number of threads.
 #include <algorithm>
 #include <cmath>
 #include <functional>
@@ -31,6 +32,12 @@ using internal::HashCombine;
 using internal::SceneIndex;
 
 constexpr int64_t kBlock = 2048;  // surfels per parallel task inside a chunk
+constexpr double kNarrowWidth = 0.7;  // SceneSurfelSource::Narrow, in surfel spacings
+// Placement::kPieces cuts a triangle into pieces when it holds at most this many surfels (or is
+// narrow); a larger one keeps the rotated Hammersley set, as even as pieces' centres there and
+// without their pairs (two halves of a square cell put their centres a third of a diagonal
+// apart): the city's large quads were 5 % worse with pieces (docs/eval.md, Session 25).
+constexpr uint64_t kMaxPieces = 32;
 
 // The scene without its thin triangles (Material::thin): what the hidden-sample test traces, so
 // that a leaf's back side never counts as the inside of a solid.
@@ -129,7 +136,7 @@ class SceneSurfelSource final : public SurfelSource {
                                 1, std::llround(static_cast<double>(request) / visible_fraction_))
                           : request;
     if (request == 0) count_ = 0;
-    layout_ = MakeLayout(count_, options_.seed);
+    layout_ = MakeLayout(count_, options_.seed, options_.placement);
     area_per_surfel_ = count_ > 0 ? area / static_cast<double>(count_) : 0.0;
     radius_ = static_cast<float>(std::sqrt(area_per_surfel_ / sh::kPi));
     const size_t chunk = static_cast<size_t>(std::min(options_.chunk_size, count_));
@@ -185,10 +192,12 @@ class SceneSurfelSource final : public SurfelSource {
     double scale = 0.0;
     double offset = 0.0;
     uint64_t seed = 0;
+    SamplerOptions::Placement placement = SamplerOptions::Placement::kUniform;
   };
 
-  Layout MakeLayout(int64_t count, uint64_t seed) const {
+  Layout MakeLayout(int64_t count, uint64_t seed, SamplerOptions::Placement placement) const {
     Layout l;
+    l.placement = placement;
     l.count = count;
     l.scale = count > 0 ? static_cast<double>(count) / total_area_ : 0.0;
     l.offset = internal::ToUnitFloat(HashCombine(seed, 0x6f6666u));
@@ -216,7 +225,10 @@ class SceneSurfelSource final : public SurfelSource {
       PBGI_ASSIGN_OR_RETURN(solid_tracer_, Tracer::Create(*solid_scene_));
     }
     const int64_t m = std::clamp<int64_t>(request, int64_t{1} << 14, int64_t{1} << 17);
-    const Layout pilot = MakeLayout(m, HashCombine(options_.seed, 0x70696c6fu));
+    // Uniform placement: the pilot estimates a fraction of the area, so its points must be
+    // equally likely anywhere, not only at pieces' centres.
+    const Layout pilot =
+        MakeLayout(m, HashCombine(options_.seed, 0x70696c6fu), SamplerOptions::Placement::kUniform);
     std::vector<Surfel> s(static_cast<size_t>(m));
     std::vector<uint32_t> mats(static_cast<size_t>(m));
     const internal::TsanRegion region;
@@ -283,6 +295,17 @@ class SceneSurfelSource final : public SurfelSource {
     });
   }
 
+  // A triangle narrower across its longest edge than kNarrowWidth surfel spacings: its samples go
+  // along it (internal::StripPoint), as the pieces of a strip that narrow are slivers whose
+  // centres sit a third of their length from their ends (a trunk's lowest centres left a gap
+  // above the ground that the contact rule does not close).
+  bool Narrow(const internal::WorldTriangle& w) const {
+    const glm::dvec3 a(w.a), b(w.b), c(w.c);
+    const double l2 =
+        std::max({glm::dot(b - a, b - a), glm::dot(c - b, c - b), glm::dot(a - c, a - c)});
+    return l2 > 0.0 && 2.0 * w.Area() / std::sqrt(l2) < kNarrowWidth * std::sqrt(area_per_surfel_);
+  }
+
   // Candidates [begin, end) of layout l, in order, with their materials: positions and normals.
   void Place(const Layout& l, int64_t begin, int64_t end, Surfel* out, uint32_t* materials) const {
     // The triangle of `begin`: the last g with floor(C_g + u) <= begin, i.e. C_g < begin+1-u.
@@ -306,6 +329,7 @@ class SceneSurfelSource final : public SurfelSource {
     bool thin = false;
     uint8_t sheet = 0;
     float r0 = 0.0f, r1 = 0.0f;
+    enum class How { kHammersley, kStrip, kPieces } how = How::kHammersley;
     for (int64_t s = begin; s < end; ++s) {
       if (s >= tri_end) {
         if (tri_end >= 0) ++g;
@@ -327,12 +351,27 @@ class SceneSurfelSource final : public SurfelSource {
         const uint64_t tk = HashCombine(l.seed, static_cast<uint64_t>(g));
         r0 = internal::Random(tk, 0);
         r1 = internal::Random(tk, 1);
+        const uint64_t count = static_cast<uint64_t>(tri_end - tri_first);
+        const bool narrow = count >= 2 && Narrow(w);
+        how = l.placement == SamplerOptions::Placement::kUniform || (count > kMaxPieces && !narrow)
+                  ? How::kHammersley
+                  : (narrow ? How::kStrip : How::kPieces);
       }
       Surfel& sf = out[s - begin];
       const uint64_t j = static_cast<uint64_t>(s - tri_first);
       const uint64_t k = static_cast<uint64_t>(tri_end - tri_first);
-      sf.position =
-          internal::TrianglePoint(w.a, w.b, w.c, internal::RotatedHammersley(j, k, r0, r1));
+      switch (how) {
+        case How::kHammersley:
+          sf.position =
+              internal::TrianglePoint(w.a, w.b, w.c, internal::RotatedHammersley(j, k, r0, r1));
+          break;
+        case How::kStrip:
+          sf.position = internal::StripPoint(w.a, w.b, w.c, j, k);
+          break;
+        case How::kPieces:
+          sf.position = internal::EqualAreaPiecePoint(w.a, w.b, w.c, j, k);
+          break;
+      }
       sf.normal = normal;
       sf.radius = radius_;
       sf.radiance = glm::vec3(0.0f);

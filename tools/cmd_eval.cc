@@ -298,6 +298,9 @@ absl::StatusOr<std::vector<Receiver>> MakeEvalReceivers(const EvalArgs& a, const
     // ground under a building): no camera sees them, and the reference (which counts back
     // faces) and PBGI disagree there by construction. So the count is the request within 1%.
     rs.drop_hidden = true;
+    // Anywhere on a triangle, as a renderer's shading points are: at the pieces' centres
+    // (where the cloud's own surfels lie) they would never fall near an edge or a contact.
+    rs.placement = SamplerOptions::Placement::kUniform;
     PBGI_ASSIGN_OR_RETURN(auto rsrc, MakeSceneSurfelSource(e.scene, rs));
     std::vector<Surfel> buf(4096);
     for (;;) {

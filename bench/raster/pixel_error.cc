@@ -445,6 +445,7 @@ int Run(const Args& a) {
   rs.count = a.receivers;
   rs.seed = a.seed;
   rs.bake = false;
+  rs.placement = SamplerOptions::Placement::kUniform;  // receivers as pbgi eval draws them
   auto src = MakeSceneSurfelSource(shared, rs);
   if (!src.ok()) return Fail(src.status());
   std::vector<Surfel> buf(1024), samples;

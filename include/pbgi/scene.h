@@ -277,12 +277,22 @@ struct SamplerOptions {
   // through the solid's back faces. A sample is hidden when the ray along its own normal first
   // meets the back face of a non-thin triangle (see Material::thin).
   bool drop_hidden = true;
+  // Where a triangle's k surfels go. kPieces (a cloud to shade with): a triangle of at most 32
+  // surfels is cut into k pieces of equal area, as compact as it allows, each surfel at its
+  // piece's centre, so that its disk covers its piece as well as a disk can (no two disks of a
+  // small triangle in one corner, no disk hanging far over its edge); a triangle narrower than
+  // 0.7 spacings gets its surfels evenly along its length, in the middle of its width; a larger
+  // triangle gets a rotated Hammersley set. kUniform (points to test with, such as receivers):
+  // the rotated Hammersley set everywhere, every point of a triangle equally likely, its edges
+  // and corners too.
+  enum class Placement { kPieces, kUniform };
+  Placement placement = Placement::kPieces;
 };
 
 // A streaming SurfelSource over a scene's triangles. Surfels are stratified over the area
-// (systematic sampling along the cumulative area of the triangles, a rotated Hammersley set
-// inside each triangle), each representing area/count: pi r^2 = area per surfel, so the total
-// surfel area equals the mesh area. Normals are the triangles' geometric normals. Radiance is
+// (systematic sampling along the cumulative area of the triangles, then `placement` inside each
+// triangle), each representing area/count: pi r^2 = area per surfel, so the total surfel area
+// equals the mesh area. Normals are the triangles' geometric normals. Radiance is
 // SurfaceRadiance() at the surfel. Memory is constant in the count (one chunk in flight);
 // surfel i depends only on (scene, options, i), so the stream is identical for any number of
 // threads. Not thread-safe (uses TBB internally).
