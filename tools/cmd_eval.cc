@@ -402,19 +402,20 @@ ShadeOptions EvalShadeOptions(const EvalArgs& a, const EvalSetup& e, float msa, 
   return so;
 }
 
-// Writes one CSV line per receiver: position, normal, the converged reference and `pbgi` (the
-// mean of the three channels).
+// Writes one CSV line per receiver: position, normal, the converged reference, `pbgi` (the
+// mean of the three channels), and the receiver's sheet tag (0: none; pixel_error --sheet).
 absl::Status DumpReceivers(const std::string& path, const EvalSetup& e,
                            const std::vector<glm::dvec3>& pbgi) {
   std::FILE* f = std::fopen(path.c_str(), "w");
   if (f == nullptr) return absl::InternalError(absl::StrFormat("cannot write %s", path));
-  std::fprintf(f, "i,x,y,z,nx,ny,nz,reference,pbgi,error\n");
+  std::fprintf(f, "i,x,y,z,nx,ny,nz,reference,pbgi,error,sheet\n");
   for (size_t i = 0; i < e.receivers.size(); ++i) {
     const Receiver& r = e.receivers[i];
     const double t = (e.truth[i].x + e.truth[i].y + e.truth[i].z) / 3.0;
     const double p = (pbgi[i].x + pbgi[i].y + pbgi[i].z) / 3.0;
-    std::fprintf(f, "%zu,%.9g,%.9g,%.9g,%.6g,%.6g,%.6g,%.6f,%.6f,%+.6f\n", i, r.position.x,
-                 r.position.y, r.position.z, r.normal.x, r.normal.y, r.normal.z, t, p, p - t);
+    std::fprintf(f, "%zu,%.9g,%.9g,%.9g,%.6g,%.6g,%.6g,%.6f,%.6f,%+.6f,%u\n", i, r.position.x,
+                 r.position.y, r.position.z, r.normal.x, r.normal.y, r.normal.z, t, p, p - t,
+                 static_cast<unsigned>(r.sheet));
   }
   const bool ok = std::fclose(f) == 0;
   if (!ok) return absl::InternalError(absl::StrFormat("cannot write %s", path));
@@ -967,7 +968,7 @@ CommandSetup Setup() {
     app->add_option("--dump-receivers", a->dump_receivers,
                     "A CSV of every receiver at the default setting (msa 0.03, res 12), or at the "
                     "first msa and resolution swept when those are not: position, normal, "
-                    "reference, PBGI, error");
+                    "reference, PBGI, error (and for receiver sets, the sheet tag)");
     app->add_flag("--keep-hidden", a->keep_hidden,
                   "Keep database surfels inside solid geometry (receivers never are)");
     app->add_flag("--view", a->view,

@@ -9,7 +9,7 @@
 //        [--seed K] [--hitsides front|both] [--detail]
 //        pixel_error SCENE|MESH DATABASE --at X,Y,Z --normal X,Y,Z [--msa A] [--res R] [--sub S]
 //        [--hitsides front|both] [--pixel-diff D] [--pixel P] [--keep-above H] [--keep-within D]
-//        [--detail] [--radiance] [--bands D1,D2,... [--band-rays N]]
+//        [--detail] [--radiance] [--bands D1,D2,... [--band-rays N]] [--sheet S]
 // The second form is one receiver pixel by pixel (a `pbgi eval --dump-receivers` row): the
 // pixels whose coverage differs from the rays' by more than D, with what the rays hit there;
 // --pixel P lists each cluster and each leaf that covers P when drawn alone, and the gathered
@@ -55,6 +55,7 @@ struct Args {
   HitSides sides = HitSides::kFront;
   bool detail = false;
   bool one = false;  // --at/--normal: one receiver, pixel by pixel
+  uint8_t sheet = 0;  // --sheet S: that receiver's sheet tag (pbgi eval --dump-receivers' column)
   glm::vec3 at{0.0f}, normal{0.0f, 0.0f, 1.0f};
   float pixel_diff = 0.05f;
   int pixel = -1;             // --pixel: the gathered surfels whose disks its central ray crosses
@@ -70,6 +71,7 @@ struct Worst {
   float error;  // pixel sum minus truth
   glm::vec3 p, n;
   float truth;
+  uint8_t sheet = 0;  // the receiver's sheet tag (ShadeReceiver::sheet)
 };
 
 int Fail(const absl::Status& s) {
@@ -107,7 +109,7 @@ void Detail(const Worst& w, Reader& reader, const Tracer& tracer, const Cut& cut
   }
   Gathered g;
   if (!reader.Gather({w.p, w.n}, cut, &g).ok()) return;
-  const ShadeReceiver r{w.p, w.n, w.n};
+  const ShadeReceiver r{w.p, w.n, w.n, w.sheet};
   struct Part {
     float occlusion;
     bool leaf;
@@ -236,7 +238,8 @@ int RunBands(const Args& a, Reader& reader, const Tracer& tracer) {
     Gathered g;
     if (absl::Status s = reader.Gather({p, n}, cut, &g); !s.ok()) return Fail(s);
     ShadeResult r;
-    if (absl::Status s = Shade(g, ShadeReceiver{p, n, n, 0}, ro, &mb, &r); !s.ok()) return Fail(s);
+    if (absl::Status s = Shade(g, ShadeReceiver{p, n, n, a.sheet}, ro, &mb, &r); !s.ok())
+      return Fail(s);
     const glm::vec3 e = tracer.ReferenceIrradiance(p, n, a.band_rays, 5, d);
     const double now[4] = {tracer.ReferenceOcclusion(p, n, a.band_rays, d, 5), r.occlusion,
                            (e.x + e.y + e.z) / 3.0,
@@ -278,7 +281,7 @@ int RunOne(const Args& a, Reader& reader, const Tracer& tracer) {
     g = std::move(k);
   }
   ShadeResult r;
-  if (absl::Status st = Shade(g, {p, n, n}, ro, &mb, &r); !st.ok()) return Fail(st);
+  if (absl::Status st = Shade(g, {p, n, n, a.sheet}, ro, &mb, &r); !st.ok()) return Fail(st);
   glm::vec3 t, b;
   internal::OrthonormalBasis(n, &t, &b);
   const double step = 2.0 / a.res;
@@ -362,7 +365,7 @@ int RunOne(const Args& a, Reader& reader, const Tracer& tracer) {
   std::printf("pixels: PBGI %.5f, rays %.5f (diff %+.5f)\n", got / weight, want / weight,
               (got - want) / weight);
   if (a.detail)
-    Detail({float(got - want), p, n, float(want / weight)}, reader, tracer, cut, ro, mb);
+    Detail({float(got - want), p, n, float(want / weight), a.sheet}, reader, tracer, cut, ro, mb);
   if (a.pixel >= 0 && a.pixel < mb.pixel_count()) {
     const glm::vec3 l = glm::normalize(mb.PixelDirection(a.pixel));
     const glm::vec3 d = l.x * t + l.y * b + l.z * n;
@@ -374,7 +377,7 @@ int RunOne(const Args& a, Reader& reader, const Tracer& tracer) {
         Gathered one;
         one.clusters.push_back(g.clusters[i]);
         ShadeResult out;
-        if (!Shade(one, {p, n, n}, ro, &one_mb, &out).ok()) continue;
+        if (!Shade(one, {p, n, n, a.sheet}, ro, &one_mb, &out).ok()) continue;
         const float c = one_mb.PixelCoverage(a.pixel);
         if (!(c > 0.02f)) continue;
         const Cluster& cl = g.clusters[i];
@@ -389,7 +392,7 @@ int RunOne(const Args& a, Reader& reader, const Tracer& tracer) {
       for (size_t l = 0; l < g.leaf_cells.size(); ++l) {
         const Gathered one = LeafAlone(g, l);
         ShadeResult out;
-        if (!Shade(one, {p, n, n}, ro, &one_mb, &out).ok()) continue;
+        if (!Shade(one, {p, n, n, a.sheet}, ro, &one_mb, &out).ok()) continue;
         const float c = one_mb.PixelCoverage(a.pixel);
         if (!(c > 0.02f)) continue;
         const Bounds& lc = g.leaf_cells[l];
@@ -469,7 +472,7 @@ int Run(const Args& a) {
     Gathered g;
     if (absl::Status st = (*reader)->Gather({p, n}, cut, &g); !st.ok()) return Fail(st);
     ShadeResult r;
-    if (absl::Status st = Shade(g, {p, n, n}, ro, &mb, &r); !st.ok()) return Fail(st);
+    if (absl::Status st = Shade(g, {p, n, n, s.sheet}, ro, &mb, &r); !st.ok()) return Fail(st);
     glm::vec3 t, b;
     internal::OrthonormalBasis(n, &t, &b);
     double got = 0, want = 0, weight = 0;
@@ -508,7 +511,7 @@ int Run(const Args& a) {
     }
     got /= weight, want /= weight;
     sum_pbgi += got, sum_truth += want, sum_abs += std::fabs(got - want);
-    worst.push_back({float(got - want), p, n, float(want)});
+    worst.push_back({float(got - want), p, n, float(want), s.sheet});
   }
   const double count = static_cast<double>(samples.size());
   std::printf(
@@ -587,6 +590,8 @@ int main(int argc, char** argv) {
       a.keep_within = std::strtof(value(), nullptr);
     else if (arg == "--pixel")
       a.pixel = std::atoi(value());
+    else if (arg == "--sheet")
+      a.sheet = static_cast<uint8_t>(std::clamp(std::atoi(value()), 0, 255));
     else if (arg == "--pixel-diff")
       a.pixel_diff = std::strtof(value(), nullptr);
     else if (arg == "--bands") {

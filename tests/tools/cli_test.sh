@@ -45,6 +45,16 @@ run eval "$pbgi" eval cornell -o "$dir/eval" --points 30000 --receivers 40 --ray
   --ray-sweep 16 64 --solid-angles 0.1 0.03 --raster-res 8 12
 [ -s "$dir/eval/eval.json" ] && [ -s "$dir/eval/eval.png" ] && ok || fail "eval wrote no json/chart"
 grep -q '"speedup_at_equal_error"' "$dir/eval/eval.json" && ok || fail "eval.json lacks the speed ratio"
+# --dump-receivers on a receiver set: one row per receiver, its error its PBGI value less its
+# reference, and its sheet tag last: 0 on the forest's one-sided ground and trunks, 1-255 on
+# its two-sided leaves (pixel_error --sheet takes it).
+run eval_dump "$pbgi" eval forest --size 2 -o "$dir/eval_dump" --points 20000 --receivers 60 \
+  --rays 64 --ray-sweep 16 --solid-angles 0.03 --raster-res 12 --dump-receivers "$dir/rec.csv"
+awk -F, 'NR == 1 {if ($11 != "sheet") bad++; next} {n++; d = $10 - ($9 - $8);
+  if (d < -2e-6 || d > 2e-6 || $11 !~ /^[0-9]+$/ || $11 > 255) bad++;
+  if ($7 > 0.999 && $4 < 0.01 && $11 != 0) bad++; if ($11 > 0) tagged++}
+  END {exit !(n >= 50 && bad == 0 && tagged > 0)}' "$dir/rec.csv" && ok ||
+  fail "eval --dump-receivers: rows, errors or sheet tags wrong"
 # Both cut criteria in one sweep; the cosine-weighted cut gathers fewer clusters at equal msa.
 run eval_cuts "$pbgi" eval cornell -o "$dir/eval_cuts" --points 30000 --receivers 40 --rays 256 \
   --ray-sweep 16 --solid-angles 0.03 --raster-res 8 --cuts plain cosine
