@@ -303,7 +303,8 @@ class SceneSurfelSource final : public SurfelSource {
     const glm::dvec3 a(w.a), b(w.b), c(w.c);
     const double l2 =
         std::max({glm::dot(b - a, b - a), glm::dot(c - b, c - b), glm::dot(a - c, a - c)});
-    return l2 > 0.0 && 2.0 * w.Area() / std::sqrt(l2) < kNarrowWidth * std::sqrt(area_per_surfel_);
+    const glm::dvec3 x = glm::cross(b - a, c - a);  // |x| / l: the width across the longest edge
+    return l2 > 0.0 && glm::dot(x, x) < kNarrowWidth * kNarrowWidth * area_per_surfel_ * l2;
   }
 
   // Candidates [begin, end) of layout l, in order, with their materials: positions and normals.
