@@ -6,7 +6,7 @@
 // receivers, and with --detail the elements that close the worst receiver's pixels (each
 // cluster and each leaf's surfels shaded alone) and what rays along its normal hit.
 // Usage: pixel_error SCENE|MESH DATABASE [--receivers N] [--msa A] [--res R] [--sub S]
-//        [--seed K] [--hitsides front|both] [--detail]
+//        [--seed K] [--layout S] [--hitsides front|both] [--detail]
 //        pixel_error SCENE|MESH DATABASE --at X,Y,Z --normal X,Y,Z [--msa A] [--res R] [--sub S]
 //        [--hitsides front|both] [--pixel-diff D] [--pixel P] [--keep-above H] [--keep-within D]
 //        [--detail] [--radiance] [--bands D1,D2,... [--band-rays N]] [--sheet S]
@@ -52,6 +52,8 @@ struct Args {
   int receivers = 300, res = 12, sub = 8;
   float msa = 0.03f;
   uint64_t seed = 7920;  // pbgi eval's receivers for --seed 1
+  uint64_t layout = 1;   // --layout S: the scene's seed (pbgi eval --seed S); sets seed to S + 7919
+  bool seed_given = false;  // --seed given: it stays
   HitSides sides = HitSides::kFront;
   bool detail = false;
   bool one = false;  // --at/--normal: one receiver, pixel by pixel
@@ -434,7 +436,7 @@ int Run(const Args& a) {
   // the database recorded it (a white sky unless it says otherwise), `--up y` turned z-up.
   ImportReport report;
   auto scene = tools::LoadLitScene(
-      a.scene, /*seed=*/1, /*size=*/0, a.up_y ? tools::UpAxis::kY : tools::UpAxis::kZ,
+      a.scene, /*seed=*/a.layout, /*size=*/0, a.up_y ? tools::UpAxis::kY : tools::UpAxis::kZ,
       /*orient=*/true, tools::LightFlags{}, "pixel_error", &report, &(*db)->meta().stats);
   if (!scene.ok()) return Fail(scene.status());
   std::shared_ptr<const Scene> shared = *std::move(scene);
@@ -567,9 +569,13 @@ int main(int argc, char** argv) {
       a.res = std::atoi(value());
     else if (arg == "--sub")
       a.sub = std::atoi(value());
-    else if (arg == "--seed")
+    else if (arg == "--seed") {
       a.seed = std::strtoull(value(), nullptr, 10);
-    else if (arg == "--hitsides")
+      a.seed_given = true;
+    } else if (arg == "--layout") {
+      a.layout = std::strtoull(value(), nullptr, 10);
+      if (!a.seed_given) a.seed = a.layout + 7919;
+    } else if (arg == "--hitsides")
       a.sides = std::strcmp(value(), "both") == 0 ? pbgi::HitSides::kBoth : pbgi::HitSides::kFront;
     else if (arg == "--radiance")
       a.radiance = true;
@@ -619,7 +625,7 @@ int main(int argc, char** argv) {
       !(a.msa > 0.0f)) {
     std::fprintf(stderr,
                  "usage: pixel_error SCENE|MESH DATABASE [--receivers N] [--msa A] [--res R] "
-                 "[--sub S] [--seed K] [--hitsides front|both] [--detail]\n");
+                 "[--sub S] [--seed K] [--layout S] [--hitsides front|both] [--detail]\n");
     return 2;
   }
   return pbgi::Run(a);
