@@ -31,7 +31,7 @@ namespace {
 using internal::HashCombine;
 using internal::SceneIndex;
 
-constexpr int64_t kBlock = 2048;  // surfels per parallel task inside a chunk
+constexpr int64_t kBlock = 2048;      // surfels per parallel task inside a chunk
 constexpr double kNarrowWidth = 0.7;  // SceneSurfelSource::Narrow, in surfel spacings
 // Placement::kPieces cuts a triangle into pieces when it holds at most this many surfels (or is
 // narrow); a larger one keeps the rotated Hammersley set, as even as pieces' centres there and
@@ -330,6 +330,7 @@ class SceneSurfelSource final : public SurfelSource {
     bool thin = false;
     uint8_t sheet = 0;
     float r0 = 0.0f, r1 = 0.0f;
+    uint64_t k = 0;  // the triangle's surfel count
     enum class How { kHammersley, kStrip, kPieces } how = How::kHammersley;
     for (int64_t s = begin; s < end; ++s) {
       if (s >= tri_end) {
@@ -352,15 +353,18 @@ class SceneSurfelSource final : public SurfelSource {
         const uint64_t tk = HashCombine(l.seed, static_cast<uint64_t>(g));
         r0 = internal::Random(tk, 0);
         r1 = internal::Random(tk, 1);
-        const uint64_t count = static_cast<uint64_t>(tri_end - tri_first);
-        const bool narrow = count >= 2 && Narrow(w);
-        how = l.placement == SamplerOptions::Placement::kUniform || (count > kMaxPieces && !narrow)
-                  ? How::kHammersley
-                  : (narrow ? How::kStrip : How::kPieces);
+        k = static_cast<uint64_t>(tri_end - tri_first);
+        how = How::kHammersley;
+        if (l.placement == SamplerOptions::Placement::kPieces) {
+          if (k >= 2 && Narrow(w)) {
+            how = How::kStrip;
+          } else if (k <= kMaxPieces) {
+            how = How::kPieces;
+          }
+        }
       }
       Surfel& sf = out[s - begin];
       const uint64_t j = static_cast<uint64_t>(s - tri_first);
-      const uint64_t k = static_cast<uint64_t>(tri_end - tri_first);
       switch (how) {
         case How::kHammersley:
           sf.position =

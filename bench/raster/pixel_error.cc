@@ -30,6 +30,7 @@
 #include <cstring>
 #include <limits>
 #include <memory>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -51,12 +52,12 @@ struct Args {
   std::string scene, db;
   int receivers = 300, res = 12, sub = 8;
   float msa = 0.03f;
-  uint64_t seed = 7920;  // pbgi eval's receivers for --seed 1
-  uint64_t layout = 1;   // --layout S: the scene's seed (pbgi eval --seed S); sets seed to S + 7919
-  bool seed_given = false;  // --seed given: it stays
+  uint64_t layout = 1;  // --layout S: the scene's seed (pbgi eval --seed S)
+  // --seed K: the receivers' seed; unset, pbgi eval's receivers for --seed S, S + 7919.
+  std::optional<uint64_t> seed;
   HitSides sides = HitSides::kFront;
   bool detail = false;
-  bool one = false;  // --at/--normal: one receiver, pixel by pixel
+  bool one = false;   // --at/--normal: one receiver, pixel by pixel
   uint8_t sheet = 0;  // --sheet S: that receiver's sheet tag (pbgi eval --dump-receivers' column)
   glm::vec3 at{0.0f}, normal{0.0f, 0.0f, 1.0f};
   float pixel_diff = 0.05f;
@@ -448,7 +449,7 @@ int Run(const Args& a) {
   if (a.one) return RunOne(a, **reader, **tracer);
   SamplerOptions rs;
   rs.count = a.receivers;
-  rs.seed = a.seed;
+  rs.seed = a.seed.value_or(a.layout + 7919);
   rs.bake = false;
   rs.placement = SamplerOptions::Placement::kUniform;  // receivers as pbgi eval draws them
   auto src = MakeSceneSurfelSource(shared, rs);
@@ -569,13 +570,11 @@ int main(int argc, char** argv) {
       a.res = std::atoi(value());
     else if (arg == "--sub")
       a.sub = std::atoi(value());
-    else if (arg == "--seed") {
+    else if (arg == "--seed")
       a.seed = std::strtoull(value(), nullptr, 10);
-      a.seed_given = true;
-    } else if (arg == "--layout") {
+    else if (arg == "--layout")
       a.layout = std::strtoull(value(), nullptr, 10);
-      if (!a.seed_given) a.seed = a.layout + 7919;
-    } else if (arg == "--hitsides")
+    else if (arg == "--hitsides")
       a.sides = std::strcmp(value(), "both") == 0 ? pbgi::HitSides::kBoth : pbgi::HitSides::kFront;
     else if (arg == "--radiance")
       a.radiance = true;

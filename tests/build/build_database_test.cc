@@ -72,7 +72,8 @@ TEST(BuildDatabaseTest, TwoSidedSurfelsBuildAVerifiableStore) {
     SCOPED_TRACE(memory);
     std::string db;
     absl::StatusOr<std::unique_ptr<PageStore>> store;
-    ASSERT_NO_FATAL_FAILURE(BuildVariant(cloud, Channels::kOcclusion, estimate, memory, dir, &db, &store));
+    ASSERT_NO_FATAL_FAILURE(
+        BuildVariant(cloud, Channels::kOcclusion, estimate, memory, dir, &db, &store));
     EXPECT_EQ((*store)->meta().version, kStoreFormatVersion);
     EXPECT_TRUE(VerifyTree(**store).ok()) << VerifyTree(**store);
     // Every point's flag, found by position (the store holds them in Morton order).
@@ -124,7 +125,8 @@ TEST(BuildDatabaseTest, BackRadianceIsStoredWhereATwoSidedSurfelsBackDiffers) {
     SCOPED_TRACE(memory);
     std::string db;
     absl::StatusOr<std::unique_ptr<PageStore>> store;
-    ASSERT_NO_FATAL_FAILURE(BuildVariant(cloud, Channels::kRadiance, estimate, memory, dir, &db, &store));
+    ASSERT_NO_FATAL_FAILURE(
+        BuildVariant(cloud, Channels::kRadiance, estimate, memory, dir, &db, &store));
     const StoreMeta& m = (*store)->meta();
     EXPECT_EQ(m.channels, Channels::kRadianceBothSides);
     EXPECT_TRUE(VerifyTree(**store).ok()) << VerifyTree(**store);
