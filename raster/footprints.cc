@@ -818,6 +818,9 @@ Bounds SheetCell(const Bounds& cell, uint32_t leaf, const SurfelGroup& gr, const
       const float nb2 = glm::dot(b.normal, b.normal);
       for (int m = 0; m < gr.count; ++m) {
         const Surfel& a = g.surfels[members[m]];
+        // Another sheet (both tags known and different: another leaf) is not this one's next
+        // sample, however it lies.
+        if (a.sheet != 0 && b.sheet != 0 && a.sheet != b.sheet) continue;
         const glm::vec3 d = b.position - a.position;
         const float dd = glm::dot(d, d);
         if (dd > next2) continue;
@@ -1021,6 +1024,35 @@ float FlatFootprint(const Bounds& centres, const Bounds& cell, float spacing,
     poly = qa;
   }
   return std::min(1.0f, static_cast<float>(area / poly));
+}
+
+// The rhombus's long diagonal lies along the pair, three times the centres' distance; its short
+// one across, as long as the pair's area asks. Centres that coincide are FlatFootprint's.
+float PairFootprint(const glm::vec3& c1, const glm::vec3& c2, const glm::vec3& normal, float offset,
+                    const glm::vec3& origin, float spacing, double area, Polygon* p) {
+  auto onto = [&](const glm::vec3& c) {
+    const glm::vec3 r = c - origin;
+    return r - (glm::dot(normal, r) - offset) * normal;
+  };
+  const glm::vec3 q1 = onto(c1), q2 = onto(c2);
+  glm::vec3 a = q2 - q1;
+  const float d = glm::length(a);
+  if (!(d > 1e-3f * spacing) || !(area > 0.0) || !std::isfinite(d)) return -1.0f;
+  a /= d;
+  const glm::vec3 b = glm::cross(normal, a);
+  // The sampler puts a quad's two surfels at its triangles' centroids, a third of its diagonal
+  // apart along the other diagonal: three times that is the quad's extent along the pair, and
+  // twice its area over that its extent across, the rhombus's diagonals.
+  const float len = std::clamp(3.0f * d, spacing, d + 2.0f * spacing);
+  const float wid =
+      std::clamp(2.0f * static_cast<float>(area) / len, 0.5f * spacing, 3.0f * spacing);
+  const glm::vec3 mid = 0.5f * (q1 + q2), ha = 0.5f * len * a, hb = 0.5f * wid * b;
+  p->n = 4;
+  p->v[0] = mid - ha;
+  p->v[1] = mid + hb;
+  p->v[2] = mid + ha;
+  p->v[3] = mid - hb;
+  return std::min(1.0f, static_cast<float>(2.0 * area / (double(len) * wid)));
 }
 
 void Rasterizer::AddPolygon(const Polygon& world_rel, PreparedSplat* s) {
@@ -1479,8 +1511,27 @@ void Rasterizer::PrepareSurfelGroups(const Gathered& g, ShadeResult* out) {
                                              &order[end - count], leaf_runs())
                                  : Bounds{};
       Polygon p;
-      float alpha = FlatFootprint(first.two_sided ? centres : reach, snap_to, spacing, facing,
-                                  -std::fabs(side), from, area, &p);
+      // A two-sided pair that ends in its cell (a leaf's piece at 2 M surfels): the rhombus its
+      // two centres imply.
+      // The box of two centres grown to hold their area, cut by a tilted plane, was up to twice
+      // the leaf's length along the plane's slope at a lower opacity: a leaf a receiver lay
+      // under came out translucent and one beside it reached over it (bug:
+      // a_leafs_pair_drawn_as_its_boxs_section; docs/design.md, "A leaf's pair").
+      // A pair whose sheet goes on past its cell (SheetCell finds its next samples beyond a
+      // side: a sliver of a mesh's thin part that a cell cuts off) keeps the box, which
+      // reaches toward the next cell's footprint.
+      float alpha = first.two_sided && count == 2 && leaves &&
+                            SheetCell(cell, g.surfel_leaf[order[end - 1]], gr, g,
+                                      &order[end - count], leaf_runs())
+                                .Empty()
+                        ? PairFootprint(g.surfels[order[end - 2]].position,
+                                        g.surfels[order[end - 1]].position, facing,
+                                        -std::fabs(side), from, spacing, area, &p)
+                        : -1.0f;
+      if (alpha < 0.0f) {
+        alpha = FlatFootprint(first.two_sided ? centres : reach, snap_to, spacing, facing,
+                              -std::fabs(side), from, area, &p);
+      }
       // Clipped at a convex edge, the polygon loses only what lay past the edge, where the
       // surface is not: its content covers that much more of what is left.
       auto clip_past_edge = [&](auto&& clip) {
