@@ -21,6 +21,7 @@
 #include <limits>
 
 #include "absl/container/inlined_vector.h"
+#include "base/math.h"
 #include "glm/geometric.hpp"
 #include "pbgi/sh.h"
 #include "raster/polygon.h"
@@ -1055,6 +1056,80 @@ float PairFootprint(const glm::vec3& c1, const glm::vec3& c2, const glm::vec3& n
   return std::min(1.0f, static_cast<float>(2.0 * area / (double(len) * wid)));
 }
 
+// A two-sided group's footprint in its own plane ({x : normal . x = offset} relative to
+// `origin`): the rectangle of its members' centres along their principal axes there, grown by
+// half a spacing, and further while it holds less than their area (at most a spacing past the
+// outermost centres), as FlatFootprint grows a box. Returns its coverage, or -1 when it has no
+// extent.
+float InPlaneFootprint(const Surfel* surfels, const uint32_t* members, int count,
+                       const glm::vec3& normal, float offset, const glm::vec3& origin,
+                       float spacing, double area, Polygon* p) {
+  if (count < 1 || !(area > 0.0)) return -1.0f;
+  auto onto = [&](int i) {
+    const glm::vec3 r = surfels[members[i]].position - origin;
+    return r - (glm::dot(normal, r) - offset) * normal;
+  };
+  glm::vec3 u0, v0;
+  OrthonormalBasis(normal, &u0, &v0);
+  glm::vec3 mid(0.0f);
+  for (int i = 0; i < count; ++i) mid += onto(i);
+  mid /= static_cast<float>(count);
+  double cxx = 0, cyy = 0, cxy = 0;
+  for (int i = 0; i < count; ++i) {
+    const glm::vec3 d = onto(i) - mid;
+    const double x = glm::dot(d, u0), y = glm::dot(d, v0);
+    cxx += x * x, cyy += y * y, cxy += x * y;
+  }
+  // The axes: the centres' principal directions (a tilted leaf's pieces); where they have
+  // none to speak of (eigenvalues within kIsotropic of each other: a square grid of samples),
+  // of those and the world axes' traces on the plane the one whose rectangle of centres is the
+  // smallest (a sheet sampled along the world axes).
+  constexpr double kIsotropic = 1.5;
+  glm::vec3 dirs[4];
+  int nd = 0;
+  const float th = 0.5f * static_cast<float>(std::atan2(2.0 * cxy, cxx - cyy));
+  dirs[nd++] = std::cos(th) * u0 + std::sin(th) * v0;
+  const double half_tr = 0.5 * (cxx + cyy);
+  const double disc = std::sqrt(0.25 * (cxx - cyy) * (cxx - cyy) + cxy * cxy);
+  const bool isotropic = half_tr + disc <= kIsotropic * (half_tr - disc);
+  for (int k = 0; k < 3 && isotropic; ++k) {
+    glm::vec3 e(0.0f);
+    e[k] = 1.0f;
+    const glm::vec3 t = e - glm::dot(e, normal) * normal;
+    const float tl = glm::length(t);
+    if (tl > 0.3f) dirs[nd++] = t / tl;
+  }
+  glm::vec3 a = dirs[0], b = glm::cross(normal, a);
+  float alo = 0.0f, ahi = 0.0f, blo = 0.0f, bhi = 0.0f, best = std::numeric_limits<float>::max();
+  for (int c = 0; c < nd; ++c) {
+    const glm::vec3 ca = dirs[c], cb = glm::cross(normal, ca);
+    float x0 = std::numeric_limits<float>::max(), x1 = -x0, y0 = x0, y1 = -x0;
+    for (int i = 0; i < count; ++i) {
+      const glm::vec3 d = onto(i) - mid;
+      const float x = glm::dot(d, ca), y = glm::dot(d, cb);
+      x0 = std::min(x0, x), x1 = std::max(x1, x), y0 = std::min(y0, y), y1 = std::max(y1, y);
+    }
+    const float area_c = (x1 - x0 + spacing) * (y1 - y0 + spacing);
+    if (area_c < best) best = area_c, a = ca, b = cb, alo = x0, ahi = x1, blo = y0, bhi = y1;
+  }
+  const float h = 0.5f * spacing;
+  float l = ahi - alo + 2.0f * h, w = bhi - blo + 2.0f * h;
+  if (!(l > 0.0f) || !(w > 0.0f) || !std::isfinite(l * w)) return -1.0f;
+  float ga = h, gb = h;
+  if (area > double(l) * w) {
+    const float f = std::sqrt(static_cast<float>(area / (double(l) * w)));
+    ga = std::min(spacing, h + 0.5f * (f - 1.0f) * l);
+    gb = std::min(spacing, h + 0.5f * (f - 1.0f) * w);
+    l = ahi - alo + 2.0f * ga, w = bhi - blo + 2.0f * gb;
+  }
+  p->n = 4;
+  p->v[0] = mid + (alo - ga) * a + (blo - gb) * b;
+  p->v[1] = mid + (ahi + ga) * a + (blo - gb) * b;
+  p->v[2] = mid + (ahi + ga) * a + (bhi + gb) * b;
+  p->v[3] = mid + (alo - ga) * a + (bhi + gb) * b;
+  return std::min(1.0f, static_cast<float>(area / (double(l) * w)));
+}
+
 void Rasterizer::AddPolygon(const Polygon& world_rel, PreparedSplat* s) {
   auto& polys = mb_.polygons_;
   if (poly_count_ == polys.size()) polys.emplace_back();
@@ -1516,7 +1591,7 @@ void Rasterizer::PrepareSurfelGroups(const Gathered& g, ShadeResult* out) {
       // The box of two centres grown to hold their area, cut by a tilted plane, was up to twice
       // the leaf's length along the plane's slope at a lower opacity: a leaf a receiver lay
       // under came out translucent and one beside it reached over it (bug:
-      // a_leafs_pair_drawn_as_its_boxs_section; docs/design.md, "A leaf's pair").
+      // a_leafs_pair_drawn_as_its_boxs_section; docs/design.md, "A leaf's pieces").
       // A pair whose sheet goes on past its cell (SheetCell finds its next samples beyond a
       // side: a sliver of a mesh's thin part that a cell cuts off) keeps the box, which
       // reaches toward the next cell's footprint.
@@ -1528,6 +1603,13 @@ void Rasterizer::PrepareSurfelGroups(const Gathered& g, ShadeResult* out) {
                                         g.surfels[order[end - 1]].position, facing,
                                         -std::fabs(side), from, spacing, area, &p)
                         : -1.0f;
+      // A larger two-sided group that ends in its cell (a leaf's pieces at 4 M surfels and
+      // more): the rectangle of its centres along their own principal axes in its plane, grown
+      // as the box is. The box's oblique section drew such a leaf up to 0.16 short under it.
+      if (alpha < 0.0f && first.two_sided && count > 2 && leaves && snap_to.Empty()) {
+        alpha = InPlaneFootprint(g.surfels.data(), &order[end - count], count, facing,
+                                 -std::fabs(side), from, spacing, area, &p);
+      }
       if (alpha < 0.0f) {
         alpha = FlatFootprint(first.two_sided ? centres : reach, snap_to, spacing, facing,
                               -std::fabs(side), from, area, &p);

@@ -91,10 +91,17 @@ float FlatFootprint(const Bounds& centres, const Bounds& cell, float spacing,
                     Polygon* p);
 
 // A two-sided pair's footprint on the same plane: a rhombus along the pair of centres c1, c2
-// holding `area` (docs/design.md, "A leaf's pair"). Returns its coverage, or -1 when the
+// holding `area` (docs/design.md, "A leaf's pieces"). Returns its coverage, or -1 when the
 // centres coincide.
 float PairFootprint(const glm::vec3& c1, const glm::vec3& c2, const glm::vec3& normal, float offset,
                     const glm::vec3& origin, float spacing, double area, Polygon* p);
+
+// A two-sided group's footprint on the same plane: the rectangle of its members' centres
+// (surfels[members[0 .. count)]) along their principal axes in the plane, grown to hold `area`
+// (docs/design.md, "A leaf's pieces"). Returns its coverage, or -1 when it has no extent.
+float InPlaneFootprint(const Surfel* surfels, const uint32_t* members, int count,
+                       const glm::vec3& normal, float offset, const glm::vec3& origin,
+                       float spacing, double area, Polygon* p);
 
 // Shades one receiver into a MicroBuffer that it borrows. Not thread-safe (neither is the
 // buffer); cheap to construct: everything it keeps lives in the MicroBuffer.
