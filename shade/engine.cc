@@ -106,7 +106,10 @@ void ShadeEngine::MaybeReportProgress(uint64_t done) {
   std::unique_lock<std::mutex> lock(progress_mu_, std::try_to_lock);
   if (lock.owns_lock() && since_progress_.Seconds() >= options_.progress_interval_seconds) {
     since_progress_.Restart();
-    options_.progress(ShadeProgress{done, receivers_.size()});
+    // The count as it stands now, read under the lock: the caller's own count can be older
+    // than one another thread has reported meanwhile, and reports went backwards (205, then
+    // 18: bug: progress_reported_out_of_order).
+    options_.progress(ShadeProgress{std::max(done, done_.load()), receivers_.size()});
   }
 }
 
