@@ -1565,7 +1565,8 @@ void Rasterizer::PrepareSurfelGroups(const Gathered& g, ShadeResult* out) {
         }
       }
       if (OwnSurfaceFromBehind(first.two_sided, sheet, normal, rel, spacing) ||
-          (first.two_sided && InsideOwnSheet(normal, rel, thickness, spacing))) {
+          (first.two_sided && !OtherSheet(sheet) &&
+           InsideOwnSheet(normal, rel, thickness, spacing))) {
         out->culled += count;
         continue;
       }

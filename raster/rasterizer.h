@@ -336,10 +336,9 @@ class Rasterizer {
   // separate sheet above the receiver is flat within its own group, so lies farther than its
   // thickness (at least kOwnSheetReach of a spacing) and still occludes.
   static constexpr float kOwnSheetReach = 0.075f;
-  // Sheet tags do not enter: a group of another sheet whose plane passes within its own
-  // thickness of the receiver (sampling noise) is drawn through the receiver's place and covers
-  // far more of its hemisphere than the crossing does, so it is culled as well (docs/design.md,
-  // "Sheet tags").
+  // The caller skips it for a group whose sheet tag and the receiver's are both known and
+  // differ (OtherSheet): a leaf crossing the receiver's leaf at the receiver was culled here
+  // (bug: crossing_leaf_culled_as_the_receivers_concave_sheet; docs/design.md, "Sheet tags").
   bool InsideOwnSheet(const glm::vec3& normal, const glm::vec3& rel, float thickness,
                       float spacing) const {
     const float side = -glm::dot(normal, rel);
