@@ -1,12 +1,15 @@
 // Small geometry shared by several modules: pi in float, the orthonormal basis around a unit
 // normal (the sampler, the reference integrator and the rasterizer's frames all use this one),
-// and the GGX lobe's integral (the reference's sampler and the lobe-aware cut).
+// the GGX lobe's integral (the reference's sampler and the lobe-aware cut), and the eigen
+// decomposition of a symmetric 3x3 matrix (the builder's normal estimate, the tests of
+// sh::PrincipalAxis).
 // The SH basis constants and pi in double live in the public pbgi/sh.h (its inline projection
 // needs them); this header only derives from them. Internal.
 #ifndef PBGI_BASE_MATH_H_
 #define PBGI_BASE_MATH_H_
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 
 #include "glm/vec3.hpp"
@@ -57,6 +60,43 @@ inline double GgxLobeIntegral(double x, double alpha) {
   const double m = std::sqrt(std::max(0.0, -k));
   const double at = m > 1e-8 ? std::atanh(m * x) / m : x;
   return 0.5 * (x / (1.0 + k * x * x) + at);
+}
+
+// The eigen decomposition of a symmetric 3x3 matrix by cyclic Jacobi rotations: on return a's
+// diagonal holds the eigenvalues and column i of v the unit eigenvector of a[i][i].
+inline void SymmetricEigen3(std::array<std::array<double, 3>, 3>* a_io,
+                            std::array<std::array<double, 3>, 3>* v_out) {
+  std::array<std::array<double, 3>, 3>& a = *a_io;
+  std::array<std::array<double, 3>, 3>& v = *v_out;
+  v = {{{1, 0, 0}, {0, 1, 0}, {0, 0, 1}}};
+  for (int sweep = 0; sweep < 32; ++sweep) {
+    const double off = a[0][1] * a[0][1] + a[0][2] * a[0][2] + a[1][2] * a[1][2];
+    const double diag = a[0][0] * a[0][0] + a[1][1] * a[1][1] + a[2][2] * a[2][2];
+    if (off <= 1e-24 * diag || off == 0) break;
+    for (int p = 0; p < 2; ++p) {
+      for (int q = p + 1; q < 3; ++q) {
+        if (a[p][q] == 0) continue;
+        const double theta = (a[q][q] - a[p][p]) / (2 * a[p][q]);
+        const double t = (theta >= 0 ? 1 : -1) / (std::abs(theta) + std::sqrt(theta * theta + 1));
+        const double c = 1 / std::sqrt(t * t + 1), s = t * c;
+        for (int k = 0; k < 3; ++k) {  // A <- A J
+          const double akp = a[k][p], akq = a[k][q];
+          a[k][p] = c * akp - s * akq;
+          a[k][q] = s * akp + c * akq;
+        }
+        for (int k = 0; k < 3; ++k) {  // A <- J^T A
+          const double apk = a[p][k], aqk = a[q][k];
+          a[p][k] = c * apk - s * aqk;
+          a[q][k] = s * apk + c * aqk;
+        }
+        for (int k = 0; k < 3; ++k) {
+          const double vkp = v[k][p], vkq = v[k][q];
+          v[k][p] = c * vkp - s * vkq;
+          v[k][q] = s * vkp + c * vkq;
+        }
+      }
+    }
+  }
 }
 
 }  // namespace pbgi::internal

@@ -1581,35 +1581,35 @@ void Rasterizer::PrepareSurfelGroups(const Gathered& g, ShadeResult* out) {
         contact_cell =
             ContactCell(cell, gr, groups, origin_, n_, crease_tol_, &contact, &reach, &on_receiver);
       }
-      const Bounds snap_to = !first.two_sided ? contact_cell
-                             : leaves && count >= kSheetMinCount
-                                 ? SheetCell(cell, g.surfel_leaf[order[end - 1]], gr, g,
-                                             &order[end - count], leaf_runs())
-                                 : Bounds{};
+      // A two-sided group's sheet goes on past its cell where SheetCell finds its next samples
+      // beyond a side; a pair (fewer than kSheetMinCount) still keeps the leaf's rule there.
+      const Bounds sheet_cell = first.two_sided && leaves && count >= 2
+                                    ? SheetCell(cell, g.surfel_leaf[order[end - 1]], gr, g,
+                                                &order[end - count], leaf_runs())
+                                    : Bounds{};
+      const Bounds snap_to = !first.two_sided          ? contact_cell
+                             : count >= kSheetMinCount ? sheet_cell
+                                                       : Bounds{};
       Polygon p;
-      // A two-sided pair that ends in its cell (a leaf's piece at 2 M surfels): the rhombus its
-      // two centres imply.
-      // The box of two centres grown to hold their area, cut by a tilted plane, was up to twice
-      // the leaf's length along the plane's slope at a lower opacity: a leaf a receiver lay
-      // under came out translucent and one beside it reached over it (bug:
-      // a_leafs_pair_drawn_as_its_boxs_section; docs/design.md, "A leaf's pieces").
-      // A pair whose sheet goes on past its cell (SheetCell finds its next samples beyond a
-      // side: a sliver of a mesh's thin part that a cell cuts off) keeps the box, which
-      // reaches toward the next cell's footprint.
-      float alpha = first.two_sided && count == 2 && leaves &&
-                            SheetCell(cell, g.surfel_leaf[order[end - 1]], gr, g,
-                                      &order[end - count], leaf_runs())
-                                .Empty()
-                        ? PairFootprint(g.surfels[order[end - 2]].position,
-                                        g.surfels[order[end - 1]].position, facing,
-                                        -std::fabs(side), from, spacing, area, &p)
-                        : -1.0f;
-      // A larger two-sided group that ends in its cell (a leaf's pieces at 4 M surfels and
-      // more): the rectangle of its centres along their own principal axes in its plane, grown
-      // as the box is. The box's oblique section drew such a leaf up to 0.16 short under it.
-      if (alpha < 0.0f && first.two_sided && count > 2 && leaves && snap_to.Empty()) {
-        alpha = InPlaneFootprint(g.surfels.data(), &order[end - count], count, facing,
-                                 -std::fabs(side), from, spacing, area, &p);
+      // A two-sided group whose sheet ends in its cell (a leaf's pieces) is drawn in its own
+      // plane's axes: a pair as the rhombus its two centres imply (at 2 M surfels), more as the
+      // rectangle of their centres along their principal axes (at 4 M and more). The box of
+      // the centres grown to hold their area, cut by a tilted plane, was up to twice the
+      // leaf's length along the plane's slope at a lower opacity: a leaf a receiver lay under
+      // came out translucent (up to 0.16 short) and one beside it reached over it (bug:
+      // a_leafs_pair_drawn_as_its_boxs_section; docs/design.md, "A leaf's pieces"). A pair
+      // whose sheet goes on (a sliver of a mesh's thin part that a cell cuts off) keeps the
+      // box, which reaches toward the next cell's footprint.
+      float alpha = -1.0f;
+      if (first.two_sided && leaves && sheet_cell.Empty()) {
+        if (count == 2) {
+          alpha =
+              PairFootprint(g.surfels[order[end - 2]].position, g.surfels[order[end - 1]].position,
+                            facing, -std::fabs(side), from, spacing, area, &p);
+        } else if (count > 2) {
+          alpha = InPlaneFootprint(g.surfels.data(), &order[end - count], count, facing,
+                                   -std::fabs(side), from, spacing, area, &p);
+        }
       }
       if (alpha < 0.0f) {
         alpha = FlatFootprint(first.two_sided ? centres : reach, snap_to, spacing, facing,

@@ -7,6 +7,7 @@
 #include <random>
 #include <vector>
 
+#include "base/math.h"
 #include "gtest/gtest.h"
 #include "pbgi/raster.h"
 #include "pbgi/sh.h"
@@ -358,33 +359,10 @@ TEST(ClusterModelTest, PrincipalAxisMatchesAnEigenSolve) {
     }
     const Cluster c = Aggregate(group);
     const std::array<float, 6> m = sh::SecondMoment(c.sh_area.data());
-    // Jacobi rotations on the symmetric matrix (double) until the off-diagonal vanishes.
-    double a[3][3] = {{m[0], m[3], m[5]}, {m[3], m[1], m[4]}, {m[5], m[4], m[2]}};
-    double v[3][3] = {{1, 0, 0}, {0, 1, 0}, {0, 0, 1}};
-    for (int sweep = 0; sweep < 50; ++sweep) {
-      for (int p = 0; p < 3; ++p) {
-        for (int q = p + 1; q < 3; ++q) {
-          if (std::fabs(a[p][q]) < 1e-300) continue;
-          const double th = 0.5 * std::atan2(2.0 * a[p][q], a[q][q] - a[p][p]);
-          const double cs = std::cos(th), sn = std::sin(th);
-          for (int k = 0; k < 3; ++k) {
-            const double akp = a[k][p], akq = a[k][q];
-            a[k][p] = cs * akp - sn * akq;
-            a[k][q] = sn * akp + cs * akq;
-          }
-          for (int k = 0; k < 3; ++k) {
-            const double apk = a[p][k], aqk = a[q][k];
-            a[p][k] = cs * apk - sn * aqk;
-            a[q][k] = sn * apk + cs * aqk;
-          }
-          for (int k = 0; k < 3; ++k) {
-            const double vkp = v[k][p], vkq = v[k][q];
-            v[k][p] = cs * vkp - sn * vkq;
-            v[k][q] = sn * vkp + cs * vkq;
-          }
-        }
-      }
-    }
+    std::array<std::array<double, 3>, 3> a = {
+        {{m[0], m[3], m[5]}, {m[3], m[1], m[4]}, {m[5], m[4], m[2]}}};
+    std::array<std::array<double, 3>, 3> v;
+    internal::SymmetricEigen3(&a, &v);
     int top = 0;
     for (int k = 1; k < 3; ++k) {
       if (a[k][k] > a[top][top]) top = k;
