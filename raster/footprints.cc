@@ -1640,7 +1640,8 @@ void Rasterizer::PrepareSurfelGroups(const Gathered& g, ShadeResult* out) {
         // let it see through (Wuson.ply, 0.897 for rays' 0.940; bug:
         // going_on_sheet_pieces_translucent_by_sampling_noise). Where another group shares
         // the cell (a junction, a ridge) or the sheet goes on past one side only, the section
-        // is a poorer outline and the count keeps hedging it (docs/design.md, "Sheet tags").
+        // is a poorer outline and the count keeps hedging it (docs/design.md, "Two-sided
+        // sheets across their cells").
         if (first.two_sided && one_sheet && alpha < 1.0f && p.n >= 3 &&
             PolygonArea(p) <= kSmallCell * double(spacing) * spacing) {
           alpha = 1.0f;
