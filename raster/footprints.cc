@@ -560,6 +560,45 @@ bool ClipAtConvexEdges(const SurfelGroup& a, uint32_t edges, absl::Span<const Su
   return clipped;
 }
 
+// A two-sided group's footprint ends at the plane of another two-sided group of its cell that
+// it meets at a junction (an L, a T, a ridge): their planes differ by more than a co-planar
+// group's 25 degrees, its centres all lie on one side of the other's plane (within a quarter
+// of the other's spacing) and reach within 1.5 of its spacings of it, and the other's centres
+// reach its plane. Past that plane the section holds no part of its sheet. Returns whether it
+// clipped.
+bool ClipAtSheetJunctions(const SurfelGroup& a, absl::Span<const SurfelGroup> groups,
+                          const Gathered& g, const uint32_t* order, const glm::vec3& from,
+                          Polygon* p) {
+  bool clipped = false;
+  const uint8_t ta = g.surfels[order[a.end - a.count]].sheet;
+  for (const SurfelGroup& b : groups) {
+    if (&b == &a || !b.two_sided || !b.solid) continue;
+    // Another sheet (both tags known and different: two leaves of a crown) meets nothing.
+    const uint8_t tb = g.surfels[order[b.end - b.count]].sheet;
+    if (ta != 0 && tb != 0 && ta != tb) continue;
+    const glm::vec3 na = a.normal, nb = b.normal;
+    if (std::fabs(glm::dot(na, nb)) > 0.906f) continue;
+    const float sa = a.spacing, sb = b.spacing;
+    float lo, hi;
+    BoxDotRange(a.centres, nb, b.centroid, &lo, &hi);
+    float sign;
+    if (lo >= -0.25f * sb && lo <= 1.5f * sb) {
+      sign = 1.0f;
+    } else if (hi <= 0.25f * sb && hi >= -1.5f * sb) {
+      sign = -1.0f;
+    } else {
+      continue;
+    }
+    BoxDotRange(b.centres, na, a.centroid, &lo, &hi);
+    if (lo > 1.5f * sa || hi < -1.5f * sa) continue;
+    // Keep sign * dot(nb, x - cb) >= 0, x = from + v.
+    ClipHalfSpace(sign * nb, sign * glm::dot(nb, b.centroid - from), p);
+    clipped = true;
+    if (p->n < 3) break;
+  }
+  return clipped;
+}
+
 // A one-sided group's footprint ends at the plane of a one-sided group of another leaf that it
 // meets at a convex edge: both lie along world axes (as the cells' sides do) at right angles
 // (within about 6 degrees), each one's centres lie behind the other's plane and within 1.5 of
@@ -851,6 +890,30 @@ Bounds SheetCell(const Bounds& cell, uint32_t leaf, const SurfelGroup& gr, const
   return snaps ? out : Bounds{};
 }
 
+// In how many directions within its plane (unit `normal`) a sheet goes on past its cell: the
+// sides SheetCell kept (the others it moved out of reach), their outward axes projected on the
+// plane, those within 45 degrees of each other counted once (a tilted sheet that goes on past
+// a corner crosses two sides there, one edge of the sheet).
+int GoingOnDirections(const Bounds& sheet_cell, const glm::vec3& normal) {
+  glm::vec3 seen[6];
+  int count = 0;
+  for (int q = 0; q < 6; ++q) {
+    const int k = q / 2;
+    const bool kept = q % 2 == 0 ? sheet_cell.lo[k] > -kNoSide : sheet_cell.hi[k] < kNoSide;
+    if (!kept) continue;
+    glm::vec3 e(0.0f);
+    e[k] = q % 2 == 0 ? -1.0f : 1.0f;
+    e -= glm::dot(e, normal) * normal;
+    const float l = glm::length(e);
+    if (!(l > 0.3f)) continue;  // a side across the plane's normal is no edge of it
+    e /= l;
+    bool same = false;
+    for (int i = 0; i < count && !same; ++i) same = glm::dot(seen[i], e) > 0.7071f;
+    if (!same) seen[count++] = e;
+  }
+  return count;
+}
+
 }  // namespace
 
 namespace {
@@ -966,18 +1029,6 @@ Bounds FlatBox(const Bounds& centres, const Bounds& cell, float spacing, const g
     return box;
   }
   return FootprintBoxIn(centres, cell, has_cell, spacing, normal, full, snapped, &reach);
-}
-
-// How many of the in-plane sides of `cell` (across an axis within kInPlaneAxis of the plane of
-// `normal`) a sheet goes on past: SheetCell keeps those at the cell's sides and moves the others
-// out of reach.
-int GoingOnSides(const Bounds& cell, const Bounds& sheet_cell, const glm::vec3& normal) {
-  int on = 0;
-  for (int k = 0; k < 3; ++k) {
-    if (!(std::fabs(normal[k]) < kInPlaneAxis)) continue;
-    on += (sheet_cell.lo[k] == cell.lo[k]) + (sheet_cell.hi[k] == cell.hi[k]);
-  }
-  return on;
 }
 
 float FlatFootprint(const Bounds& centres, const Bounds& cell, float spacing,
@@ -1595,16 +1646,16 @@ void Rasterizer::PrepareSurfelGroups(const Gathered& g, ShadeResult* out) {
       }
       // A two-sided group's sheet goes on past its cell where SheetCell finds its next samples
       // beyond a side; a pair (fewer than kSheetMinCount) still keeps the leaf's rule there,
-      // unless it is alone in its cell and its sheet goes on past three or more sides: then it
-      // is a piece of one surface that the sampling left two surfels in (`one_sheet`, the
-      // opacity rule below; past two sides, a pair at a disk's rim over-occluded).
+      // unless it is alone in its cell and its sheet goes on in three or more directions: then
+      // it is a piece of one surface that the sampling left two surfels in (`one_sheet`, the
+      // opacity rule below; in two, a pair at a disk's rim over-occluded).
       const Bounds sheet_cell = first.two_sided && leaves && count >= 2
                                     ? SheetCell(cell, g.surfel_leaf[order[end - 1]], gr, g,
                                                 &order[end - count], leaf_runs())
                                     : Bounds{};
       const bool one_sheet =
           groups.size() == 1 && !sheet_cell.Empty() &&
-          GoingOnSides(cell, sheet_cell, normal) >= (count >= kSheetMinCount ? 2 : 3);
+          GoingOnDirections(sheet_cell, normal) >= (count >= kSheetMinCount ? 2 : 3);
       const Bounds snap_to = !first.two_sided                       ? contact_cell
                              : count >= kSheetMinCount || one_sheet ? sheet_cell
                                                                     : Bounds{};
@@ -1632,17 +1683,17 @@ void Rasterizer::PrepareSurfelGroups(const Gathered& g, ShadeResult* out) {
       if (alpha < 0.0f) {
         alpha = FlatFootprint(first.two_sided ? centres : reach, snap_to, spacing, facing,
                               -std::fabs(side), from, area, &p);
-        // A piece of a sheet that goes on past two or more of its cell's sides (a pair: three),
-        // alone in the cell, is a part of one surface: in a section a few surfels' areas wide their
-        // count says nothing of how much of it the sheet fills (FlatFootprint's small cell). Drawn
-        // at its count over its section (three surfels where four and a half were expected:
+        // A piece of a sheet that goes on past its cell in two or more directions (a pair:
+        // three), alone in the cell, is a part of one surface: in a section a few surfels' areas
+        // wide their count says nothing of how much of it the sheet fills (FlatFootprint's small
+        // cell). Drawn at its count over its section (three surfels where 4.45 were expected:
         // 0.67; a pair: 0.45), the sheet over a receiver in a wedge under a thin part of a mesh
         // let it see through (Wuson.ply, 0.897 for rays' 0.940; bug:
-        // going_on_sheet_pieces_translucent_by_sampling_noise). Where another group shares
-        // the cell (a junction, a ridge) or the sheet goes on past one side only, the section
-        // is a poorer outline and the count keeps hedging it (docs/design.md, "Two-sided
-        // sheets across their cells").
-        if (first.two_sided && one_sheet && alpha < 1.0f && p.n >= 3 &&
+        // going_on_sheet_pieces_translucent_by_sampling_noise). Where another group shares the
+        // cell (a junction, a ridge), the sheet goes on in one direction only, or a pair in two,
+        // the section is a poorer outline and the count keeps hedging it (docs/design.md,
+        // "Two-sided sheets across their cells").
+        if (one_sheet && alpha < 1.0f && p.n >= 3 &&
             PolygonArea(p) <= kSmallCell * double(spacing) * spacing) {
           alpha = 1.0f;
         }
@@ -1669,6 +1720,10 @@ void Rasterizer::PrepareSurfelGroups(const Gathered& g, ShadeResult* out) {
             PolygonArea(p) <= kSmallCell * double(spacing) * spacing) {
           alpha = 1.0f;
         }
+      }
+      // A thin-walled part's pieces end where they meet another sheet in their cell.
+      if (first.two_sided && groups.size() > 1 && p.n >= 3) {
+        clip_past_edge([&] { return ClipAtSheetJunctions(gr, groups, g, order.data(), from, &p); });
       }
       if (p.n >= 3 && !cross_pairs.empty()) {
         clip_past_edge([&] {
