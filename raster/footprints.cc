@@ -890,6 +890,19 @@ Bounds SheetCell(const Bounds& cell, uint32_t leaf, const SurfelGroup& gr, const
   return snaps ? out : Bounds{};
 }
 
+// The trace of world axis k's direction `sign` on the plane of unit `normal`, as a unit vector
+// in *t; false where the axis lies within about 17 degrees of the normal (no direction in the
+// plane to speak of).
+bool AxisTrace(int k, float sign, const glm::vec3& normal, glm::vec3* t) {
+  glm::vec3 e(0.0f);
+  e[k] = sign;
+  e -= glm::dot(e, normal) * normal;
+  const float l = glm::length(e);
+  if (!(l > 0.3f)) return false;
+  *t = e / l;
+  return true;
+}
+
 // In how many directions within its plane (unit `normal`) a sheet goes on past its cell: the
 // sides SheetCell kept (the others it moved out of reach), their outward axes projected on the
 // plane, those within 45 degrees of each other counted once (a tilted sheet that goes on past
@@ -900,13 +913,9 @@ int GoingOnDirections(const Bounds& sheet_cell, const glm::vec3& normal) {
   for (int q = 0; q < 6; ++q) {
     const int k = q / 2;
     const bool kept = q % 2 == 0 ? sheet_cell.lo[k] > -kNoSide : sheet_cell.hi[k] < kNoSide;
-    if (!kept) continue;
-    glm::vec3 e(0.0f);
-    e[k] = q % 2 == 0 ? -1.0f : 1.0f;
-    e -= glm::dot(e, normal) * normal;
-    const float l = glm::length(e);
-    if (!(l > 0.3f)) continue;  // a side across the plane's normal is no edge of it
-    e /= l;
+    glm::vec3 e;
+    // A side across the plane's normal is no edge of it.
+    if (!kept || !AxisTrace(k, q % 2 == 0 ? -1.0f : 1.0f, normal, &e)) continue;
     bool same = false;
     for (int i = 0; i < count && !same; ++i) same = glm::dot(seen[i], e) > 0.7071f;
     if (!same) seen[count++] = e;
@@ -1156,11 +1165,7 @@ float InPlaneFootprint(const Surfel* surfels, const uint32_t* members, int count
   const double disc = std::sqrt(0.25 * (cxx - cyy) * (cxx - cyy) + cxy * cxy);
   const bool isotropic = half_tr + disc <= kIsotropic * (half_tr - disc);
   for (int k = 0; k < 3 && isotropic; ++k) {
-    glm::vec3 e(0.0f);
-    e[k] = 1.0f;
-    const glm::vec3 t = e - glm::dot(e, normal) * normal;
-    const float tl = glm::length(t);
-    if (tl > 0.3f) dirs[nd++] = t / tl;
+    if (AxisTrace(k, 1.0f, normal, &dirs[nd])) ++nd;
   }
   glm::vec3 a = dirs[0], b = glm::cross(normal, a);
   float alo = 0.0f, ahi = 0.0f, blo = 0.0f, bhi = 0.0f, best = std::numeric_limits<float>::max();
@@ -1680,6 +1685,11 @@ void Rasterizer::PrepareSurfelGroups(const Gathered& g, ShadeResult* out) {
                                    -std::fabs(side), from, spacing, area, &p);
         }
       }
+      // A polygon that holds a few surfels' areas at most: their count says nothing of how much
+      // of it the surface fills (FlatFootprint's small cell).
+      auto few_surfels_wide = [&] {
+        return p.n >= 3 && PolygonArea(p) <= kSmallCell * double(spacing) * spacing;
+      };
       if (alpha < 0.0f) {
         alpha = FlatFootprint(first.two_sided ? centres : reach, snap_to, spacing, facing,
                               -std::fabs(side), from, area, &p);
@@ -1693,10 +1703,7 @@ void Rasterizer::PrepareSurfelGroups(const Gathered& g, ShadeResult* out) {
         // cell (a junction, a ridge), the sheet goes on in one direction only, or a pair in two,
         // the section is a poorer outline and the count keeps hedging it (docs/design.md,
         // "Two-sided sheets across their cells").
-        if (one_sheet && alpha < 1.0f && p.n >= 3 &&
-            PolygonArea(p) <= kSmallCell * double(spacing) * spacing) {
-          alpha = 1.0f;
-        }
+        if (one_sheet && alpha < 1.0f && few_surfels_wide()) alpha = 1.0f;
       }
       // Clipped at a convex edge, the polygon loses only what lay past the edge, where the
       // surface is not: its content covers that much more of what is left.
@@ -1716,10 +1723,7 @@ void Rasterizer::PrepareSurfelGroups(const Gathered& g, ShadeResult* out) {
         // holds a few surfels' areas is opaque whatever their count, as a small cell's plane is
         // (FlatFootprint): a face of a trunk whose section held two surfels where its area
         // expected three was drawn at 0.62 (bug: convex_faces_translucent_by_sampling_noise).
-        if (edged && alpha < 1.0f && p.n >= 3 &&
-            PolygonArea(p) <= kSmallCell * double(spacing) * spacing) {
-          alpha = 1.0f;
-        }
+        if (edged && alpha < 1.0f && few_surfels_wide()) alpha = 1.0f;
       }
       // A thin-walled part's pieces end where they meet another sheet in their cell.
       if (first.two_sided && groups.size() > 1 && p.n >= 3) {

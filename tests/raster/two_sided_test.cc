@@ -738,6 +738,28 @@ TEST(TwoSidedTest, ALeafIsDrawnInItsOwnPlanesAxes) {
   }
 }
 
+// A two-sided sheet sampled as the scene sampler samples a mesh's thin part: one point in each
+// of nu x nv lattice squares of edge `pitch` spanned by du, dv from o (a hash of the square and
+// `salt` places it), each a disk of the square's area.
+std::vector<Surfel> LatticeSheet(const glm::vec3& o, const glm::vec3& du, const glm::vec3& dv,
+                                 int nu, int nv, float pitch, const glm::vec3& normal,
+                                 uint32_t salt) {
+  std::vector<Surfel> out;
+  for (int j = 0; j < nv; ++j) {
+    for (int i = 0; i < nu; ++i) {
+      const uint32_t key = (uint32_t(i) * 73856093u ^ uint32_t(j) * 19349663u) + salt;
+      Surfel s;
+      s.position = o + (i + testing_raster::Hash01(key ^ 0x9e3779b9u)) * pitch * du +
+                   (j + testing_raster::Hash01(key ^ 0x85ebca6bu)) * pitch * dv;
+      s.normal = normal;
+      s.radius = pitch / std::sqrt(static_cast<float>(kPi));
+      s.two_sided = true;
+      out.push_back(s);
+    }
+  }
+  return out;
+}
+
 // A wedge under a thin part of a mesh: a two-sided sheet rising at 30 and 42 degrees from a
 // crease 1.5 and 2.5 pitches beside the receiver passes over it, sampled as the scene sampler
 // samples (one point in each lattice square), in leaf cells 2.1 pitches wide: a cell holds
@@ -767,24 +789,14 @@ TEST(TwoSidedTest, AThinPartsPiecesOverAWedgeAreOpaque) {
         const double u = glm::dot(q, glm::dvec3(du)), v = glm::dot(q, glm::dvec3(dv));
         return u >= 0.0 && u <= length && std::fabs(v) <= half_width;
       });
+      const std::vector<Surfel> part =
+          LatticeSheet(o - half_width * dv, du, dv, static_cast<int>(length / pitch + 0.5f),
+                       static_cast<int>(2.0f * half_width / pitch + 0.5f), pitch, normal, 0u);
       for (const glm::vec2 shift :
            {glm::vec2(0.37f, 0.61f), glm::vec2(0.13f, 0.22f), glm::vec2(0.82f, 0.47f)}) {
-        std::vector<Surfel> sheet;
-        for (int j = 0; (j + 1) * pitch <= 2.0f * half_width; ++j) {
-          for (int i = 0; (i + 1) * pitch <= length; ++i) {
-            const uint32_t key = uint32_t(i) * 73856093u ^ uint32_t(j) * 19349663u;
-            const float u = (i + testing_raster::Hash01(key ^ 0x9e3779b9u)) * pitch;
-            const float v = (j + testing_raster::Hash01(key ^ 0x85ebca6bu)) * pitch - half_width;
-            Surfel s;
-            s.position = o + u * du + v * dv;
-            s.normal = normal;
-            s.radius = pitch / std::sqrt(static_cast<float>(kPi));
-            s.two_sided = true;
-            sheet.push_back(s);
-          }
-        }
         // The sheet and the receiver move together: other cuts of them by the same cells.
         const glm::vec3 move(shift.x * pitch, shift.y * pitch, 0.31f * pitch);
+        std::vector<Surfel> sheet = part;
         for (Surfel& s : sheet) s.position += move;
         const Gathered g = InLeafCells(sheet, cell);
         const double got =
@@ -818,27 +830,14 @@ TEST(TwoSidedTest, AThinCornersPiecesEndAtTheJunction) {
   int n = 0;
   for (const float h : {1.0f * pitch, 1.5f * pitch}) {
     // The panel: z = h, x in [-length, 0], |y| <= half; the lip: x = 0, z in [h - lip, h].
-    auto sample = [&](const glm::vec3& o, const glm::vec3& du, const glm::vec3& dv, int nu, int nv,
-                      const glm::vec3& normal, uint32_t salt, std::vector<Surfel>* out) {
-      for (int j = 0; j < nv; ++j) {
-        for (int i = 0; i < nu; ++i) {
-          const uint32_t key = (uint32_t(i) * 73856093u ^ uint32_t(j) * 19349663u) + salt;
-          Surfel s;
-          s.position = o + (i + testing_raster::Hash01(key ^ 0x9e3779b9u)) * pitch * du +
-                       (j + testing_raster::Hash01(key ^ 0x85ebca6bu)) * pitch * dv;
-          s.normal = normal;
-          s.radius = pitch / std::sqrt(static_cast<float>(kPi));
-          s.two_sided = true;
-          out->push_back(s);
-        }
-      }
-    };
     const int across = static_cast<int>(2.0f * half / pitch + 0.5f);
-    std::vector<Surfel> part;
-    sample(glm::vec3(-length, -half, h), glm::vec3(1, 0, 0), glm::vec3(0, 1, 0),
-           static_cast<int>(length / pitch + 0.5f), across, glm::vec3(0, 0, 1), 0u, &part);
-    sample(glm::vec3(0.0f, -half, h - lip), glm::vec3(0, 0, 1), glm::vec3(0, 1, 0),
-           static_cast<int>(lip / pitch + 0.5f), across, glm::vec3(1, 0, 0), 7u, &part);
+    std::vector<Surfel> part = LatticeSheet(
+        glm::vec3(-length, -half, h), glm::vec3(1, 0, 0), glm::vec3(0, 1, 0),
+        static_cast<int>(length / pitch + 0.5f), across, pitch, glm::vec3(0, 0, 1), 0u);
+    const std::vector<Surfel> lip_part =
+        LatticeSheet(glm::vec3(0.0f, -half, h - lip), glm::vec3(0, 0, 1), glm::vec3(0, 1, 0),
+                     static_cast<int>(lip / pitch + 0.5f), across, pitch, glm::vec3(1, 0, 0), 7u);
+    part.insert(part.end(), lip_part.begin(), lip_part.end());
     for (const float out_by : {0.5f * pitch, 1.0f * pitch, 2.0f * pitch}) {
       const glm::dvec3 p(out_by, 0.0, 0.0);
       const double want = CosineRayFraction(300, [&](const glm::dvec3& w) {
