@@ -114,6 +114,9 @@ Database::Database(std::unique_ptr<internal::PageSource> source, const DatabaseO
                        ? options_.cache_shard_bits
                        : PageCache::DefaultShardBits(options_.cache_bytes, page_charge);
   cache_ = std::make_unique<PageCache>(options_.cache_bytes, bits);
+  // Keys are (page << 1) | section (PageKey): 2 max(pages) + 2 bits, 16 KiB per million pages.
+  loaded_words_ = (2 * std::max(m.node_pages, m.point_pages) + 2 + 63) / 64;
+  loaded_ = std::make_unique<std::atomic<uint64_t>[]>(loaded_words_);
 }
 
 Database::~Database() = default;
@@ -148,6 +151,17 @@ const std::string& Database::path() const { return source_->name(); }
 uint64_t Database::FileBytes() const { return source_->FileBytes(); }
 uint64_t Database::CacheUsageBytes() const { return cache_->usage(); }
 uint64_t Database::SharedCacheCalls() const { return cache_->counters().calls(); }
+uint64_t Database::DistinctPagesRead() const {
+  return distinct_loaded_.load(std::memory_order_relaxed);
+}
+void Database::NoteLoaded(uint64_t key) {
+  // A key past the meta's page counts (a source that does not fill them in) is not counted.
+  if (key / 64 >= loaded_words_) return;
+  const uint64_t bit = uint64_t{1} << (key % 64);
+  if ((loaded_[key / 64].fetch_or(bit, std::memory_order_relaxed) & bit) == 0) {
+    distinct_loaded_.fetch_add(1, std::memory_order_relaxed);
+  }
+}
 absl::StatusOr<uint64_t> Database::MapResidentBytes() const { return source_->MapResidentBytes(); }
 void Database::DropCache() { cache_->Prune(); }
 
@@ -374,6 +388,7 @@ absl::Status Reader::Impl::FetchSlow(Section section, uint64_t page_no, uint64_t
   front.set_budget_bytes(db->ReaderCacheBytes());
   if (!handle.ok()) return handle.status();
   if (outcome == PageCache::Outcome::kLoaded) {
+    db->NoteLoaded(key);
     ++q.shared_misses[level];
     ++q.pages_read;
     q.bytes_read += bytes;

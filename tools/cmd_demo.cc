@@ -53,6 +53,7 @@ struct DemoRun {
   double build_seconds = 0;   // sampling, baking and the build
   ViewImages view;
   double shade_seconds = 0;  // tracing the view and shading it
+  uint64_t distinct_pages = 0;  // Database::DistinctPagesRead() once the view is shaded
 };
 
 struct DemoImage {
@@ -157,7 +158,10 @@ absl::Status ShadeDemoView(const DemoArgs& a, uint64_t cache, DemoRun* run) {
   const Camera camera = DefaultCamera(scene, a.width, a.height);
   // The database closes once the view is shaded: its page cache (up to --cache) is not held
   // beside the images while they are composed.
-  PBGI_ASSIGN_OR_RETURN(run->view, RenderView(*tracer, *db, camera, so, [&db]() { db.reset(); }));
+  PBGI_ASSIGN_OR_RETURN(run->view, RenderView(*tracer, *db, camera, so, [&db, run]() {
+                          run->distinct_pages = db->DistinctPagesRead();
+                          db.reset();
+                        }));
   progress.Finish(run->view.receivers);
   run->shade_seconds = t.Seconds();
   return absl::OkStatus();
@@ -201,11 +205,12 @@ void PrintDemoSummary(const DemoArgs& a, const DemoRun& run, uint64_t memory, ui
   std::printf("%s\n", SharingSummary(view.shade).c_str());
   std::printf(
       "  cache          %s cap, reader hits %.2f%%, shared hits %.2f%%, %llu pages read "
-      "(%s)\n",
+      "(%s; %llu distinct, %.2f per receiver)\n",
       FormatBytes(cache).c_str(),
       lookups ? 100.0 * double(cs.reader.hits) / double(lookups) : 100.0,
       100.0 * cs.shared.HitRate(), static_cast<unsigned long long>(cs.shared.pages_read),
-      FormatBytes(cs.shared.bytes_read).c_str());
+      FormatBytes(cs.shared.bytes_read).c_str(),
+      static_cast<unsigned long long>(run.distinct_pages), double(run.distinct_pages) / receivers);
   std::printf(
       "  cut            max_solid_angle %.3g (%s), raster %d^2 x 6, %.1f clusters + %.1f "
       "surfels per receiver\n",

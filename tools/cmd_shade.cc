@@ -68,8 +68,9 @@ struct ShadeArgs {
 
 enum class Mode { kOcclusion, kIrradiance, kGlossy };
 
+// `distinct`: Database::DistinctPagesRead(), the pages read at least once.
 void PrintSummary(const char* what, uint64_t receivers, const ShadeStats& s, int threads,
-                  uint64_t cache) {
+                  uint64_t cache, uint64_t distinct) {
   const CacheStats& cs = s.cache;
   const uint64_t lookups = cs.reader.hits + cs.reader.misses;
   std::printf("shaded %llu %s in %.2f s: %.0f receivers/s, %.1f us/receiver on %d threads\n",
@@ -85,12 +86,14 @@ void PrintSummary(const char* what, uint64_t receivers, const ShadeStats& s, int
       double(s.query.surfels) / double(std::max<uint64_t>(1, receivers)),
       double(s.query.nodes_visited) / double(std::max<uint64_t>(1, receivers)));
   std::printf(
-      "  cache %s: reader hits %.2f%%, shared hits %.2f%%, %llu pages read (%s); peak "
-      "memory %s\n",
+      "  cache %s: reader hits %.2f%%, shared hits %.2f%%, %llu pages read (%s; %llu distinct, "
+      "%.2f per receiver); peak memory %s\n",
       FormatBytes(cache).c_str(),
       lookups ? 100.0 * double(cs.reader.hits) / double(lookups) : 100.0,
       100.0 * cs.shared.HitRate(), static_cast<unsigned long long>(cs.shared.pages_read),
-      FormatBytes(cs.shared.bytes_read).c_str(), FormatBytes(internal::PeakRssBytes()).c_str());
+      FormatBytes(cs.shared.bytes_read).c_str(), static_cast<unsigned long long>(distinct),
+      double(distinct) / double(std::max<uint64_t>(1, receivers)),
+      FormatBytes(internal::PeakRssBytes()).c_str());
   std::printf("%s\n", SharingSummary(s).c_str());
 }
 
@@ -225,7 +228,7 @@ absl::Status ShadePoints(const ShadeArgs& a, Database& db, const ShadeOptions& b
   progress.Finish(done, invalid > 0 ? absl::StrFormat("%d invalid (%s)", invalid,
                                                       a.invalid == "skip" ? "skipped" : "zero")
                                     : std::string());
-  PrintSummary("receivers", done, total, ResolveThreads(so.threads), cache);
+  PrintSummary("receivers", done, total, ResolveThreads(so.threads), cache, db.DistinctPagesRead());
   if (invalid > 0) {
     std::printf("  %llu invalid receivers %s\n", static_cast<unsigned long long>(invalid),
                 a.invalid == "skip" ? "skipped" : "written with zero results");
@@ -291,7 +294,8 @@ absl::Status ShadeCamera(const ShadeArgs& a, Database& db, const ShadeOptions& b
   PBGI_RETURN_IF_ERROR(WriteExr(exr, *image));
   PBGI_RETURN_IF_ERROR(WritePng(png, *image, 1.0f, mode != Mode::kOcclusion));
   std::printf("traced %dx%d primary rays in %.2f s\n", a.width, a.height, view.trace_seconds);
-  PrintSummary("pixels", view.receivers, view.shade, ResolveThreads(so.threads), cache);
+  PrintSummary("pixels", view.receivers, view.shade, ResolveThreads(so.threads), cache,
+               db.DistinctPagesRead());
   std::printf("  wrote %s and %s (%s)\n", exr.c_str(), png.c_str(),
               mode == Mode::kOcclusion ? "1 - occlusion"
               : mode == Mode::kGlossy  ? "glossy light around each pixel's reflection direction"

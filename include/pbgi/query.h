@@ -340,6 +340,11 @@ class Database {
   uint64_t SharedCacheCalls() const;
   // Bytes of decoded pages in the shared cache now (pinned ones included).
   uint64_t CacheUsageBytes() const;
+  // Pages loaded from the store at least once since the database was opened, each counted once
+  // however often the cache evicted and reloaded it: the compulsory reads of the work so far,
+  // which no cache size or receiver order lowers (CacheStats::shared.pages_read less this is
+  // what a larger cache would have saved).
+  uint64_t DistinctPagesRead() const;
   // Bytes of the store's memory map resident in this process now (PageStore::MapResidentBytes;
   // 0 for a source without a map). With copy_pages, only LMDB's B-tree pages.
   absl::StatusOr<uint64_t> MapResidentBytes() const;
@@ -355,12 +360,18 @@ class Database {
 
   // What each Reader's own LRU may pin now (see DatabaseOptions::reader_cache_bytes).
   uint64_t ReaderCacheBytes() const;
+  // Records that the page of cache key `key` (PageKey) was loaded from the store.
+  void NoteLoaded(uint64_t key);
 
   std::unique_ptr<internal::PageSource> source_;
   DatabaseOptions options_;
   uint64_t page_charge_ = 0;
   std::atomic<uint32_t> live_readers_{0};
   std::unique_ptr<internal::PageCache> cache_;
+  // One bit per page key ever loaded (DistinctPagesRead), and their count.
+  std::unique_ptr<std::atomic<uint64_t>[]> loaded_;
+  uint64_t loaded_words_ = 0;
+  std::atomic<uint64_t> distinct_loaded_{0};
   struct Totals;
   std::unique_ptr<Totals> totals_;
 };

@@ -380,6 +380,12 @@ TEST(GatherFake, TinyCacheAnswersLikeABigOne) {
   }
   EXPECT_GT(ss.pages_read, 5 * sb.pages_read);  // it did thrash
   EXPECT_LE(small->CacheUsageBytes(), 4 * 1024u + 4096u);
+  // The big cache never evicted, so it read each page the receivers touch once: the tiny one,
+  // however often it reloaded them, read the same pages.
+  ASSERT_EQ(big->TotalStats().shared.evictions, 0u);
+  EXPECT_EQ(big->DistinctPagesRead(), sb.pages_read);
+  EXPECT_EQ(small->DistinctPagesRead(), sb.pages_read);
+  EXPECT_LT(small->DistinctPagesRead(), ss.pages_read);
 }
 
 // One budget for both levels: with the default shares, eight Readers holding pins keep the
