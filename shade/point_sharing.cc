@@ -57,6 +57,72 @@ bool Surrounds(std::array<float, kMaxCandidates>& angle, int n) {
   return gap < kPiFloat;
 }
 
+// A field of SharedValue, by index (0 occlusion, 1 coverage, 2-4 irradiance, 5-7 glossy).
+constexpr int kFields = 8;
+float& Field(SharedValue& v, int k) {
+  return k == 0 ? v.occlusion : k == 1 ? v.coverage : k < 5 ? v.irradiance[k - 2] : v.glossy[k - 5];
+}
+
+// Fewest candidates for a plane fit to be tested: three fit any values exactly, so at least two
+// more must agree with the plane the others make.
+constexpr int kMinFitCandidates = 5;
+// A plane interpolates when every candidate lies within this many tolerances of it: its error at
+// the receiver is of the order of the candidates' residuals where the values curve (occlusion
+// rising toward a wall's foot), so the bound is a quarter, not the half that the spread test's
+// max - min <= tolerance allows a weighted mean (docs/shade.md, "Point sets").
+constexpr float kFitResidual = 0.25f;
+
+// The weighted least-squares plane f(u, v) = a + gu u + gv v through the candidates' values f[j]
+// at their offsets (u[j], v[j]) in the receiver's tangent plane, per field; *at_receiver = a,
+// clamped per field into the candidates' range (a fit never reaches outside what was shaded), and
+// *residual the largest |f[j] - f(u[j], v[j])| per field. False when the offsets do not span the
+// plane (the weighted spread along its thinnest direction under a tenth of the widest's).
+bool FitPlane(const float* w, const float* u, const float* v, const SharedValue* f, int m,
+              SharedValue* at_receiver, SharedValue* residual) {
+  double sw = 0, su = 0, sv = 0;
+  for (int j = 0; j < m; ++j) sw += w[j], su += w[j] * u[j], sv += w[j] * v[j];
+  if (!(sw > 0)) return false;
+  const double mu = su / sw, mv = sv / sw;
+  double cuu = 0, cuv = 0, cvv = 0;
+  double mean[kFields] = {}, cuf[kFields] = {}, cvf[kFields] = {};
+  for (int j = 0; j < m; ++j) {
+    const double du = u[j] - mu, dv = v[j] - mv;
+    cuu += w[j] * du * du, cuv += w[j] * du * dv, cvv += w[j] * dv * dv;
+    SharedValue fj = f[j];
+    for (int k = 0; k < kFields; ++k) {
+      const double x = Field(fj, k);
+      mean[k] += w[j] * x, cuf[k] += w[j] * du * x, cvf[k] += w[j] * dv * x;
+    }
+  }
+  // det / (tr / 2)^2 = 4 l1 l2 / (l1 + l2)^2 for the eigenvalues l1 >= l2: above 0.36 when l2
+  // is at least a tenth of l1.
+  const double det = cuu * cvv - cuv * cuv, tr = cuu + cvv;
+  if (!(tr > 0) || !(det > 0.36 * 0.25 * tr * tr)) return false;
+  double gu[kFields], gv[kFields], a[kFields];
+  for (int k = 0; k < kFields; ++k) {
+    mean[k] /= sw;
+    gu[k] = (cvv * cuf[k] - cuv * cvf[k]) / det;
+    gv[k] = (cuu * cvf[k] - cuv * cuf[k]) / det;
+    a[k] = mean[k] - gu[k] * mu - gv[k] * mv;
+  }
+  SharedValue lo = f[0], hi = f[0], r;
+  for (int j = 0; j < m; ++j) {
+    SharedValue fj = f[j];
+    for (int k = 0; k < kFields; ++k) {
+      const float x = Field(fj, k);
+      Field(lo, k) = std::min(Field(lo, k), x);
+      Field(hi, k) = std::max(Field(hi, k), x);
+      const float d = static_cast<float>(std::abs(x - (a[k] + gu[k] * u[j] + gv[k] * v[j])));
+      Field(r, k) = std::max(Field(r, k), d);
+    }
+  }
+  for (int k = 0; k < kFields; ++k) {
+    Field(*at_receiver, k) = std::clamp(static_cast<float>(a[k]), Field(lo, k), Field(hi, k));
+  }
+  *residual = r;
+  return true;
+}
+
 }  // namespace
 
 absl::Status ShadePointsShared(ShadeEngine& engine, absl::Span<const ShadeReceiver> receivers,
@@ -190,8 +256,9 @@ absl::Status ShadePointsShared(ShadeEngine& engine, absl::Span<const ShadeReceiv
             timed([&] {
               uint64_t done = 0;
               std::array<uint32_t, kMaxCandidates> cand;
-              std::array<float, kMaxCandidates> weight, angle;
+              std::array<float, kMaxCandidates> weight, angle, u, v;
               std::array<const ShadeResult*, kMaxCandidates> values;
+              std::array<SharedValue, kMaxCandidates> fields;
               for (size_t k = range.begin(); k != range.end(); ++k) {
                 const uint32_t r = todo[k];
                 if (state[r] != 0) continue;
@@ -231,7 +298,8 @@ absl::Status ShadePointsShared(ShadeEngine& engine, absl::Span<const ShadeReceiv
                                                 : 1.0f;
                         cand[m] = s;
                         weight[m] = taper * taper / std::max(dist * dist, eps2);
-                        angle[m] = std::atan2(glm::dot(d, b), glm::dot(d, t));
+                        u[m] = glm::dot(d, t) / near, v[m] = glm::dot(d, b) / near;
+                        angle[m] = std::atan2(v[m], u[m]);
                         values[m] = &out[s];
                         ++m;
                       }
@@ -239,15 +307,29 @@ absl::Status ShadePointsShared(ShadeEngine& engine, absl::Span<const ShadeReceiv
                   }
                 }
                 if (!Surrounds(angle, m)) continue;
-                if (!(*agree)(absl::MakeConstSpan(values.data(), size_t(m)))) continue;
-                SharedValue v;
-                float total = 0;
-                for (int j = 0; j < m; ++j) {
-                  v += weight[j] * SharedValue::Of(out[cand[j]]);
-                  total += weight[j];
+                // A plane through the candidates' values that each lies within half a
+                // tolerance of interpolates across a smooth gradient (a floor darkening toward
+                // a wall), where their spread exceeds a tolerance; its value at the receiver is
+                // also closer than the weighted mean wherever the values slope.
+                for (int j = 0; j < m; ++j) fields[j] = SharedValue::Of(*values[j]);
+                SharedValue fitted, residual;
+                const bool fits = m >= kMinFitCandidates &&
+                                  FitPlane(weight.data(), u.data(), v.data(), fields.data(), m,
+                                           &fitted, &residual) &&
+                                  agree->Within(residual, kFitResidual);
+                if (fits) {
+                  out[r] = fitted.Result(options.raster.clamp);
+                } else {
+                  if (!(*agree)(absl::MakeConstSpan(values.data(), size_t(m)))) continue;
+                  SharedValue mean;
+                  float total = 0;
+                  for (int j = 0; j < m; ++j) {
+                    mean += weight[j] * fields[j];
+                    total += weight[j];
+                  }
+                  if (!(total > 0)) continue;
+                  out[r] = ((1.0f / total) * mean).Result(options.raster.clamp);
                 }
-                if (!(total > 0)) continue;
-                out[r] = ((1.0f / total) * v).Result(options.raster.clamp);
                 state[r] = 2;
                 ++done;
               }

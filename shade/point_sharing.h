@@ -6,12 +6,15 @@
 // shaded, the one nearest its centre. Then each undecided receiver looks at the shaded receivers
 // in its own and the 26 neighbouring cells of the level and keeps those that are of its surface
 // (a normal within max_normal_angle both ways, each within max_plane_distance * distance of the
-// other's tangent plane) and within radius_factor * their harmonic distance (split sphere). It
-// is interpolated from them (Shepard weights 1 / d^2, tapered to 0 at the validity radius) when
-// there are at least three, they surround it (no gap of half a turn between their directions
-// in its tangent plane: never extrapolated) and their values agree (shade/shared_value.h);
-// otherwise it waits for the next, finer level. A cell of one receiver shades it. Decisions
-// depend only on shaded values and positions, never on timing.
+// other's tangent plane) and within radius_factor * their harmonic distance (split sphere).
+// They must be at least three and surround it (no gap of half a turn between their directions
+// in its tangent plane: never extrapolated). It is then interpolated from the weighted
+// least-squares plane through their values over its tangent plane (weights 1 / d^2, tapered to
+// 0 at the validity radius; the value clamped into theirs) when there are at least five and
+// each lies within half a tolerance of that plane, which follows smooth gradients; else from
+// their weighted mean when their values agree (shade/shared_value.h); otherwise it waits for
+// the next, finer level. A cell of one receiver shades it. Decisions depend only on shaded
+// values and positions, never on timing.
 #ifndef PBGI_SHADE_POINT_SHARING_H_
 #define PBGI_SHADE_POINT_SHARING_H_
 

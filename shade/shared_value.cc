@@ -60,4 +60,17 @@ float Agreement::Spread(const ShadeResult& a, const ShadeResult& b) const {
   return std::isnan(s) ? std::numeric_limits<float>::infinity() : s;
 }
 
+bool Agreement::Within(const SharedValue& d, float scale) const {
+  // Written so that a NaN disagrees.
+  if (!(std::abs(d.occlusion) <= scale * occlusion_) ||
+      !(std::abs(d.coverage) <= scale * occlusion_)) {
+    return false;
+  }
+  for (int c = 0; c < 3; ++c) {
+    if (radiance_ && !(std::abs(d.irradiance[c]) <= scale * irradiance_[c])) return false;
+    if (glossy_ && !(std::abs(d.glossy[c]) <= scale * glossy_tol_[c])) return false;
+  }
+  return true;
+}
+
 }  // namespace pbgi::internal

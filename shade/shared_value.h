@@ -59,6 +59,9 @@ class Agreement {
   // How far apart two results are, in tolerances (the largest field's |a - b| over its
   // tolerance; <= 1 agrees).
   float Spread(const ShadeResult& a, const ShadeResult& b) const;
+  // Whether every field of `d` (a deviation, such as a fit's residual) lies within `scale`
+  // tolerances of zero.
+  bool Within(const SharedValue& d, float scale) const;
 
  private:
   float occlusion_ = 0;
