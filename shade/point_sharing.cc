@@ -76,7 +76,7 @@ constexpr float kFitResidual = 0.25f;
 // at their offsets (u[j], v[j]) in the receiver's tangent plane, per field; *at_receiver = a,
 // clamped per field into the candidates' range (a fit never reaches outside what was shaded), and
 // *residual the largest |f[j] - f(u[j], v[j])| per field. False when the offsets do not span the
-// plane (the weighted spread along its thinnest direction under a tenth of the widest's).
+// plane (their weighted variance along its thinnest direction under a ninth of the widest's).
 bool FitPlane(const float* w, const float* u, const float* v, const SharedValue* f, int m,
               SharedValue* at_receiver, SharedValue* residual) {
   double sw = 0, su = 0, sv = 0;
@@ -95,7 +95,7 @@ bool FitPlane(const float* w, const float* u, const float* v, const SharedValue*
     }
   }
   // det / (tr / 2)^2 = 4 l1 l2 / (l1 + l2)^2 for the eigenvalues l1 >= l2: above 0.36 when l2
-  // is at least a tenth of l1.
+  // is more than a ninth of l1.
   const double det = cuu * cvv - cuv * cuv, tr = cuu + cvv;
   if (!(tr > 0) || !(det > 0.36 * 0.25 * tr * tr)) return false;
   double gu[kFields], gv[kFields], a[kFields];
@@ -307,8 +307,8 @@ absl::Status ShadePointsShared(ShadeEngine& engine, absl::Span<const ShadeReceiv
                   }
                 }
                 if (!Surrounds(angle, m)) continue;
-                // A plane through the candidates' values that each lies within half a
-                // tolerance of interpolates across a smooth gradient (a floor darkening toward
+                // A plane through the candidates' values that each lies within kFitResidual
+                // tolerances of interpolates across a smooth gradient (a floor darkening toward
                 // a wall), where their spread exceeds a tolerance; its value at the receiver is
                 // also closer than the weighted mean wherever the values slope.
                 for (int j = 0; j < m; ++j) fields[j] = SharedValue::Of(*values[j]);
