@@ -164,6 +164,16 @@ inline constexpr struct CompactTable {
 inline constexpr uint8_t kSpreadBits[16] = {0x00, 0x01, 0x04, 0x05, 0x10, 0x11, 0x14, 0x15,
                                             0x40, 0x41, 0x44, 0x45, 0x50, 0x51, 0x54, 0x55};
 
+// The compaction mask of lanes 0-3 (high: 4-7) of vertices and crossings interleaved (vertex i,
+// then the crossing on its edge): bit 2 i where keep, bit 2 i + 1 where cross.
+inline int InterleavedMask(const SpanV8i& keep, const SpanV8i& cross, bool high) {
+  const V4i k = high ? __builtin_shufflevector(keep, keep, 4, 5, 6, 7)
+                     : __builtin_shufflevector(keep, keep, 0, 1, 2, 3);
+  const V4i c = high ? __builtin_shufflevector(cross, cross, 4, 5, 6, 7)
+                     : __builtin_shufflevector(cross, cross, 0, 1, 2, 3);
+  return kSpreadBits[Movemask4(k)] | (kSpreadBits[Movemask4(c)] << 1);
+}
+
 // Stores the lanes of v whose bits are set in `mask`, in order, at to[0 ..), and stale values
 // after them up to to[7]. The indices are unpacked by per-lane shifts (one instruction with
 // AVX2; unpacked from bytes, GCC moved them one at a time). An eight-lane vector is not
@@ -199,14 +209,9 @@ inline void SplitLanes(const Poly2& p, int coord, float at, Poly2* below, Poly2*
   // then lanes 4-7.
   const SpanV8f x_lo = __builtin_shufflevector(x, cx, 0, 8, 1, 9, 2, 10, 3, 11);
   const SpanV8f y_lo = __builtin_shufflevector(y, cy, 0, 8, 1, 9, 2, 10, 3, 11);
-  auto low4 = [](const SpanV8i& m) { return Movemask4(__builtin_shufflevector(m, m, 0, 1, 2, 3)); };
-  auto high4 = [](const SpanV8i& m) {
-    return Movemask4(__builtin_shufflevector(m, m, 4, 5, 6, 7));
-  };
   const SpanV8i keep_below = live & (s <= 0.0f), keep_above = live & (s >= 0.0f);
-  const int cross_lo = kSpreadBits[low4(cross)] << 1;
-  const int below_lo = kSpreadBits[low4(keep_below)] | cross_lo;
-  const int above_lo = kSpreadBits[low4(keep_above)] | cross_lo;
+  const int below_lo = InterleavedMask(keep_below, cross, false);
+  const int above_lo = InterleavedMask(keep_above, cross, false);
   StoreCompact(below->x, x_lo, below_lo);
   StoreCompact(below->y, y_lo, below_lo);
   StoreCompact(above->x, x_lo, above_lo);
@@ -216,9 +221,8 @@ inline void SplitLanes(const Poly2& p, int coord, float at, Poly2* below, Poly2*
   if (n > 4) {
     const SpanV8f x_hi = __builtin_shufflevector(x, cx, 4, 12, 5, 13, 6, 14, 7, 15);
     const SpanV8f y_hi = __builtin_shufflevector(y, cy, 4, 12, 5, 13, 6, 14, 7, 15);
-    const int cross_hi = kSpreadBits[high4(cross)] << 1;
-    const int below_hi = kSpreadBits[high4(keep_below)] | cross_hi;
-    const int above_hi = kSpreadBits[high4(keep_above)] | cross_hi;
+    const int below_hi = InterleavedMask(keep_below, cross, true);
+    const int above_hi = InterleavedMask(keep_above, cross, true);
     static_assert(sizeof below->x >= 16 * sizeof(float));  // nb <= 8 here, then eight lanes
     StoreCompact(below->x + nb, x_hi, below_hi);
     StoreCompact(below->y + nb, y_hi, below_hi);
@@ -257,12 +261,50 @@ inline float AbsArea2Lanes(const Poly2& p) {
   return std::fabs(a);
 }
 
+// ClipToPyramid()'s clip of a polygon of at most eight vertices (lanes la, lb, lw) by the plane
+// whose sides are ls, in lanes: the vertices inside and the crossings on the edges that leave or
+// enter, in the one-vertex loop's order and with its expressions, compacted as SplitLanes()
+// compacts a part. Writes the clipped polygon to a, b and w (room for kClipRoom floats each,
+// stale values past its count) and returns its vertex count; -1, with nothing written, when it
+// has more than kMaxPolygonVertices (the one-vertex loop drops the excess).
+inline constexpr int kClipRoom = 16;
+inline int ClipLanes(const SpanV8f& la, const SpanV8f& lb, const SpanV8f& lw, const SpanV8f& ls,
+                     int n, float* a, float* b, float* w) {
+  const SpanV8i succ = kSpanLane + 1;
+  const SpanV8i next = succ & (succ != n);
+  const SpanV8f sj = __builtin_shuffle(ls, next);
+  const SpanV8f aj = __builtin_shuffle(la, next), bj = __builtin_shuffle(lb, next),
+                wj = __builtin_shuffle(lw, next);
+  const SpanV8i live = kSpanLane < n;
+  const SpanV8i in = ls >= 0.0f;
+  const SpanV8i cross = live & (in ^ (sj >= 0.0f));
+  const SpanV8f t = ls / (ls - sj);
+  const SpanV8f ca = la + t * (aj - la), cb = lb + t * (bj - lb), cw = lw + t * (wj - lw);
+  const SpanV8i keep = live & in;
+  const int lo = InterleavedMask(keep, cross, false);
+  const int hi = n > 4 ? InterleavedMask(keep, cross, true) : 0;
+  const int m_lo = std::popcount(static_cast<unsigned>(lo));
+  const int m = m_lo + std::popcount(static_cast<unsigned>(hi));
+  if (m > kMaxPolygonVertices) return -1;
+  static_assert(kClipRoom >= 16 && kClipRoom >= kMaxPolygonVertices);  // m_lo <= 8, then eight
+  StoreCompact(a, __builtin_shufflevector(la, ca, 0, 8, 1, 9, 2, 10, 3, 11), lo);
+  StoreCompact(b, __builtin_shufflevector(lb, cb, 0, 8, 1, 9, 2, 10, 3, 11), lo);
+  StoreCompact(w, __builtin_shufflevector(lw, cw, 0, 8, 1, 9, 2, 10, 3, 11), lo);
+  if (n > 4) {
+    StoreCompact(a + m_lo, __builtin_shufflevector(la, ca, 4, 12, 5, 13, 6, 14, 7, 15), hi);
+    StoreCompact(b + m_lo, __builtin_shufflevector(lb, cb, 4, 12, 5, 13, 6, 14, 7, 15), hi);
+    StoreCompact(w + m_lo, __builtin_shufflevector(lw, cw, 4, 12, 5, 13, 6, 14, 7, 15), hi);
+  }
+  return m;
+}
+
 // Clips the homogeneous polygon (a, b, w) of a face to |a| <= w, |b| <= w (its pyramid),
 // through the buffers ta, tb, tw; returns the vertex count (0 when nothing is left). Each of
 // the six holds kMaxPolygonVertices floats; ta, tb and tw are copied back whole, so all of
 // theirs must be defined.
-// kLanes: a, b and w hold eight lanes of defined values (RasterizePolygonTo's lanes), and a
-// polygon of at most eight vertices has its planes' sides found in lanes, the same expressions.
+// kLanes: a, b and w hold eight lanes of defined values (RasterizePolygonTo's lanes) and room
+// for kClipRoom floats, and a polygon of at most eight vertices has its planes' sides found
+// and is clipped in lanes (ClipLanes), the same expressions.
 template <bool kLanes>
 inline int ClipToPyramid(float* a, float* b, float* w, int n, float* ta, float* tb, float* tw) {
   static_assert(kMaxPolygonVertices >= 8);
@@ -278,8 +320,13 @@ inline int ClipToPyramid(float* a, float* b, float* w, int n, float* ta, float* 
       std::memcpy(&lb, b, sizeof lb);
       std::memcpy(&lw, w, sizeof lw);
       const SpanV8f ls = lw + sa * la + sb * lb;
+      if (MaskAll((ls >= 0.0f) | (kSpanLane >= n))) continue;
+      if (const int m = ClipLanes(la, lb, lw, ls, n, a, b, w); m >= 0) {
+        n = m;
+        continue;
+      }
       std::memcpy(s, &ls, sizeof ls);
-      all_in = MaskAll((ls >= 0.0f) | (kSpanLane >= n));
+      all_in = false;
     } else {
       for (int i = 0; i < n; ++i) {
         s[i] = w[i] + sa * a[i] + sb * b[i];
@@ -711,8 +758,9 @@ inline void RasterizePolygonIn(const Polygon& p, int res, std::vector<float>* ac
   for (int f = f_first; f <= f_last; ++f) {
     const int k = f / 2;
     const float sign = (f % 2) ? -1.0f : 1.0f;
-    // The face's homogeneous coordinates: (a, b) / w is the point on the face's plane.
-    float a[kMaxPolygonVertices], b[kMaxPolygonVertices], w[kMaxPolygonVertices];
+    // The face's homogeneous coordinates: (a, b) / w is the point on the face's plane (with
+    // room for ClipToPyramid's lanes).
+    float a[kClipRoom], b[kClipRoom], w[kClipRoom];
     int n = p.n;
     // The polygon in the face's pixel coordinates.
     FacePoly face;
@@ -734,7 +782,22 @@ inline void RasterizePolygonIn(const Polygon& p, int res, std::vector<float>* ac
         float ta[kMaxPolygonVertices] = {}, tb[kMaxPolygonVertices] = {},
               tw[kMaxPolygonVertices] = {};
         n = ClipToPyramid<true>(a, b, w, n, ta, tb, tw);
-        if (n < 3 || !Project(a, b, w, n, res, &face)) continue;
+        if (n < 3) continue;
+        if (n <= 8) {
+          // Projected in lanes too, the lanes past n repeating vertex 0 as LoadVertexLanes'
+          // do (ClipLanes leaves other values there).
+          SpanV8f ca, cb, cw;
+          std::memcpy(&ca, a, sizeof ca);
+          std::memcpy(&cb, b, sizeof cb);
+          std::memcpy(&cw, w, sizeof cw);
+          const SpanV8i keep = kSpanLane < n;
+          ca = keep ? ca : __builtin_shufflevector(ca, ca, 0, 0, 0, 0, 0, 0, 0, 0);
+          cb = keep ? cb : __builtin_shufflevector(cb, cb, 0, 0, 0, 0, 0, 0, 0, 0);
+          cw = keep ? cw : __builtin_shufflevector(cw, cw, 0, 0, 0, 0, 0, 0, 0, 0);
+          if (!ProjectLanes(ca, cb, cw, n, res, &face)) continue;
+        } else if (!Project(a, b, w, n, res, &face)) {
+          continue;
+        }
       }
     } else {
       // One loop per axis: with constant offsets the copy is a third of the instructions.
