@@ -115,6 +115,7 @@ absl::Status MicroBuffer::Prepare(int resolution) {
   hemi_slope_y_.clear();
   pixels_.assign(n, internal::PixelState{});
   for (internal::PixelState& px : pixels_) px.depth = std::numeric_limits<float>::infinity();
+  shut_.assign(n, std::numeric_limits<float>::quiet_NaN());
   fragments_.resize(n);
   for (auto* v : {&dir_x_, &dir_y_, &dir_z_, &half_width_}) v->assign(n, 0.0f);
 

@@ -5,6 +5,7 @@
 #define PBGI_RASTER_POLYGON_COVERAGE_H_
 
 #include <algorithm>
+#include <bit>
 #include <cmath>
 #include <cstddef>
 #include <cstdint>
@@ -142,12 +143,168 @@ inline bool MaskAll(const SpanV8i& m) {
                    __builtin_shufflevector(m, m, 4, 5, 6, 7)) == 0xf;
 }
 
+// Split() and Area2() in eight lanes, for a polygon of at most eight vertices (lane i: vertex
+// i; the lanes from n on may hold anything). The 2 x 2-block path splits most far footprints
+// twice, one vertex at a time with three branches per vertex, and sums each part's area.
+
+// For each 8-bit mask, the indices of its set bits in order, three bits each (the lanes that a
+// compaction keeps; the indices past the count are 0).
+inline constexpr struct CompactTable {
+  uint32_t lanes[256];
+  constexpr CompactTable() : lanes() {
+    for (int m = 0; m < 256; ++m) {
+      int k = 0;
+      for (int i = 0; i < 8; ++i) {
+        if (m & (1 << i)) lanes[m] |= static_cast<uint32_t>(i) << (3 * k++);
+      }
+    }
+  }
+} kCompact;
+// Bits 0-3 of a mask spread to bits 0, 2, 4 and 6.
+inline constexpr uint8_t kSpreadBits[16] = {0x00, 0x01, 0x04, 0x05, 0x10, 0x11, 0x14, 0x15,
+                                            0x40, 0x41, 0x44, 0x45, 0x50, 0x51, 0x54, 0x55};
+
+// The compaction mask of lanes 0-3 (high: 4-7) of vertices and crossings interleaved (vertex i,
+// then the crossing on its edge): bit 2 i where keep, bit 2 i + 1 where cross.
+inline int InterleavedMask(const SpanV8i& keep, const SpanV8i& cross, bool high) {
+  const V4i k = high ? __builtin_shufflevector(keep, keep, 4, 5, 6, 7)
+                     : __builtin_shufflevector(keep, keep, 0, 1, 2, 3);
+  const V4i c = high ? __builtin_shufflevector(cross, cross, 4, 5, 6, 7)
+                     : __builtin_shufflevector(cross, cross, 0, 1, 2, 3);
+  return kSpreadBits[Movemask4(k)] | (kSpreadBits[Movemask4(c)] << 1);
+}
+
+// Stores the lanes of v whose bits are set in `mask`, in order, at to[0 ..), and stale values
+// after them up to to[7]. The indices are unpacked by per-lane shifts (one instruction with
+// AVX2; unpacked from bytes, GCC moved them one at a time). An eight-lane vector is not
+// returned: without AVX that changes the ABI.
+inline void StoreCompact(float* to, const SpanV8f& v, int mask) {
+  constexpr SpanV8i kShift = {0, 3, 6, 9, 12, 15, 18, 21};
+  const SpanV8i index = ((SpanV8i{} + static_cast<int32_t>(kCompact.lanes[mask])) >> kShift) & 7;
+  const SpanV8f c = __builtin_shuffle(v, index);
+  std::memcpy(to, &c, sizeof c);
+}
+
+// Split() of a polygon of at most eight vertices: the same parts, vertex for vertex. Each
+// vertex's side and the crossing on the edge to the next vertex are found in lanes with the same
+// expressions; a part takes vertex i where its side says so, then the crossing after it (Split's
+// order), by compacting the vertices and crossings interleaved. The parts' lanes past their
+// counts are written with stale values.
+inline void SplitLanes(const Poly2& p, int coord, float at, Poly2* below, Poly2* above) {
+  const int n = p.n;
+  SpanV8f x, y;
+  std::memcpy(&x, p.x, sizeof x);
+  std::memcpy(&y, p.y, sizeof y);
+  // Vertex j = i + 1, and 0 after the last.
+  const SpanV8i succ = kSpanLane + 1;
+  const SpanV8i next = succ & (succ != n);
+  const SpanV8f s = (coord == 0 ? x : y) - at;
+  const SpanV8f xj = __builtin_shuffle(x, next), yj = __builtin_shuffle(y, next);
+  const SpanV8f sj = __builtin_shuffle(s, next);
+  const SpanV8i live = kSpanLane < n;
+  const SpanV8i cross = live & (((s < 0.0f) & (sj > 0.0f)) | ((s > 0.0f) & (sj < 0.0f)));
+  const SpanV8f t = s / (s - sj);
+  const SpanV8f cx = x + t * (xj - x), cy = y + t * (yj - y);
+  // Vertex i, then its edge's crossing: lanes 0-3 of the vertices and crossings interleaved,
+  // then lanes 4-7.
+  const SpanV8f x_lo = __builtin_shufflevector(x, cx, 0, 8, 1, 9, 2, 10, 3, 11);
+  const SpanV8f y_lo = __builtin_shufflevector(y, cy, 0, 8, 1, 9, 2, 10, 3, 11);
+  const SpanV8i keep_below = live & (s <= 0.0f), keep_above = live & (s >= 0.0f);
+  const int below_lo = InterleavedMask(keep_below, cross, false);
+  const int above_lo = InterleavedMask(keep_above, cross, false);
+  StoreCompact(below->x, x_lo, below_lo);
+  StoreCompact(below->y, y_lo, below_lo);
+  StoreCompact(above->x, x_lo, above_lo);
+  StoreCompact(above->y, y_lo, above_lo);
+  int nb = std::popcount(static_cast<unsigned>(below_lo));
+  int na = std::popcount(static_cast<unsigned>(above_lo));
+  if (n > 4) {
+    const SpanV8f x_hi = __builtin_shufflevector(x, cx, 4, 12, 5, 13, 6, 14, 7, 15);
+    const SpanV8f y_hi = __builtin_shufflevector(y, cy, 4, 12, 5, 13, 6, 14, 7, 15);
+    const int below_hi = InterleavedMask(keep_below, cross, true);
+    const int above_hi = InterleavedMask(keep_above, cross, true);
+    static_assert(sizeof below->x >= 16 * sizeof(float));  // nb <= 8 here, then eight lanes
+    StoreCompact(below->x + nb, x_hi, below_hi);
+    StoreCompact(below->y + nb, y_hi, below_hi);
+    StoreCompact(above->x + na, x_hi, above_hi);
+    StoreCompact(above->y + na, y_hi, above_hi);
+    nb += std::popcount(static_cast<unsigned>(below_hi));
+    na += std::popcount(static_cast<unsigned>(above_hi));
+  }
+  below->n = nb;
+  above->n = na;
+}
+
+// |Area2(p)| of a polygon of at most eight vertices: each edge's term in lanes (lane i the edge
+// from vertex i - 1, lane 0 the one from vertex n - 1), summed in Area2's order. The lanes past n
+// add +0, which can change only the sign of a zero sum.
+inline float AbsArea2Lanes(const Poly2& p) {
+  const int n = p.n;
+  SpanV8f x, y;
+  std::memcpy(&x, p.x, sizeof x);
+  std::memcpy(&y, p.y, sizeof y);
+  const SpanV8i prev = (kSpanLane - 1) + ((kSpanLane == 0) & n);
+  const SpanV8f xp = __builtin_shuffle(x, prev), yp = __builtin_shuffle(y, prev);
+  SpanV8f t = (xp + x) * (yp - y);
+  t = (SpanV8f)((SpanV8i)t & (kSpanLane < n));
+  float a = 0.0f;
+  a += t[0];
+  a += t[1];
+  a += t[2];
+  a += t[3];
+  if (n > 4) {
+    a += t[4];
+    a += t[5];
+    a += t[6];
+    a += t[7];
+  }
+  return std::fabs(a);
+}
+
+// ClipToPyramid()'s clip of a polygon of at most eight vertices (lanes la, lb, lw) by the plane
+// whose sides are ls, in lanes: the vertices inside and the crossings on the edges that leave or
+// enter, in the one-vertex loop's order and with its expressions, compacted as SplitLanes()
+// compacts a part. Writes the clipped polygon to a, b and w (room for kClipRoom floats each,
+// stale values past its count) and returns its vertex count; -1, with nothing written, when it
+// has more than kMaxPolygonVertices (the one-vertex loop drops the excess).
+inline constexpr int kClipRoom = 16;
+inline int ClipLanes(const SpanV8f& la, const SpanV8f& lb, const SpanV8f& lw, const SpanV8f& ls,
+                     int n, float* a, float* b, float* w) {
+  const SpanV8i succ = kSpanLane + 1;
+  const SpanV8i next = succ & (succ != n);
+  const SpanV8f sj = __builtin_shuffle(ls, next);
+  const SpanV8f aj = __builtin_shuffle(la, next), bj = __builtin_shuffle(lb, next),
+                wj = __builtin_shuffle(lw, next);
+  const SpanV8i live = kSpanLane < n;
+  const SpanV8i in = ls >= 0.0f;
+  const SpanV8i cross = live & (in ^ (sj >= 0.0f));
+  const SpanV8f t = ls / (ls - sj);
+  const SpanV8f ca = la + t * (aj - la), cb = lb + t * (bj - lb), cw = lw + t * (wj - lw);
+  const SpanV8i keep = live & in;
+  const int lo = InterleavedMask(keep, cross, false);
+  const int hi = n > 4 ? InterleavedMask(keep, cross, true) : 0;
+  const int m_lo = std::popcount(static_cast<unsigned>(lo));
+  const int m = m_lo + std::popcount(static_cast<unsigned>(hi));
+  if (m > kMaxPolygonVertices) return -1;
+  static_assert(kClipRoom >= 16 && kClipRoom >= kMaxPolygonVertices);  // m_lo <= 8, then eight
+  StoreCompact(a, __builtin_shufflevector(la, ca, 0, 8, 1, 9, 2, 10, 3, 11), lo);
+  StoreCompact(b, __builtin_shufflevector(lb, cb, 0, 8, 1, 9, 2, 10, 3, 11), lo);
+  StoreCompact(w, __builtin_shufflevector(lw, cw, 0, 8, 1, 9, 2, 10, 3, 11), lo);
+  if (n > 4) {
+    StoreCompact(a + m_lo, __builtin_shufflevector(la, ca, 4, 12, 5, 13, 6, 14, 7, 15), hi);
+    StoreCompact(b + m_lo, __builtin_shufflevector(lb, cb, 4, 12, 5, 13, 6, 14, 7, 15), hi);
+    StoreCompact(w + m_lo, __builtin_shufflevector(lw, cw, 4, 12, 5, 13, 6, 14, 7, 15), hi);
+  }
+  return m;
+}
+
 // Clips the homogeneous polygon (a, b, w) of a face to |a| <= w, |b| <= w (its pyramid),
 // through the buffers ta, tb, tw; returns the vertex count (0 when nothing is left). Each of
 // the six holds kMaxPolygonVertices floats; ta, tb and tw are copied back whole, so all of
 // theirs must be defined.
-// kLanes: a, b and w hold eight lanes of defined values (RasterizePolygonTo's lanes), and a
-// polygon of at most eight vertices has its planes' sides found in lanes, the same expressions.
+// kLanes: a, b and w hold eight lanes of defined values (RasterizePolygonTo's lanes) and room
+// for kClipRoom floats, and a polygon of at most eight vertices has its planes' sides found
+// and is clipped in lanes (ClipLanes), the same expressions.
 template <bool kLanes>
 inline int ClipToPyramid(float* a, float* b, float* w, int n, float* ta, float* tb, float* tw) {
   static_assert(kMaxPolygonVertices >= 8);
@@ -163,8 +320,13 @@ inline int ClipToPyramid(float* a, float* b, float* w, int n, float* ta, float* 
       std::memcpy(&lb, b, sizeof lb);
       std::memcpy(&lw, w, sizeof lw);
       const SpanV8f ls = lw + sa * la + sb * lb;
+      if (MaskAll((ls >= 0.0f) | (kSpanLane >= n))) continue;
+      if (const int m = ClipLanes(la, lb, lw, ls, n, a, b, w); m >= 0) {
+        n = m;
+        continue;
+      }
       std::memcpy(s, &ls, sizeof ls);
-      all_in = MaskAll((ls >= 0.0f) | (kSpanLane >= n));
+      all_in = false;
     } else {
       for (int i = 0; i < n; ++i) {
         s[i] = w[i] + sa * a[i] + sb * b[i];
@@ -596,8 +758,9 @@ inline void RasterizePolygonIn(const Polygon& p, int res, std::vector<float>* ac
   for (int f = f_first; f <= f_last; ++f) {
     const int k = f / 2;
     const float sign = (f % 2) ? -1.0f : 1.0f;
-    // The face's homogeneous coordinates: (a, b) / w is the point on the face's plane.
-    float a[kMaxPolygonVertices], b[kMaxPolygonVertices], w[kMaxPolygonVertices];
+    // The face's homogeneous coordinates: (a, b) / w is the point on the face's plane (with
+    // room for ClipToPyramid's lanes).
+    float a[kClipRoom], b[kClipRoom], w[kClipRoom];
     int n = p.n;
     // The polygon in the face's pixel coordinates.
     FacePoly face;
@@ -619,7 +782,22 @@ inline void RasterizePolygonIn(const Polygon& p, int res, std::vector<float>* ac
         float ta[kMaxPolygonVertices] = {}, tb[kMaxPolygonVertices] = {},
               tw[kMaxPolygonVertices] = {};
         n = ClipToPyramid<true>(a, b, w, n, ta, tb, tw);
-        if (n < 3 || !Project(a, b, w, n, res, &face)) continue;
+        if (n < 3) continue;
+        if (n <= 8) {
+          // Projected in lanes too, the lanes past n repeating vertex 0 as LoadVertexLanes'
+          // do (ClipLanes leaves other values there).
+          SpanV8f ca, cb, cw;
+          std::memcpy(&ca, a, sizeof ca);
+          std::memcpy(&cb, b, sizeof cb);
+          std::memcpy(&cw, w, sizeof cw);
+          const SpanV8i keep = kSpanLane < n;
+          ca = keep ? ca : __builtin_shufflevector(ca, ca, 0, 0, 0, 0, 0, 0, 0, 0);
+          cb = keep ? cb : __builtin_shufflevector(cb, cb, 0, 0, 0, 0, 0, 0, 0, 0);
+          cw = keep ? cw : __builtin_shufflevector(cw, cw, 0, 0, 0, 0, 0, 0, 0, 0);
+          if (!ProjectLanes(ca, cb, cw, n, res, &face)) continue;
+        } else if (!Project(a, b, w, n, res, &face)) {
+          continue;
+        }
       }
     } else {
       // One loop per axis: with constant offsets the copy is a third of the instructions.
@@ -677,16 +855,30 @@ inline void RasterizePolygonIn(const Polygon& p, int res, std::vector<float>* ac
     if (x1 - x0 <= 1 && y1 - y0 <= 1) {
       // Within a 2 x 2 block of pixels (most far footprints): the exact areas of the polygon's
       // parts on either side of the block's middle lines.
+      // With kLanes, a part of at most eight vertices is split and measured in lanes (the
+      // same parts and |areas|, which is all that emit() takes).
+      auto area2 = [](const Poly2& q) {
+        if constexpr (kLanes) {
+          if (q.n <= 8) return AbsArea2Lanes(q);
+        }
+        return Area2(q);
+      };
+      auto split = [](const Poly2& q, int coord, float at, Poly2* below, Poly2* above) {
+        if constexpr (kLanes) {
+          if (q.n <= 8) return SplitLanes(q, coord, at, below, above);
+        }
+        Split(q, coord, at, below, above);
+      };
       if (x1 == x0 && y1 == y0) {
-        emit(x0, y0, Area2(whole));  // inside one pixel
+        emit(x0, y0, area2(whole));  // inside one pixel
         continue;
       }
-      Poly2 split[2];
+      Poly2 parts[2];
       const Poly2* cols[2] = {&whole, nullptr};
       int nc = 1;
       if (x1 > x0) {
-        Split(whole, 0, static_cast<float>(x1), &split[0], &split[1]);
-        cols[0] = &split[0], cols[1] = &split[1];
+        split(whole, 0, static_cast<float>(x1), &parts[0], &parts[1]);
+        cols[0] = &parts[0], cols[1] = &parts[1];
         nc = 2;
       }
       for (int ci = 0; ci < nc; ++ci) {
@@ -694,11 +886,11 @@ inline void RasterizePolygonIn(const Polygon& p, int res, std::vector<float>* ac
         if (col.n < 3) continue;
         if (y1 > y0) {
           Poly2 lo, hi;
-          Split(col, 1, static_cast<float>(y1), &lo, &hi);
-          if (lo.n >= 3) emit(x0 + ci, y0, Area2(lo));
-          if (hi.n >= 3) emit(x0 + ci, y1, Area2(hi));
+          split(col, 1, static_cast<float>(y1), &lo, &hi);
+          if (lo.n >= 3) emit(x0 + ci, y0, area2(lo));
+          if (hi.n >= 3) emit(x0 + ci, y1, area2(hi));
         } else {
-          emit(x0 + ci, y0, Area2(col));
+          emit(x0 + ci, y0, area2(col));
         }
       }
       continue;

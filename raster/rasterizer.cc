@@ -74,6 +74,7 @@ inline void Rasterizer::Reset() {
   PixelState empty{};
   empty.depth = std::numeric_limits<float>::infinity();
   std::fill(mb_.pixels_.begin(), mb_.pixels_.end(), empty);
+  std::fill(mb_.shut_.begin(), mb_.shut_.end(), std::numeric_limits<float>::quiet_NaN());
 }
 
 void Rasterizer::SetFrame(const ShadeReceiver& r) {

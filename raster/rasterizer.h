@@ -114,6 +114,7 @@ class Rasterizer {
         radiance_(o.compute_radiance),
         clamp_(o.clamp),
         px_(mb->pixels_.data()),
+        shut_(mb->shut_.data()),
         dirs_(mb->dirs_.data()),
         omega_(mb->omega_f_.data()),
         inv_omega_(mb->inv_omega_f_.data()),
@@ -285,12 +286,14 @@ class Rasterizer {
   // depth <= s.depth.
   bool BilinearConeClosed(const PreparedSplat& s) const;
   // Whether every pixel first + row * res + col, col0 <= col <= col1, row0 <= row <= row1, is
-  // closed (closed >= 1, where Emit() only lowers depth) with depth <= `depth`.
+  // closed (closed >= 1, where Emit() only lowers depth) with depth <= `depth`. Asked of the
+  // pixels' shut_ (NaN compares false): a pixel's state is 96 bytes, and these reads of two
+  // floats in it were the rasterizer's most sampled line.
   bool RectClosed(uint32_t first, int col0, int col1, int row0, int row1, float depth) const {
     for (int row = row0; row <= row1; ++row) {
-      const PixelState* px = px_ + first + static_cast<uint32_t>(row * res_);
+      const float* shut = shut_ + first + static_cast<uint32_t>(row * res_);
       for (int col = col0; col <= col1; ++col) {
-        if (!(px[col].closed >= 1.0f) || !(px[col].depth <= depth)) return false;
+        if (!(shut[col] <= depth)) return false;
       }
     }
     return true;
@@ -484,10 +487,15 @@ class Rasterizer {
         px.closed += cov;
       }
     } else {
-      if (px.closed >= 1.0f) return;
+      // shut_[p] follows the pixel once it is closed (RectClosed()).
+      if (px.closed >= 1.0f) {
+        shut_[p] = px.depth;
+        return;
+      }
       float lo = f.lo, hi = f.hi;
       if (f.flat) PlaneRange(p, f, &lo, &hi);
       Layer<kRad>(px, cov, f, lo, hi, samples);
+      if (px.closed >= 1.0f) shut_[p] = px.depth;
     }
   }
 
@@ -617,6 +625,7 @@ class Rasterizer {
         PixelState& px = px_[q];
         px.depth = std::min(px.depth, f.depth);
         if (px.closed < 1.0f) Layer<kRad>(px, c, f, l, h);
+        if (px.closed >= 1.0f) shut_[q] = px.depth;  // as Emit() keeps it
       };
       one(p0, cov[0], lo[0], hi[0]);
       one(p0 + 1, cov[1], lo[1], hi[1]);
@@ -637,6 +646,8 @@ class Rasterizer {
   const int res_;
   const bool radiance_, clamp_;
   PixelState* px_;
+  // MicroBuffer::shut_: with clamp, px_[p].depth where px_[p].closed >= 1, else NaN (Emit()).
+  float* shut_;
   const PixelDir* dirs_;
   const float* omega_;
   const float* inv_omega_;

@@ -281,6 +281,9 @@ class MicroBuffer {
   // column and row (Rasterizer::SampleWeight(); 0 for a pixel the horizon cuts).
   std::vector<float> hemi_slope_x_, hemi_slope_y_;
   std::vector<internal::PixelState> pixels_;
+  // Per pixel, its depth once it is closed (coverage >= 1), else NaN: what
+  // Rasterizer::RectClosed() asks of a pixel, in one float (kept by Emit() with clamp).
+  std::vector<float> shut_;
   std::vector<internal::PreparedSplat> splats_;
   std::vector<uint64_t> order_, order_tmp_;            // (depth key << 32) | splat index
   std::vector<std::pair<uint32_t, float>> fragments_;  // one splat's pixels and coverages

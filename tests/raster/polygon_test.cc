@@ -356,6 +356,60 @@ TEST(PolygonTest, SpansInLanesMatchOneRowAtATime) {
   EXPECT_GT(rows, 100000);
 }
 
+// SplitLanes() and AbsArea2Lanes() (the 2 x 2-block path with lanes) against Split() and Area2():
+// the same parts vertex for vertex and the same |area| bit for bit, over polygons of one to eight
+// vertices within two pixels of the split line, with vertices on the line (of either zero sign
+// relative to it), runs of vertices along it, repeated vertices, not quite convex polygons (as
+// Project()'s clamping leaves them), and stale lanes past n.
+TEST(PolygonTest, SplitAndAreaInLanesMatchOneVertexAtATime) {
+  using polygon_coverage::Poly2;
+  std::mt19937 rng(28);
+  std::uniform_real_distribution<float> u(0.0f, 1.0f);
+  int parts = 0, differ = 0, crossings = 0;
+  auto same_part = [](const Poly2& a, const Poly2& b) {
+    return a.n == b.n && std::memcmp(a.x, b.x, a.n * sizeof(float)) == 0 &&
+           std::memcmp(a.y, b.y, a.n * sizeof(float)) == 0;
+  };
+  for (int trial = 0; trial < 100000; ++trial) {
+    const float line = static_cast<float>(1 + rng() % 10);
+    Poly2 p;
+    // Stale lanes: NaN, huge, or a previous polygon's.
+    for (int i = 0; i < 8; ++i) {
+      p.x[i] = trial % 3 == 0 ? std::numeric_limits<float>::quiet_NaN() : 1e6f * u(rng);
+      p.y[i] = trial % 5 == 0 ? -std::numeric_limits<float>::infinity() : 1e6f * u(rng);
+    }
+    p.n = 1 + static_cast<int>(rng() % 8);
+    const float cx = line - 1.0f + 2.0f * u(rng), cy = line - 1.0f + 2.0f * u(rng);
+    const float r = trial % 4 == 0 ? 0.05f * u(rng) : 1.2f * u(rng), start = 6.2831853f * u(rng);
+    for (int i = 0; i < p.n; ++i) {
+      const float angle = start + 6.2831853f * static_cast<float>(i) / static_cast<float>(p.n);
+      float x = cx + r * std::cos(angle), y = cy + r * std::sin(angle);
+      if (rng() % 4 == 0) x = line;
+      if (rng() % 6 == 0) y = line;
+      if (i > 0 && rng() % 8 == 0) x = p.x[i - 1], y = p.y[i - 1];
+      if (rng() % 10 == 0) x = std::clamp(x, line - 0.5f, line + 0.25f);  // clamped: not convex
+      p.x[i] = x, p.y[i] = y;
+    }
+    for (int coord = 0; coord < 2; ++coord) {
+      Poly2 lanes[2], one[2];
+      polygon_coverage::SplitLanes(p, coord, line, &lanes[0], &lanes[1]);
+      polygon_coverage::Split(p, coord, line, &one[0], &one[1]);
+      crossings += one[0].n + one[1].n > p.n;
+      for (int k = 0; k < 2; ++k) {
+        ++parts;
+        const bool same = same_part(lanes[k], one[k]);
+        differ += !same;
+        if (!same || one[k].n > 8) continue;
+        const float a = polygon_coverage::AbsArea2Lanes(one[k]);
+        const float b = std::fabs(polygon_coverage::Area2(one[k]));
+        differ += std::memcmp(&a, &b, sizeof a) != 0;
+      }
+    }
+  }
+  EXPECT_EQ(differ, 0) << "of " << parts << " parts";
+  EXPECT_GT(crossings, 50000);
+}
+
 // RasterizePolygonTo() finds a polygon's faces and projects it in lanes (up to eight vertices):
 // against the one-vertex-at-a-time form, the same pixels, coverages, coverage masks, touched
 // samples and skip() rectangles, bit for bit, over polygons on one face and across several,
