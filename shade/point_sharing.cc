@@ -255,7 +255,6 @@ absl::Status ShadePointsShared(ShadeEngine& engine, absl::Span<const ShadeReceiv
             const TsanRegion::Task task(region);
             timed([&] {
               uint64_t done = 0;
-              std::array<uint32_t, kMaxCandidates> cand;
               std::array<float, kMaxCandidates> weight, angle, u, v;
               std::array<const ShadeResult*, kMaxCandidates> values;
               std::array<SharedValue, kMaxCandidates> fields;
@@ -296,7 +295,6 @@ absl::Status ShadePointsShared(ShadeEngine& engine, absl::Span<const ShadeReceiv
                         const float taper = reach < std::numeric_limits<float>::infinity()
                                                 ? 1.0f - (dist / reach) * (dist / reach)
                                                 : 1.0f;
-                        cand[m] = s;
                         weight[m] = taper * taper / std::max(dist * dist, eps2);
                         u[m] = glm::dot(d, t) / near, v[m] = glm::dot(d, b) / near;
                         angle[m] = std::atan2(v[m], u[m]);

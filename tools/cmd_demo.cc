@@ -20,6 +20,7 @@
 #include "tools/command.h"
 #include "tools/footprint_flags.h"
 #include "tools/progress.h"
+#include "tools/report.h"
 #include "tools/scene_views.h"
 #include "tools/sharing_flags.h"
 
@@ -52,7 +53,7 @@ struct DemoRun {
   uint64_t build_memory = 0;  // the build's budget: --memory less scene_bytes
   double build_seconds = 0;   // sampling, baking and the build
   ViewImages view;
-  double shade_seconds = 0;  // tracing the view and shading it
+  double shade_seconds = 0;     // tracing the view and shading it
   uint64_t distinct_pages = 0;  // Database::DistinctPagesRead() once the view is shaded
 };
 
@@ -181,8 +182,6 @@ void PrintDemoSummary(const DemoArgs& a, const DemoRun& run, uint64_t memory, ui
                       const std::string& base, double total_seconds) {
   const BuildStats& bs = run.build;
   const ViewImages& view = run.view;
-  const CacheStats& cs = view.shade.cache;
-  const uint64_t lookups = cs.reader.hits + cs.reader.misses;
   const double receivers = double(std::max<uint64_t>(1, view.receivers));
   std::printf("Coherent PBGI demo: %s\n", run.scene->name.c_str());
   std::printf("  surfels        %llu (%s on disk, %.1f bytes/point)\n",
@@ -203,14 +202,8 @@ void PrintDemoSummary(const DemoArgs& a, const DemoRun& run, uint64_t memory, ui
       view.shade.seconds * 1e6 / receivers, ResolveThreads(a.threads), view.trace_seconds,
       view.shade.seconds, view.compose_seconds);
   std::printf("%s\n", SharingSummary(view.shade).c_str());
-  std::printf(
-      "  cache          %s cap, reader hits %.2f%%, shared hits %.2f%%, %llu pages read "
-      "(%s; %llu distinct, %.2f per receiver)\n",
-      FormatBytes(cache).c_str(),
-      lookups ? 100.0 * double(cs.reader.hits) / double(lookups) : 100.0,
-      100.0 * cs.shared.HitRate(), static_cast<unsigned long long>(cs.shared.pages_read),
-      FormatBytes(cs.shared.bytes_read).c_str(),
-      static_cast<unsigned long long>(run.distinct_pages), double(run.distinct_pages) / receivers);
+  std::printf("  cache          %s cap, %s\n", FormatBytes(cache).c_str(),
+              CacheSummary(view.shade.cache, run.distinct_pages, view.receivers).c_str());
   std::printf(
       "  cut            max_solid_angle %.3g (%s), raster %d^2 x 6, %.1f clusters + %.1f "
       "surfels per receiver\n",

@@ -29,6 +29,7 @@
 #include "tools/mesh_flags.h"
 #include "tools/outputs.h"
 #include "tools/progress.h"
+#include "tools/report.h"
 #include "tools/scene_views.h"
 #include "tools/sharing_flags.h"
 
@@ -71,8 +72,6 @@ enum class Mode { kOcclusion, kIrradiance, kGlossy };
 // `distinct`: Database::DistinctPagesRead(), the pages read at least once.
 void PrintSummary(const char* what, uint64_t receivers, const ShadeStats& s, int threads,
                   uint64_t cache, uint64_t distinct) {
-  const CacheStats& cs = s.cache;
-  const uint64_t lookups = cs.reader.hits + cs.reader.misses;
   std::printf("shaded %llu %s in %.2f s: %.0f receivers/s, %.1f us/receiver on %d threads\n",
               static_cast<unsigned long long>(receivers), what, s.seconds,
               double(receivers) / std::max(1e-9, s.seconds),
@@ -85,15 +84,9 @@ void PrintSummary(const char* what, uint64_t receivers, const ShadeStats& s, int
       double(s.query.clusters) / double(std::max<uint64_t>(1, receivers)),
       double(s.query.surfels) / double(std::max<uint64_t>(1, receivers)),
       double(s.query.nodes_visited) / double(std::max<uint64_t>(1, receivers)));
-  std::printf(
-      "  cache %s: reader hits %.2f%%, shared hits %.2f%%, %llu pages read (%s; %llu distinct, "
-      "%.2f per receiver); peak memory %s\n",
-      FormatBytes(cache).c_str(),
-      lookups ? 100.0 * double(cs.reader.hits) / double(lookups) : 100.0,
-      100.0 * cs.shared.HitRate(), static_cast<unsigned long long>(cs.shared.pages_read),
-      FormatBytes(cs.shared.bytes_read).c_str(), static_cast<unsigned long long>(distinct),
-      double(distinct) / double(std::max<uint64_t>(1, receivers)),
-      FormatBytes(internal::PeakRssBytes()).c_str());
+  std::printf("  cache %s: %s; peak memory %s\n", FormatBytes(cache).c_str(),
+              CacheSummary(s.cache, distinct, receivers).c_str(),
+              FormatBytes(internal::PeakRssBytes()).c_str());
   std::printf("%s\n", SharingSummary(s).c_str());
 }
 

@@ -1,5 +1,6 @@
 #include "tools/report.h"
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 
@@ -91,6 +92,15 @@ void PrintBuildStats(const BuildStats& s, const BuildOptions& o, const std::stri
               u(s.runs_spilled), FormatBytes(s.spill_bytes).c_str(), u(s.merge_passes));
   std::printf("  peak memory %14s  (budget %s)\n", FormatBytes(s.peak_rss_bytes).c_str(),
               FormatBytes(o.memory_bytes).c_str());
+}
+
+std::string CacheSummary(const CacheStats& cs, uint64_t distinct_pages, uint64_t receivers) {
+  const uint64_t lookups = cs.reader.hits + cs.reader.misses;
+  return absl::StrFormat(
+      "reader hits %.2f%%, shared hits %.2f%%, %d pages read (%s; %d distinct, %.2f per receiver)",
+      lookups ? 100.0 * double(cs.reader.hits) / double(lookups) : 100.0,
+      100.0 * cs.shared.HitRate(), cs.shared.pages_read, FormatBytes(cs.shared.bytes_read),
+      distinct_pages, double(distinct_pages) / double(std::max<uint64_t>(1, receivers)));
 }
 
 }  // namespace pbgi::tools

@@ -4,10 +4,12 @@
 #ifndef PBGI_TOOLS_REPORT_H_
 #define PBGI_TOOLS_REPORT_H_
 
+#include <cstdint>
 #include <string>
 
 #include "nlohmann/json.hpp"
 #include "pbgi/build.h"
+#include "pbgi/query.h"
 
 namespace pbgi::tools {
 
@@ -26,6 +28,13 @@ std::string DumpJson(const Json& j);
 // per second). `input`, `output` and `channels` name what the build read and wrote.
 Json BuildStatsJson(const BuildStats& s, const BuildOptions& o, const std::string& input,
                     const std::string& output, const std::string& channels);
+
+// The page cache's figures that `pbgi shade` and `pbgi demo` print for a shaded batch: hit
+// rates of both levels, the pages read (with their stored bytes) and, of them, the distinct
+// pages (Database::DistinctPagesRead) in all and per receiver. The distinct count is the whole
+// database's, the reads only the batch's shading Readers': with radiance, the root page that
+// EffectiveCut reads for the mean radiance can make it one more than the reads.
+std::string CacheSummary(const CacheStats& cs, uint64_t distinct_pages, uint64_t receivers);
 
 // The build summary table of `pbgi build`.
 void PrintBuildStats(const BuildStats& s, const BuildOptions& o, const std::string& input,
