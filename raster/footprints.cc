@@ -1042,7 +1042,7 @@ Bounds FlatBox(const Bounds& centres, const Bounds& cell, float spacing, const g
 
 float FlatFootprint(const Bounds& centres, const Bounds& cell, float spacing,
                     const glm::vec3& normal, float offset, const glm::vec3& origin, double area,
-                    Polygon* p) {
+                    bool backs, Polygon* p) {
   bool full = false;
   int snapped = 0;
   Bounds box = FlatBox(centres, cell, spacing, normal, offset, origin, &full, &snapped);
@@ -1061,7 +1061,7 @@ float FlatFootprint(const Bounds& centres, const Bounds& cell, float spacing,
   // cell is seen, the more the finer the raster (bug: sparse_full_cell_leak).
   const double m = poly / std::max(1e-30, double(spacing) * spacing);
   const double lacks = m <= kSmallCell ? 0.0 : 0.7;
-  if (full && area >= lacks * poly) return 1.0f;
+  if (full && !backs && area >= lacks * poly) return 1.0f;
   const bool has_cell = CellHolds(cell, centres);
   for (int iter = 0; iter < 2 && area > poly * 1.0001; ++iter) {
     // Grow the free in-plane axes by the missing factor, shared among them.
@@ -1292,6 +1292,20 @@ bool Rasterizer::ClusterHidden(const Cluster& c, const PreparedSplat& s) const {
   return BoxClosed(box.lo, box.hi, s.depth);
 }
 
+// Whether a flat one-sided cluster shows the receiver (at `origin`) the backs of its surfels:
+// the receiver lies behind its mean plane (through the box centre, s.plane), beyond the box's
+// thickness along the normal, on the side that `sides` does not draw. What it shows there is
+// only what turns towards the receiver, as much as its projected area says; its plane does
+// not fill its cell (docs/design.md, "One-sided sheets seen from behind").
+namespace {
+bool ShowsBacks(const Cluster& c, const PreparedSplat& s, const glm::vec3& origin, HitSides sides) {
+  if (sides == HitSides::kBoth || !(-s.plane > s.thick)) return false;
+  const glm::vec3 ns = sh::AreaAndNormalSum(c.sh_area.data()).normal_sum;
+  const float towards = glm::dot(ns, 0.5f * (c.bounds.lo + c.bounds.hi) - origin);
+  return sides == HitSides::kFront ? towards > 0.0f : towards < 0.0f;
+}
+}  // namespace
+
 bool Rasterizer::BuildClusterFootprint(const Cluster& c, PreparedSplat& s) {
   {
     const float spacing = ClusterSpacing(c);
@@ -1329,8 +1343,8 @@ bool Rasterizer::BuildClusterFootprint(const Cluster& c, PreparedSplat& s) {
       const float seen = s.omega * s.depth * s.depth;
       const glm::vec3 mean_world = s.normal.x * t_ + s.normal.y * b_ + s.normal.z * n_;
       Polygon p;
-      const float alpha =
-          FlatFootprint(c.bounds, c.cell, spacing, mean_world, s.plane, origin_, seen / cosw, &p);
+      const float alpha = FlatFootprint(c.bounds, c.cell, spacing, mean_world, s.plane, origin_,
+                                        seen / cosw, ShowsBacks(c, s, origin_, o_.hitsides), &p);
       if (p.n < 3) return true;  // keeps the cone splat
       s.alpha = alpha;
       AddPolygon(p, &s);
@@ -1692,7 +1706,7 @@ void Rasterizer::PrepareSurfelGroups(const Gathered& g, ShadeResult* out) {
       };
       if (alpha < 0.0f) {
         alpha = FlatFootprint(first.two_sided ? centres : reach, snap_to, spacing, facing,
-                              -std::fabs(side), from, area, &p);
+                              -std::fabs(side), from, area, /*backs=*/false, &p);
         // A piece of a sheet that goes on past its cell in two or more directions (a pair:
         // three), alone in the cell, is a part of one surface: in a section a few surfels' areas
         // wide their count says nothing of how much of it the sheet fills (FlatFootprint's small

@@ -86,9 +86,10 @@ Bounds FlatBox(const Bounds& centres, const Bounds& cell, float spacing, const g
 // its area says, not where the outermost centres say, so that sampling that puts more centres
 // in one cell than its area does not lose the excess). Returns the coverage inside the
 // polygon (1 when the plane fills the cell), or 0 with p->n = 0 when there is no polygon.
+// `backs`: the receiver sees the content's backs (ShowsBacks); the plane never fills the cell.
 float FlatFootprint(const Bounds& centres, const Bounds& cell, float spacing,
                     const glm::vec3& normal, float offset, const glm::vec3& origin, double area,
-                    Polygon* p);
+                    bool backs, Polygon* p);
 
 // A two-sided pair's footprint on the same plane: a rhombus along the pair of centres c1, c2
 // holding `area` (docs/design.md, "A leaf's pieces"). Returns its coverage, or -1 when the
