@@ -795,8 +795,9 @@ class LeafRunIndex {
 // group allows (a faceted sheet's next facet goes on too). A sheet that goes on along a part of
 // the side only (a rim, a hole or a slot at the side) keeps the leaf's rule there. Returns the
 // cell with every other side moved out of reach, or an empty box when no side goes on.
-// `members`: the group's surfels' indices in g.surfels; `runs`: the gather's runs of one leaf's
-// surfels.
+// *along_traces: the same judged along each side's trace on the plane instead of the world axes
+// (for `surrounded`, PrepareSurfelGroups). `members`: the group's surfels' indices in g.surfels;
+// `runs`: the gather's runs of one leaf's surfels.
 constexpr float kSheetReach = 1.5f;
 constexpr float kSheetNext = 2.5f;
 constexpr float kSheetCos = 0.9f;     // the co-planar group's normal test
@@ -805,7 +806,8 @@ constexpr float kSheetSlope = 0.43f;  // sin 25.5 degrees
 // (the forest's at 2 M surfels, about two per leaf) says too little of where its leaf ends.
 constexpr int kSheetMinCount = 3;
 Bounds SheetCell(const Bounds& cell, uint32_t leaf, const SurfelGroup& gr, const Gathered& g,
-                 const uint32_t* members, LeafRunIndex& runs) {
+                 const uint32_t* members, LeafRunIndex& runs, Bounds* along_traces) {
+  *along_traces = Bounds{};
   const float sp = gr.spacing, reach = kSheetReach * sp;
   bool in_plane[3], near[6], any = false;  // near[2 k] (near[2 k + 1]): the low (high) side of k
   for (int k = 0; k < 3; ++k) {
@@ -828,7 +830,36 @@ Bounds SheetCell(const Bounds& cell, uint32_t leaf, const SurfelGroup& gr, const
     }
     return true;
   };
-  int open = 0;  // the near sides not known to go on yet: bit q
+  // The same along each side's trace on the plane (the direction in the plane along the side),
+  // for *along_traces: the world axes count an axis near a turned plane's normal (|n_k| just
+  // under kInPlaneAxis) as along the side, and beyond a side the next samples, a thin slab of
+  // the plane, span little of it where the group spans the plane's rise across the cell. The
+  // group's extent there is its members' within reach of the side (its row along the side, not
+  // the section's widest), and the next samples must reach within kSheetReach spacings of its
+  // ends (a stratified row's jitter on both sides of the side; docs/design.md, "Two-sided sheets
+  // across their cells").
+  glm::vec3 trace[6];
+  float group_lo[6], group_hi[6], seen_lo[6], seen_hi[6];
+  for (int q = 0; q < 6; ++q) {
+    seen_lo[q] = group_lo[q] = std::numeric_limits<float>::max();
+    seen_hi[q] = group_hi[q] = -std::numeric_limits<float>::max();
+    if (!near[q]) continue;
+    glm::vec3 axis(0.0f);
+    axis[q / 2] = 1.0f;
+    trace[q] = glm::normalize(glm::cross(gr.normal, axis));
+    for (int m = 0; m < gr.count; ++m) {
+      const glm::vec3& x = g.surfels[members[m]].position;
+      const int k = q / 2;
+      if (q % 2 == 0 ? !(x[k] - cell.lo[k] < reach) : !(cell.hi[k] - x[k] < reach)) continue;
+      const float t = glm::dot(trace[q], x);
+      group_lo[q] = std::min(group_lo[q], t);
+      group_hi[q] = std::max(group_hi[q], t);
+    }
+  }
+  auto goes_on_along_trace = [&](int q) {
+    return seen_lo[q] <= group_lo[q] + reach && seen_hi[q] >= group_hi[q] - reach;
+  };
+  int open = 0;  // the near sides not known to go on yet by both measures: bit q
   for (int q = 0; q < 6; ++q) open |= near[q] ? 1 << q : 0;
   // The open sides that x lies beyond, within reach: bit 2 k (2 k + 1) for k's low (high) side.
   auto beyond = [&](const glm::vec3& x) {
@@ -872,7 +903,10 @@ Bounds SheetCell(const Bounds& cell, uint32_t leaf, const SurfelGroup& gr, const
         for (int q = 0; q < 6; ++q) {
           if (!(sides & (1 << q))) continue;
           seen[q].Extend(b.position);
-          if (goes_on(q)) open &= ~(1 << q);
+          const float t = glm::dot(trace[q], b.position);
+          seen_lo[q] = std::min(seen_lo[q], t);
+          seen_hi[q] = std::max(seen_hi[q], t);
+          if (goes_on(q) && goes_on_along_trace(q)) open &= ~(1 << q);
         }
         break;
       }
@@ -880,14 +914,18 @@ Bounds SheetCell(const Bounds& cell, uint32_t leaf, const SurfelGroup& gr, const
     return open != 0;
   });
   constexpr float kFar = std::numeric_limits<float>::max();
-  Bounds out = cell;
-  bool snaps = false;
-  for (int q = 0; q < 6; ++q) {
-    const bool on = near[q] && goes_on(q);
-    snaps = snaps || on;
-    if (!on) (q % 2 == 0 ? out.lo : out.hi)[q / 2] = q % 2 == 0 ? -kFar : kFar;
-  }
-  return snaps ? out : Bounds{};
+  auto sides = [&](auto&& on_side) {
+    Bounds out = cell;
+    bool snaps = false;
+    for (int q = 0; q < 6; ++q) {
+      const bool on = near[q] && on_side(q);
+      snaps = snaps || on;
+      if (!on) (q % 2 == 0 ? out.lo : out.hi)[q / 2] = q % 2 == 0 ? -kFar : kFar;
+    }
+    return snaps ? out : Bounds{};
+  };
+  *along_traces = sides(goes_on_along_trace);
+  return sides(goes_on);
 }
 
 // The trace of world axis k's direction `sign` on the plane of unit `normal`, as a unit vector
@@ -1292,14 +1330,22 @@ bool Rasterizer::ClusterHidden(const Cluster& c, const PreparedSplat& s) const {
   return BoxClosed(box.lo, box.hi, s.depth);
 }
 
+// At most this share of a cluster's area seen (its projected area towards the receiver) is the
+// moments' own residual from behind (docs/design.md, "Radiance of axis-aligned content": up to
+// 0.06 of a face seen from behind, 0.094 edge-on); more is content that faces the receiver.
+constexpr float kBackResidual = 0.1f;
 // Whether a flat one-sided cluster shows the receiver (at `origin`) the backs of its surfels:
 // the receiver lies behind its mean plane (through the box centre, s.plane), beyond the box's
-// thickness along the normal, on the side that `sides` does not draw. What it shows there is
-// only what turns towards the receiver, as much as its projected area says; its plane does
-// not fill its cell (docs/design.md, "One-sided sheets seen from behind").
+// thickness along the normal, on the side that `sides` does not draw, and its projected area
+// towards the receiver (`seen`) is no more than the moments' residual. What it shows there is
+// only what turns towards the receiver, as much as that area says; its plane does not fill its
+// cell (docs/design.md, "One-sided sheets seen from behind").
 namespace {
-bool ShowsBacks(const Cluster& c, const PreparedSplat& s, const glm::vec3& origin, HitSides sides) {
-  if (sides == HitSides::kBoth || !(-s.plane > s.thick)) return false;
+bool ShowsBacks(const Cluster& c, const PreparedSplat& s, float seen, const glm::vec3& origin,
+                HitSides sides) {
+  if (sides == HitSides::kBoth || !(-s.plane > s.thick) || !(seen < kBackResidual * c.area)) {
+    return false;
+  }
   const glm::vec3 ns = sh::AreaAndNormalSum(c.sh_area.data()).normal_sum;
   const float towards = glm::dot(ns, 0.5f * (c.bounds.lo + c.bounds.hi) - origin);
   return sides == HitSides::kFront ? towards > 0.0f : towards < 0.0f;
@@ -1343,8 +1389,9 @@ bool Rasterizer::BuildClusterFootprint(const Cluster& c, PreparedSplat& s) {
       const float seen = s.omega * s.depth * s.depth;
       const glm::vec3 mean_world = s.normal.x * t_ + s.normal.y * b_ + s.normal.z * n_;
       Polygon p;
-      const float alpha = FlatFootprint(c.bounds, c.cell, spacing, mean_world, s.plane, origin_,
-                                        seen / cosw, ShowsBacks(c, s, origin_, o_.hitsides), &p);
+      const float alpha =
+          FlatFootprint(c.bounds, c.cell, spacing, mean_world, s.plane, origin_, seen / cosw,
+                        ShowsBacks(c, s, seen, origin_, o_.hitsides), &p);
       if (p.n < 3) return true;  // keeps the cone splat
       s.alpha = alpha;
       AddPolygon(p, &s);
@@ -1668,13 +1715,17 @@ void Rasterizer::PrepareSurfelGroups(const Gathered& g, ShadeResult* out) {
       // unless it is alone in its cell and its sheet goes on in three or more directions: then
       // it is a piece of one surface that the sampling left two surfels in (`one_sheet`, the
       // opacity rule below; in two, a pair at a disk's rim over-occluded).
+      Bounds along_traces;  // the sides it goes on past, judged along their traces
       const Bounds sheet_cell = first.two_sided && leaves && count >= 2
                                     ? SheetCell(cell, g.surfel_leaf[order[end - 1]], gr, g,
-                                                &order[end - count], leaf_runs())
+                                                &order[end - count], leaf_runs(), &along_traces)
                                     : Bounds{};
+      const bool alone = groups.size() == 1;
       const bool one_sheet =
-          groups.size() == 1 && !sheet_cell.Empty() &&
+          alone && !sheet_cell.Empty() &&
           GoingOnDirections(sheet_cell, normal) >= (count >= kSheetMinCount ? 2 : 3);
+      const bool surrounded = alone && count >= kSheetMinCount && !along_traces.Empty() &&
+                              GoingOnDirections(along_traces, normal) >= 4;
       const Bounds snap_to = !first.two_sided                       ? contact_cell
                              : count >= kSheetMinCount || one_sheet ? sheet_cell
                                                                     : Bounds{};
@@ -1718,6 +1769,13 @@ void Rasterizer::PrepareSurfelGroups(const Gathered& g, ShadeResult* out) {
         // the section is a poorer outline and the count keeps hedging it (docs/design.md,
         // "Two-sided sheets across their cells").
         if (one_sheet && alpha < 1.0f && few_surfels_wide()) alpha = 1.0f;
+        // One whose sheet goes on in four directions, all around it, is opaque however wide:
+        // no side of it ends in the cell, and its count under its section's area is the
+        // sampling's noise (a sheet over Wuson.ply's receiver in a slot, 15 surfels where 20
+        // fit: 0.62 over its section, rays 1.0; bug:
+        // surrounded_sheet_pieces_translucent_by_their_count). Judged along the sides' traces
+        // (SheetCell's `along_traces`); the footprint keeps the sides judged along the axes.
+        if (surrounded && alpha < 1.0f) alpha = 1.0f;
       }
       // Clipped at a convex edge, the polygon loses only what lay past the edge, where the
       // surface is not: its content covers that much more of what is left.
