@@ -296,30 +296,19 @@ constexpr float kTurnedSliver = 1.5f;
 
 // The faces of a turned edge: planes {dot(normal[f], x) = offset[f]} (x relative to the
 // footprint box's centre), each face its plane inside the box on the solid's side of the other
-// planes (behind them where the edge is convex, in front where it is concave).
+// planes (behind them where the edge is convex, in front where it is concave). The sides come
+// first, the cap (if any) last.
 struct TurnedModel {
-  int count = 0;
+  int count = 0, sides = 0, k = 2;  // k: the turn axis
+  bool cap = false, convex = true;
   glm::vec3 normal[3];
+  glm::vec2 across[2];  // the sides' normals in the plane across k: axes k + 1, k + 2
   float area[3];
   float offset[3];
-  bool convex = true;
   glm::vec3 centre{0.0f};        // the footprint box's centre
   glm::vec3 lo{0.0f}, hi{0.0f};  // the footprint box, relative to its centre
   Polygon poly[3];               // the faces' polygons (TurnedFacePolygon), relative to it
 };
-
-// Face f's polygon: its plane inside the box, cut by the other faces' planes.
-void TurnedFacePolygon(const TurnedModel& t, int f, Polygon* p) {
-  PlaneBoxPolygon(t.normal[f], t.offset[f], t.lo, t.hi, p);
-  for (int g = 0; g < t.count && p->n >= 3; ++g) {
-    if (g == f) continue;
-    if (t.convex) {
-      ClipHalfSpace(-t.normal[g], -t.offset[g], p);
-    } else {
-      ClipHalfSpace(t.normal[g], t.offset[g], p);
-    }
-  }
-}
 
 // The chord of the line {p : dot(e, p) = d}, p = d e + t u (u the unit normal's perpendicular),
 // across the rectangle [lo, hi]: t in [*t0, *t1] (empty when *t0 > *t1; piecewise linear and
@@ -338,35 +327,107 @@ void Chord(const glm::vec2& e, const glm::vec2& u, float d, const glm::vec2& lo,
   *t1 = b;
 }
 
-// The area of the rectangle [lo, hi] on the side of the line {p : dot(e, p) = d} that `sign`
-// says (dot(e, p) <= d for +1, >= d for -1): one clip of four corners (Sutherland-Hodgman) and
-// the shoelace sum.
-float RectangleCutArea(const glm::vec2& lo, const glm::vec2& hi, const glm::vec2& e, float d,
-                       float sign) {
-  const glm::vec2 corner[4] = {lo, {hi.x, lo.y}, hi, {lo.x, hi.y}};
-  glm::vec2 kept[5];
-  int n = 0;
-  for (int v = 0; v < 4; ++v) {
-    const glm::vec2 a = corner[v], b = corner[(v + 1) % 4];
-    const float fa = sign * (d - glm::dot(e, a)), fb = sign * (d - glm::dot(e, b));
-    if (fa >= 0.0f) kept[n++] = a;
-    if ((fa >= 0.0f) != (fb >= 0.0f)) kept[n++] = a + (fa / (fa - fb)) * (b - a);
+// Clips the convex polygon q[0, n) of the plane to the side of the line {p : dot(e, p) = d}
+// that `keep` says (dot(e, p) <= d for +1, >= d for -1), into out (n + 1 vertices at most),
+// one pass of Sutherland-Hodgman; returns the count.
+int ClipToLine(const glm::vec2* q, int n, const glm::vec2& e, float d, float keep, glm::vec2* out) {
+  int m = 0;
+  for (int v = 0; v < n; ++v) {
+    const glm::vec2 a = q[v], b = q[(v + 1) % n];
+    const float fa = keep * (d - glm::dot(e, a)), fb = keep * (d - glm::dot(e, b));
+    if (fa >= 0.0f) out[m++] = a;
+    if ((fa >= 0.0f) != (fb >= 0.0f)) out[m++] = a + (fa / (fa - fb)) * (b - a);
   }
+  return m;
+}
+
+// The area of the polygon q[0, n) of the plane (the shoelace sum).
+float PlaneArea(const glm::vec2* q, int n) {
   float twice = 0.0f;
   for (int v = 0; v < n; ++v) {
-    const glm::vec2 a = kept[v], b = kept[(v + 1) % n];
+    const glm::vec2 a = q[v], b = q[(v + 1) % n];
     twice += a.x * b.y - a.y * b.x;
   }
   return 0.5f * std::fabs(twice);
 }
 
-// A root of phi in [a, b]: the first sign change of 16 samples, refined by the Illinois rule
-// (phi is piecewise linear with a few kinks). Where phi keeps its sign (the areas, sampled, ask
-// a little more than the box holds), the first sample nearest to 0; the caller checks the
-// faces' areas.
+// The cap's section in the plane across k: the box's rectangle [lo, hi] on the solid's side of
+// the first `sides` sides' lines, into q (at most 6 vertices); returns the count.
+int CapSection(const TurnedModel& t, int sides, const glm::vec2& lo, const glm::vec2& hi,
+               glm::vec2 q[6]) {
+  glm::vec2 r[6] = {lo, {hi.x, lo.y}, hi, {lo.x, hi.y}};
+  int n = 4;
+  const float keep = t.convex ? 1.0f : -1.0f;
+  for (int g = 0; g < sides && n >= 3; ++g) {
+    n = ClipToLine(r, n, t.across[g], t.offset[g], keep, q);
+    std::copy(q, q + n, r);
+  }
+  std::copy(r, r + n, q);
+  return n;
+}
+
+// Face f's polygon (relative to the box's centre) into p, and its area. A side is a rectangle:
+// its chord of the box's rectangle across k, ended by the other side's line, times the box's
+// extent along k, ended by the cap's plane; the cap is its section (CapSection) at its level.
+float TurnedFacePolygon(const TurnedModel& t, int f, Polygon* p) {
+  const int k = t.k, i = (k + 1) % 3, j = (k + 2) % 3;
+  const glm::vec2 lo(t.lo[i], t.lo[j]), hi(t.hi[i], t.hi[j]);
+  // The solid's side of a plane: dot(n, x) <= offset (convex) or >= (concave).
+  const float keep = t.convex ? 1.0f : -1.0f;
+  auto lift = [&](const glm::vec2& q, float z) {
+    glm::vec3 x;
+    x[i] = q.x, x[j] = q.y, x[k] = z;
+    return x;
+  };
+  p->n = 0;
+  if (f < t.sides) {
+    const glm::vec2 e = t.across[f], u(-e.y, e.x);
+    float t0, t1;
+    Chord(e, u, t.offset[f], lo, hi, &t0, &t1);
+    if (t.sides == 2) {
+      // On the chord dot(e_g, p) = s t, s = +-1 (the sides are at right angles).
+      const int g = 1 - f;
+      const float s = glm::dot(t.across[g], u) > 0.0f ? 1.0f : -1.0f;
+      if (keep * s > 0.0f) {
+        t1 = std::min(t1, s * t.offset[g]);
+      } else {
+        t0 = std::max(t0, s * t.offset[g]);
+      }
+    }
+    float z0 = t.lo[k], z1 = t.hi[k];
+    if (t.cap) {
+      const float nk = t.normal[t.count - 1][k], at = nk * t.offset[t.count - 1];
+      if (keep * nk > 0.0f) {
+        z1 = std::min(z1, at);
+      } else {
+        z0 = std::max(z0, at);
+      }
+    }
+    if (!(t1 > t0) || !(z1 > z0)) return 0.0f;
+    const glm::vec2 base = t.offset[f] * e;
+    p->n = 4;
+    p->v[0] = lift(base + t0 * u, z0);
+    p->v[1] = lift(base + t1 * u, z0);
+    p->v[2] = lift(base + t1 * u, z1);
+    p->v[3] = lift(base + t0 * u, z1);
+    return (t1 - t0) * (z1 - z0);
+  }
+  glm::vec2 q[6];
+  const int n = CapSection(t, t.sides, lo, hi, q);
+  if (n < 3) return 0.0f;
+  const float at = t.normal[f][k] * t.offset[f];
+  p->n = n;
+  for (int v = 0; v < n; ++v) p->v[v] = lift(q[v], at);
+  return PlaneArea(q, n);
+}
+
+// A root of phi in [a, b] (to |phi| <= ftol): the first sign change of 8 samples, refined by
+// the Illinois rule (phi is piecewise linear or quadratic with a few kinks). Where phi keeps its
+// sign (the areas, sampled, ask a little more than the box holds), the first sample nearest to 0;
+// the caller checks the faces' areas.
 template <typename Phi>
-void TurnedRoot(const Phi& phi, float a, float b, float* root) {
-  constexpr int kSamples = 16;
+void TurnedRoot(const Phi& phi, float a, float b, float ftol, float* root) {
+  constexpr int kSamples = 8;
   float x0 = a, f0 = phi(a);
   *root = a;
   float nearest = std::fabs(f0);
@@ -379,11 +440,11 @@ void TurnedRoot(const Phi& phi, float a, float b, float* root) {
     if ((f0 < 0.0f) != (f1 < 0.0f)) {
       float lo = x0, flo = f0, hi = x1, fhi = f1;
       int side = 0;
-      for (int it = 0; it < 40; ++it) {
+      for (int it = 0; it < 24; ++it) {
         const float x = (lo * fhi - hi * flo) / (fhi - flo);
         if (!(x > std::min(lo, hi) && x < std::max(lo, hi))) break;
         const float fx = phi(x);
-        if (fx == 0.0f || std::fabs(hi - lo) < 1e-6f * std::fabs(b - a)) {
+        if (std::fabs(fx) <= ftol || std::fabs(hi - lo) < 1e-4f * std::fabs(b - a)) {
           lo = hi = x;
           break;
         }
@@ -482,6 +543,11 @@ bool TurnedFaceModel(const Cluster& c, const Bounds* footprint_box, float spacin
   t->hi = box.hi - o;
   if (!(t->hi.x > 0.0f) || !(t->hi.y > 0.0f) || !(t->hi.z > 0.0f)) return false;
   t->count = 0;
+  t->k = k;
+  t->sides = sides;
+  t->cap = cap > 0.0f;
+  t->across[0] = e1;
+  t->across[1] = e2;
   auto add = [&](const glm::vec3& n, float area) {
     t->normal[t->count] = n;
     t->area[t->count] = area;
@@ -563,16 +629,20 @@ bool TurnedFaceModel(const Cluster& c, const Bounds* footprint_box, float spacin
       return (cv ? s0 + l2 : s1 - l2) - d1;
     };
     float d1;
-    TurnedRoot(phi, d_lo, d_hi, &d1);
+    TurnedRoot(phi, d_lo, d_hi, 1e-3f * spacing, &d1);
     t->offset[0] = d1;
     t->offset[1] = d2_of(d1);
   } else {
     // One side and the cap: the side's offset from the cap's area (monotonic in it), the
-    // part of the box's rectangle behind the side's plane (convex) or in front of it.
-    const float sign = t->convex ? 1.0f : -1.0f, cap_area = t->area[t->count - 1];
-    auto phi = [&](float d1) { return RectangleCutArea(lo, hi, e1, d1, sign) - cap_area; };
+    // part of the box's rectangle behind the side's line (convex) or in front of it.
+    const float cap_area = t->area[t->count - 1];
+    auto phi = [&](float d1) {
+      t->offset[0] = d1;
+      glm::vec2 q[6];
+      return PlaneArea(q, CapSection(*t, 1, lo, hi, q)) - cap_area;
+    };
     float d1;
-    TurnedRoot(phi, d_lo, d_hi, &d1);
+    TurnedRoot(phi, d_lo, d_hi, 1e-3f * cap_area, &d1);
     t->offset[0] = d1;
   }
   // Every face's polygon must hold its content's area, and together they must reach the
@@ -580,9 +650,8 @@ bool TurnedFaceModel(const Cluster& c, const Bounds* footprint_box, float spacin
   Bounds drawn;
   for (int a = 0; a < t->count; ++a) {
     Polygon& p = t->poly[a];
-    TurnedFacePolygon(*t, a, &p);
+    const float area = TurnedFacePolygon(*t, a, &p);
     if (p.n < 3) return false;
-    const double area = PolygonArea(p);
     if (std::fabs(area - t->area[a]) > kTurnedFit * t->area[a] + spacing * spacing) return false;
     for (int v = 0; v < p.n; ++v) drawn.Extend(p.v[v] + o);
   }
