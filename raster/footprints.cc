@@ -23,6 +23,7 @@
 #include "absl/container/inlined_vector.h"
 #include "base/math.h"
 #include "glm/geometric.hpp"
+#include "glm/vec2.hpp"
 #include "pbgi/sh.h"
 #include "raster/polygon.h"
 #include "raster/rasterizer.h"
@@ -176,9 +177,12 @@ bool CellHolds(const Bounds& cell, const Bounds& b) {
 //   faces fill their sides (a room's corner, a box's edge), BoxFaces and the box's silhouette
 //   draw it.
 // Writes the faces that the receiver at `origin` sees from the front (up to three) into
-// `out`, relative to it, and returns their count; -1 when the content is not such an edge, or
-// a face would be drawn larger than its content.
+// `out`, relative to it, and returns their count; -1 when the content's normals are not along
+// two or three world axes, one way each, and kAlongAxes when they are but the content is not
+// such an edge, or a face would be drawn larger than its content (TurnedFaces then has nothing
+// to add).
 constexpr float kEdgeFaceFill = 0.9f;
+constexpr int kAlongAxes = -2;
 int EdgeFaces(const Cluster& c, const Bounds* footprint_box, float spacing, const glm::vec3& origin,
               HitSides sides, Polygon out[3]) {
   // With hitsides back the faces' fronts do not occlude: the box's silhouette, as before.
@@ -197,12 +201,13 @@ int EdgeFaces(const Cluster& c, const Bounds* footprint_box, float spacing, cons
   if (std::fabs(m[3]) > tol || std::fabs(m[4]) > tol || std::fabs(m[5]) > tol) return -1;
   float off = 0.0f;
   for (int a = 0; a < 3; ++a) off += std::fabs(std::fabs(f.normal_sum[a]) - m[a]);
-  if (off > tol || !CellHolds(c.cell, c.bounds)) return -1;
+  if (off > tol) return -1;
+  if (!CellHolds(c.cell, c.bounds)) return kAlongAxes;
   const Bounds box = footprint_box != nullptr
                          ? *footprint_box
                          : FootprintBox(c.bounds, c.cell, spacing, glm::vec3(0.0f), nullptr);
   const glm::vec3 ext = box.hi - box.lo;
-  if (!(ext.x > 0.0f) || !(ext.y > 0.0f) || !(ext.z > 0.0f)) return -1;
+  if (!(ext.x > 0.0f) || !(ext.y > 0.0f) || !(ext.z > 0.0f)) return kAlongAxes;
   float sign[3], edge[3] = {0.0f, 0.0f, 0.0f};
   bool to_hi[3] = {false, false, false};
   int behind = 0;
@@ -220,7 +225,7 @@ int EdgeFaces(const Cluster& c, const Bounds* footprint_box, float spacing, cons
       to_hi[a] = sign[a] < 0.0f;
     }
   } else {
-    if (faces != 2) return -1;
+    if (faces != 2) return kAlongAxes;
     const int k = !face[0] ? 0 : (!face[1] ? 1 : 2);
     const int i = (k + 1) % 3, j = (k + 2) % 3;
     // How far each face reaches across the other's axis.
@@ -228,9 +233,9 @@ int EdgeFaces(const Cluster& c, const Bounds* footprint_box, float spacing, cons
     len[j] = std::fabs(f.normal_sum[i]) / ext[k];
     len[i] = std::fabs(f.normal_sum[j]) / ext[k];
     if (len[i] > (2.0f - kEdgeFaceFill) * ext[i] || len[j] > (2.0f - kEdgeFaceFill) * ext[j]) {
-      return -1;
+      return kAlongAxes;
     }
-    if (len[i] >= kEdgeFaceFill * ext[i] && len[j] >= kEdgeFaceFill * ext[j]) return -1;
+    if (len[i] >= kEdgeFaceFill * ext[i] && len[j] >= kEdgeFaceFill * ext[j]) return kAlongAxes;
     // The a face's plane is at the end of the centres' box that the other face leaves: its
     // centres all lie in it.
     for (int a : {i, j}) {
@@ -243,7 +248,7 @@ int EdgeFaces(const Cluster& c, const Bounds* footprint_box, float spacing, cons
     if (!face[a]) continue;
     if (!(sign[a] * (origin[a] - edge[a]) > 0.0f)) {
       // Seen from behind: nothing with front; with back or both, the box's silhouette.
-      if (sides != HitSides::kFront) return -1;
+      if (sides != HitSides::kFront) return kAlongAxes;
       continue;
     }
     // The face's extent along the other two axes: from another face's plane away from its
@@ -258,7 +263,7 @@ int EdgeFaces(const Cluster& c, const Bounds* footprint_box, float spacing, cons
     // A face drawn larger than its content (a wall that ends inside the box) would be drawn
     // opaque over what it does not cover.
     if ((hi[b] - lo[b]) * (hi[d] - lo[d]) * kEdgeFaceFill > std::fabs(f.normal_sum[a])) {
-      return -1;
+      return kAlongAxes;
     }
     Polygon& p = out[n++];
     p.n = 4;
@@ -271,6 +276,413 @@ int EdgeFaces(const Cluster& c, const Bounds* footprint_box, float spacing, cons
       x[d] = ds[v];
       p.v[v] = x - origin;
     }
+  }
+  return n;
+}
+
+// Turned edges drawn as their faces (docs/design.md, "Turned edges drawn as their faces"): a
+// solid cluster whose content is two or three faces of a box turned about one world axis k
+// (cornell's blocks, a mesh's box-like parts standing on a floor): up to two sides, their
+// normals across k and at right angles to each other, and a cap along k, one way each.
+// kTurnedMargin: the edge lies this many spacings farther (on average over the pair's normal)
+// from the cell's sides at its end than the faces' other ends do, or which end is the edge is not
+// known. kTurnedFit: a face's polygon holds its content's area to this share (and a surfel's
+// area), or the model does not hold.
+constexpr float kTurnedMargin = 1.0f;
+constexpr float kTurnedFit = 0.15f;
+// A side whose area is less than this many surfels' is left out of the model when a cap and
+// another side remain (TurnedFaceModel).
+constexpr float kTurnedSliver = 1.5f;
+
+// The faces of a turned edge: planes {dot(normal[f], x) = offset[f]} (x relative to the
+// footprint box's centre), each face its plane inside the box on the solid's side of the other
+// planes (behind them where the edge is convex, in front where it is concave). The sides come
+// first, the cap (if any) last.
+struct TurnedModel {
+  int count = 0, sides = 0, k = 2;  // k: the turn axis
+  bool cap = false, convex = true;
+  glm::vec3 normal[3];
+  glm::vec2 across[2];  // the sides' normals in the plane across k: axes k + 1, k + 2
+  float area[3];
+  float offset[3];
+  glm::vec3 centre{0.0f};        // the footprint box's centre
+  glm::vec3 lo{0.0f}, hi{0.0f};  // the footprint box, relative to its centre
+  Polygon poly[3];               // the faces' polygons (TurnedFacePolygon), relative to it
+};
+
+// The chord of the line {p : dot(e, p) = d}, p = d e + t u (u the unit normal's perpendicular),
+// across the rectangle [lo, hi]: t in [*t0, *t1] (empty when *t0 > *t1; piecewise linear and
+// continuous in d either way).
+void Chord(const glm::vec2& e, const glm::vec2& u, float d, const glm::vec2& lo,
+           const glm::vec2& hi, float* t0, float* t1) {
+  float a = -std::numeric_limits<float>::infinity(), b = -a;
+  for (int k = 0; k < 2; ++k) {
+    if (u[k] == 0.0f) continue;
+    float x = (lo[k] - d * e[k]) / u[k], y = (hi[k] - d * e[k]) / u[k];
+    if (x > y) std::swap(x, y);
+    a = std::max(a, x);
+    b = std::min(b, y);
+  }
+  *t0 = a;
+  *t1 = b;
+}
+
+// Clips the convex polygon q[0, n) of the plane to the side of the line {p : dot(e, p) = d}
+// that `keep` says (dot(e, p) <= d for +1, >= d for -1), into out (n + 1 vertices at most),
+// one pass of Sutherland-Hodgman; returns the count.
+int ClipToLine(const glm::vec2* q, int n, const glm::vec2& e, float d, float keep, glm::vec2* out) {
+  int m = 0;
+  for (int v = 0; v < n; ++v) {
+    const glm::vec2 a = q[v], b = q[(v + 1) % n];
+    const float fa = keep * (d - glm::dot(e, a)), fb = keep * (d - glm::dot(e, b));
+    if (fa >= 0.0f) out[m++] = a;
+    if ((fa >= 0.0f) != (fb >= 0.0f)) out[m++] = a + (fa / (fa - fb)) * (b - a);
+  }
+  return m;
+}
+
+// The area of the polygon q[0, n) of the plane (the shoelace sum).
+float PlaneArea(const glm::vec2* q, int n) {
+  float twice = 0.0f;
+  for (int v = 0; v < n; ++v) {
+    const glm::vec2 a = q[v], b = q[(v + 1) % n];
+    twice += a.x * b.y - a.y * b.x;
+  }
+  return 0.5f * std::fabs(twice);
+}
+
+// The cap's section in the plane across k: the box's rectangle [lo, hi] on the solid's side of
+// the first `sides` sides' lines, into q (at most 6 vertices); returns the count.
+int CapSection(const TurnedModel& t, int sides, const glm::vec2& lo, const glm::vec2& hi,
+               glm::vec2 q[6]) {
+  glm::vec2 r[6] = {lo, {hi.x, lo.y}, hi, {lo.x, hi.y}};
+  int n = 4;
+  const float keep = t.convex ? 1.0f : -1.0f;
+  for (int g = 0; g < sides && n >= 3; ++g) {
+    n = ClipToLine(r, n, t.across[g], t.offset[g], keep, q);
+    std::copy(q, q + n, r);
+  }
+  std::copy(r, r + n, q);
+  return n;
+}
+
+// Face f's polygon (relative to the box's centre) into p, and its area. A side is a rectangle:
+// its chord of the box's rectangle across k, ended by the other side's line, times the box's
+// extent along k, ended by the cap's plane; the cap is its section (CapSection) at its level.
+float TurnedFacePolygon(const TurnedModel& t, int f, Polygon* p) {
+  const int k = t.k, i = (k + 1) % 3, j = (k + 2) % 3;
+  const glm::vec2 lo(t.lo[i], t.lo[j]), hi(t.hi[i], t.hi[j]);
+  // The solid's side of a plane: dot(n, x) <= offset (convex) or >= (concave).
+  const float keep = t.convex ? 1.0f : -1.0f;
+  auto lift = [&](const glm::vec2& q, float z) {
+    glm::vec3 x;
+    x[i] = q.x, x[j] = q.y, x[k] = z;
+    return x;
+  };
+  p->n = 0;
+  if (f < t.sides) {
+    const glm::vec2 e = t.across[f], u(-e.y, e.x);
+    float t0, t1;
+    Chord(e, u, t.offset[f], lo, hi, &t0, &t1);
+    if (t.sides == 2) {
+      // On the chord dot(e_g, p) = s t, s = +-1 (the sides are at right angles).
+      const int g = 1 - f;
+      const float s = glm::dot(t.across[g], u) > 0.0f ? 1.0f : -1.0f;
+      if (keep * s > 0.0f) {
+        t1 = std::min(t1, s * t.offset[g]);
+      } else {
+        t0 = std::max(t0, s * t.offset[g]);
+      }
+    }
+    float z0 = t.lo[k], z1 = t.hi[k];
+    if (t.cap) {
+      const float nk = t.normal[t.count - 1][k], at = nk * t.offset[t.count - 1];
+      if (keep * nk > 0.0f) {
+        z1 = std::min(z1, at);
+      } else {
+        z0 = std::max(z0, at);
+      }
+    }
+    if (!(t1 > t0) || !(z1 > z0)) return 0.0f;
+    const glm::vec2 base = t.offset[f] * e;
+    p->n = 4;
+    p->v[0] = lift(base + t0 * u, z0);
+    p->v[1] = lift(base + t1 * u, z0);
+    p->v[2] = lift(base + t1 * u, z1);
+    p->v[3] = lift(base + t0 * u, z1);
+    return (t1 - t0) * (z1 - z0);
+  }
+  glm::vec2 q[6];
+  const int n = CapSection(t, t.sides, lo, hi, q);
+  if (n < 3) return 0.0f;
+  const float at = t.normal[f][k] * t.offset[f];
+  p->n = n;
+  for (int v = 0; v < n; ++v) p->v[v] = lift(q[v], at);
+  return PlaneArea(q, n);
+}
+
+// A root of phi in [a, b] (to |phi| <= ftol): the first sign change of 8 samples, refined by
+// the Illinois rule (phi is piecewise linear or quadratic with a few kinks). Where phi keeps its
+// sign (the areas, sampled, ask a little more than the box holds), the first sample nearest to 0;
+// the caller checks the faces' areas.
+template <typename Phi>
+void TurnedRoot(const Phi& phi, float a, float b, float ftol, float* root) {
+  constexpr int kSamples = 8;
+  float x0 = a, f0 = phi(a);
+  *root = a;
+  float nearest = std::fabs(f0);
+  for (int s = 1; s <= kSamples; ++s) {
+    const float x1 = a + (b - a) * static_cast<float>(s) / kSamples, f1 = phi(x1);
+    if (f0 == 0.0f) {
+      *root = x0;
+      return;
+    }
+    if ((f0 < 0.0f) != (f1 < 0.0f)) {
+      float lo = x0, flo = f0, hi = x1, fhi = f1;
+      int side = 0;
+      for (int it = 0; it < 24; ++it) {
+        const float x = (lo * fhi - hi * flo) / (fhi - flo);
+        if (!(x > std::min(lo, hi) && x < std::max(lo, hi))) break;
+        const float fx = phi(x);
+        if (std::fabs(fx) <= ftol || std::fabs(hi - lo) < 1e-4f * std::fabs(b - a)) {
+          lo = hi = x;
+          break;
+        }
+        if ((fx < 0.0f) == (flo < 0.0f)) {
+          lo = x, flo = fx;
+          if (side == -1) fhi *= 0.5f;
+          side = -1;
+        } else {
+          hi = x, fhi = fx;
+          if (side == 1) flo *= 0.5f;
+          side = 1;
+        }
+      }
+      *root = 0.5f * (lo + hi);
+      return;
+    }
+    if (std::fabs(f1) < nearest - 1e-4f * std::fabs(b - a)) nearest = std::fabs(f1), *root = x1;
+    x0 = x1, f0 = f1;
+  }
+}
+
+// The turned faces of cluster c (flat or not) in its footprint box (`footprint_box`, or
+// FootprintBox's when null, computed only once the moments qualify), when its moments say
+// they are the faces of a box turned about one world axis and the faces' areas place them in
+// the box (the caller's docs/design.md rule); false otherwise. Content along the world axes is
+// left to BoxFaces and EdgeFaces.
+bool TurnedFaceModel(const Cluster& c, const Bounds* footprint_box, float spacing, TurnedModel* t) {
+  const sh::FirstMoments f = sh::AreaAndNormalSum(c.sh_area.data());
+  const float tol = kBoxFaceTolerance * f.area;
+  // One face (or nearly): a plane, drawn as such.
+  if (glm::dot(f.normal_sum, f.normal_sum) > (1.0f - 2.0f * kBoxFaceTolerance) * f.area * f.area) {
+    return false;
+  }
+  const std::array<float, 6> m = sh::SecondMoment(c.sh_area.data());
+  auto mm = [&](int a, int b) {
+    if (a == b) return m[a];
+    const int s = a + b;
+    return s == 1 ? m[3] : (s == 3 ? m[4] : m[5]);
+  };
+  float off = 0.0f;
+  for (int a = 0; a < 3; ++a) off += std::fabs(std::fabs(f.normal_sum[a]) - m[a]);
+  if (off <= tol && std::fabs(m[3]) <= tol && std::fabs(m[4]) <= tol && std::fabs(m[5]) <= tol) {
+    return false;  // along the world axes
+  }
+  // The turn axis k: an eigenvector of M with the cap's area, one way, as its eigenvalue. In
+  // the plane across it, two faces at right angles with areas A1, A2 and unit normals e1, e2
+  // have A1 + A2 = M_ii + M_jj and A1^2 + A2^2 = |N_ij|^2, which gives the areas; N_ij = A1 e1 +
+  // A2 e2 then gives the normals up to a mirror, and M's in-plane part picks the one that it
+  // holds (within the tolerance, or the content is not such faces).
+  int k = -1;
+  float best = tol;
+  glm::vec2 e1(0.0f), e2(0.0f);
+  float a1 = 0.0f, a2 = 0.0f;
+  for (int kk = 0; kk < 3; ++kk) {
+    const int i = (kk + 1) % 3, j = (kk + 2) % 3;
+    if (std::fabs(mm(i, kk)) > tol || std::fabs(mm(j, kk)) > tol) continue;
+    if (std::fabs(std::fabs(f.normal_sum[kk]) - m[kk]) > tol) continue;
+    const float tr = m[i] + m[j];
+    const glm::vec2 n(f.normal_sum[i], f.normal_sum[j]);
+    const float nl = glm::length(n);
+    if (!(tr > tol) || !(nl > tol)) continue;
+    const float disc = 2.0f * nl * nl - tr * tr;
+    if (disc < -2.0f * tol * tr) continue;  // normals that cancel: not one way each
+    const float big = 0.5f * (tr + std::sqrt(std::max(0.0f, disc))), small = tr - big;
+    const glm::vec2 nh = n / nl, p(-nh.y, nh.x);
+    const float ca = std::min(1.0f, big / nl), sa = std::sqrt(std::max(0.0f, 1.0f - ca * ca));
+    for (float sign : {1.0f, -1.0f}) {
+      const glm::vec2 u = ca * nh + sign * sa * p;
+      // The second side's normal: u's perpendicular on the side of what N leaves.
+      glm::vec2 v(-u.y, u.x);
+      if (glm::dot(v, n - big * u) < 0.0f) v = -v;
+      const float bii = big * u.x * u.x + small * v.x * v.x;
+      const float bjj = big * u.y * u.y + small * v.y * v.y;
+      const float bij = big * u.x * u.y + small * v.x * v.y;
+      const float r = std::fabs((bii - bjj) - (m[i] - m[j])) + 2.0f * std::fabs(bij - mm(i, j));
+      if (r <= best) {
+        best = r, k = kk, e1 = u, e2 = v, a1 = big, a2 = small > tol ? small : 0.0f;
+      }
+    }
+  }
+  if (k < 0) return false;
+  const int i = (k + 1) % 3, j = (k + 2) % 3;
+  const float cap = std::fabs(f.normal_sum[k]) > tol ? std::fabs(f.normal_sum[k]) : 0.0f;
+  // A side of a surfel's area or so is a sliver across the cell's side whose sampled area
+  // (a whole surfel where the sliver holds a part of one) would move the edge: left out.
+  if (a2 > 0.0f && a2 < kTurnedSliver * spacing * spacing && cap > 0.0f) a2 = 0.0f;
+  const int sides = a2 > 0.0f ? 2 : 1;
+  if (sides + (cap > 0.0f ? 1 : 0) < 2) return false;
+  if (!CellHolds(c.cell, c.bounds)) return false;
+  const Bounds box = footprint_box != nullptr
+                         ? *footprint_box
+                         : FootprintBox(c.bounds, c.cell, spacing, glm::vec3(0.0f), nullptr);
+  const glm::vec3 o = 0.5f * (box.lo + box.hi);
+  t->centre = o;
+  t->lo = box.lo - o;
+  t->hi = box.hi - o;
+  if (!(t->hi.x > 0.0f) || !(t->hi.y > 0.0f) || !(t->hi.z > 0.0f)) return false;
+  t->count = 0;
+  t->k = k;
+  t->sides = sides;
+  t->cap = cap > 0.0f;
+  t->across[0] = e1;
+  t->across[1] = e2;
+  auto add = [&](const glm::vec3& n, float area) {
+    t->normal[t->count] = n;
+    t->area[t->count] = area;
+    t->offset[t->count] = 0.0f;
+    ++t->count;
+  };
+  glm::vec3 n1(0.0f), n2(0.0f), nk(0.0f);
+  n1[i] = e1.x, n1[j] = e1.y;
+  add(n1, a1);
+  if (sides == 2) {
+    n2[i] = e2.x, n2[j] = e2.y;
+    add(n2, a2);
+  }
+  if (cap > 0.0f) {
+    nk[k] = f.normal_sum[k] > 0.0f ? 1.0f : -1.0f;
+    add(nk, cap);
+  }
+  // Convex or concave, every pair alike: a pair's edge lies at the end of the content along
+  // w = n_f + n_g (convex) or -w (concave), and the faces go on through the cell's sides at the
+  // other end, where the centres come nearest to them.
+  int convex = 0, concave = 0;
+  for (int a = 0; a < t->count; ++a) {
+    for (int b = a + 1; b < t->count; ++b) {
+      const glm::vec3 w = t->normal[a] + t->normal[b];
+      float plus = 0.0f, minus = 0.0f, weight = 0.0f;
+      for (int x = 0; x < 3; ++x) {
+        const float gap_hi = c.cell.hi[x] - c.bounds.hi[x], gap_lo = c.bounds.lo[x] - c.cell.lo[x];
+        plus += std::fabs(w[x]) * (w[x] > 0.0f ? gap_hi : gap_lo);
+        minus += std::fabs(w[x]) * (w[x] > 0.0f ? gap_lo : gap_hi);
+        weight += std::fabs(w[x]);
+      }
+      const float margin = kTurnedMargin * spacing * weight;
+      if (plus > minus + margin) {
+        ++convex;
+      } else if (minus > plus + margin) {
+        ++concave;
+      } else {
+        return false;
+      }
+    }
+  }
+  if (convex > 0 && concave > 0) return false;
+  t->convex = convex > 0;
+  // The cap's plane: the end of the centres' box that its normal points to (convex: a block's
+  // top) or the other (concave: the floor a block stands on); its centres all lie in it.
+  float height = t->hi[k] - t->lo[k];
+  if (cap > 0.0f) {
+    const bool up = nk[k] > 0.0f;
+    const float at = (up == t->convex ? c.bounds.hi[k] : c.bounds.lo[k]) - o[k];
+    t->offset[t->count - 1] = nk[k] * at;
+    // The sides lie behind the cap (convex) or in front of it.
+    height = (up == t->convex) ? at - t->lo[k] : t->hi[k] - at;
+    if (!(height > 0.0f)) return false;
+  }
+  // The sides' offsets. The sides span the box along k up to the cap, so in the plane across k
+  // each is a chord of the box's rectangle [lo, hi] as long as its area over the height.
+  const glm::vec2 lo(t->lo[i], t->lo[j]), hi(t->hi[i], t->hi[j]);
+  float d_lo = 0.0f, d_hi = 0.0f;
+  for (int x = 0; x < 4; ++x) {
+    const glm::vec2 corner((x & 1) ? hi.x : lo.x, (x & 2) ? hi.y : lo.y);
+    const float d = glm::dot(e1, corner);
+    d_lo = x == 0 ? d : std::min(d_lo, d);
+    d_hi = x == 0 ? d : std::max(d_hi, d);
+  }
+  if (sides == 2) {
+    // Side 1's chord runs along e2 (t = dot(e2, p)) and ends at side 2's plane, t <= d2
+    // (convex) or t >= d2, and side 2's along e1, ending at side 1's: each length fixes the
+    // other side's offset, and d1 is the root of phi.
+    const float l1 = a1 / height, l2 = a2 / height;
+    const bool cv = t->convex;
+    auto d2_of = [&](float d1) {
+      float t0, t1;
+      Chord(e1, e2, d1, lo, hi, &t0, &t1);
+      return cv ? t0 + l1 : t1 - l1;
+    };
+    auto phi = [&](float d1) {
+      float s0, s1;
+      Chord(e2, e1, d2_of(d1), lo, hi, &s0, &s1);
+      return (cv ? s0 + l2 : s1 - l2) - d1;
+    };
+    float d1;
+    TurnedRoot(phi, d_lo, d_hi, 1e-3f * spacing, &d1);
+    t->offset[0] = d1;
+    t->offset[1] = d2_of(d1);
+  } else {
+    // One side and the cap: the side's offset from the cap's area (monotonic in it), the
+    // part of the box's rectangle behind the side's line (convex) or in front of it.
+    const float cap_area = t->area[t->count - 1];
+    auto phi = [&](float d1) {
+      t->offset[0] = d1;
+      glm::vec2 q[6];
+      return PlaneArea(q, CapSection(*t, 1, lo, hi, q)) - cap_area;
+    };
+    float d1;
+    TurnedRoot(phi, d_lo, d_hi, 1e-3f * cap_area, &d1);
+    t->offset[0] = d1;
+  }
+  // Every face's polygon must hold its content's area, and together they must reach the
+  // centres' box.
+  Bounds drawn;
+  for (int a = 0; a < t->count; ++a) {
+    Polygon& p = t->poly[a];
+    const float area = TurnedFacePolygon(*t, a, &p);
+    if (p.n < 3) return false;
+    if (std::fabs(area - t->area[a]) > kTurnedFit * t->area[a] + spacing * spacing) return false;
+    for (int v = 0; v < p.n; ++v) drawn.Extend(p.v[v] + o);
+  }
+  for (int x = 0; x < 3; ++x) {
+    if (drawn.lo[x] > c.bounds.lo[x] + 0.5f * spacing ||
+        drawn.hi[x] < c.bounds.hi[x] - 0.5f * spacing) {
+      return false;
+    }
+  }
+  return true;
+}
+
+// The faces of a turned edge (TurnedFaceModel) that the receiver at `origin` sees from the
+// front, relative to it, into `out` (up to three): their count, or -1 when the content is not
+// such an edge or (hitsides both, or a concave edge) the receiver lies behind a face's plane,
+// where the box's silhouette serves as before.
+int TurnedFaces(const Cluster& c, const Bounds* footprint_box, float spacing,
+                const glm::vec3& origin, HitSides sides, Polygon out[3]) {
+  if (!(c.area > 0.0f) || sides == HitSides::kBack) return -1;
+  TurnedModel t;
+  if (!TurnedFaceModel(c, footprint_box, spacing, &t)) return -1;
+  const glm::vec3 r = origin - t.centre;
+  int n = 0;
+  for (int a = 0; a < t.count; ++a) {
+    if (!(glm::dot(t.normal[a], r) > t.offset[a])) {
+      if (sides != HitSides::kFront || !t.convex) return -1;
+      continue;
+    }
+    Polygon& p = out[n++];
+    p = t.poly[a];
+    for (int v = 0; v < p.n; ++v) p.v[v] -= r;
   }
   return n;
 }
@@ -1373,7 +1785,8 @@ bool Rasterizer::BuildClusterFootprint(const Cluster& c, PreparedSplat& s) {
     auto edge_faces = [&](const Bounds* footprint_box) {
       if (s.flags & kSplatPorous) return false;
       Polygon faces[3];
-      const int count = EdgeFaces(c, footprint_box, spacing, origin_, o_.hitsides, faces);
+      int count = EdgeFaces(c, footprint_box, spacing, origin_, o_.hitsides, faces);
+      if (count == -1) count = TurnedFaces(c, footprint_box, spacing, origin_, o_.hitsides, faces);
       if (count < 0) return false;
       for (int f = 0; f < count; ++f) AddPolygon(faces[f], &s);
       s.alpha = 1.0f;
