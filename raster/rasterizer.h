@@ -562,9 +562,21 @@ class Rasterizer {
       px.far = std::max(px.far, hi);
       mask = samples.mask();
     } else {
-      // A porous fragment without a mask, or beside a layer without masks, is a leaf.
-      if (!f.porous || px.open_mask != 0) mask = samples.mask();
-      if (f.porous && (mask == 0 || px.open_mask == 0)) {
+      // A porous fragment without a mask is a leaf. One with a mask beside a layer without
+      // masks (a translucent cluster's box or a leaf's disk came first) takes the layer over:
+      // that layer closes as it would behind the fragment, and the fragment opens the next
+      // one, so that the other pieces of its sheet tile with it. Composed as leaves against
+      // such a layer, a sheet's pieces filled 1 - (1 - a)(1 - b)... of pixels they cover
+      // wholly (bug: a_translucent_bit_makes_a_sheet_a_leaf; docs/design.md, "Porous layers").
+      mask = samples.mask();
+      if (f.porous && mask != 0 && px.open_mask == 0) {
+        Close<kRad>(px, /*behind=*/true, free_layer_);
+        ++closes_;
+        if (px.closed >= 1.0f) return;
+        px.far = hi;
+        px.normal[0] = f.normal.x, px.normal[1] = f.normal.y, px.normal[2] = f.normal.z;
+        px.porous = 1.0f;
+      } else if (f.porous && mask == 0) {
         const float e = std::min(cov, 1.0f) * std::max(0.0f, 1.0f - px.closed - px.open);
         if constexpr (kRad) {
           Store4(&px.closed, Load4(&px.closed) + e * f.rgb1);
@@ -572,8 +584,7 @@ class Rasterizer {
           px.closed += e;
         }
         return;
-      }
-      if (const int seen = std::popcount(mask & ~px.closed_mask); mask != 0 && seen != 0) {
+      } else if (const int seen = std::popcount(mask & ~px.closed_mask); mask != 0 && seen != 0) {
         cov *= static_cast<float>(std::popcount(mask & ~px.closed_mask & ~px.open_mask)) /
                static_cast<float>(seen);
       }
