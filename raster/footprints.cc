@@ -34,6 +34,10 @@ namespace {
 // A flat footprint whose polygon holds at most this many surfels' areas fills its cell whenever
 // it reaches the cell's sides (see FlatFootprint).
 constexpr double kSmallCell = 9.0;
+// A flat cluster that fills a cell more than this many surfels' areas wide is a piece of one
+// sheet (a mesh's thin panel), not of foliage, whose leaves are not much wider than a cell of
+// their own size (FlatFootprint's `sheet`; docs/design.md, "Porous layers").
+constexpr double kSheetCell = 4.0 * kSmallCell;
 // An axis k lies in a plane with unit normal n when |n_k| < kInPlaneAxis: a footprint box snaps
 // to its cell only along such axes, and along the others it spans the cell (FootprintBox).
 constexpr float kInPlaneAxis = 0.9f;
@@ -1492,7 +1496,8 @@ Bounds FlatBox(const Bounds& centres, const Bounds& cell, float spacing, const g
 
 float FlatFootprint(const Bounds& centres, const Bounds& cell, float spacing,
                     const glm::vec3& normal, float offset, const glm::vec3& origin, double area,
-                    bool backs, Polygon* p) {
+                    bool backs, Polygon* p, bool* sheet) {
+  if (sheet != nullptr) *sheet = false;
   bool full = false;
   int snapped = 0;
   Bounds box = FlatBox(centres, cell, spacing, normal, offset, origin, &full, &snapped);
@@ -1511,6 +1516,7 @@ float FlatFootprint(const Bounds& centres, const Bounds& cell, float spacing,
   // cell is seen, the more the finer the raster (bug: sparse_full_cell_leak).
   const double m = poly / std::max(1e-30, double(spacing) * spacing);
   const double lacks = m <= kSmallCell ? 0.0 : 0.7;
+  if (sheet != nullptr) *sheet = full && !backs && area >= 0.7 * poly && m > kSheetCell;
   if (full && !backs && area >= lacks * poly) return 1.0f;
   const bool has_cell = CellHolds(cell, centres);
   for (int iter = 0; iter < 2 && area > poly * 1.0001; ++iter) {
@@ -1802,10 +1808,14 @@ bool Rasterizer::BuildClusterFootprint(const Cluster& c, PreparedSplat& s) {
       const float seen = s.omega * s.depth * s.depth;
       const glm::vec3 mean_world = s.normal.x * t_ + s.normal.y * b_ + s.normal.z * n_;
       Polygon p;
+      bool sheet = false;
       const float alpha =
           FlatFootprint(c.bounds, c.cell, spacing, mean_world, s.plane, origin_, seen / cosw,
-                        ShowsBacks(c, s, seen, origin_, o_.hitsides), &p);
+                        ShowsBacks(c, s, seen, origin_, o_.hitsides), &p, &sheet);
       if (p.n < 3) return true;  // keeps the cone splat
+      // Two-sided content that fills a wide cell is a piece of a sheet, not of foliage: it
+      // composes as a solid surface's pieces do (docs/design.md, "Porous layers").
+      if (sheet) s.flags &= ~kSplatPorous;
       s.alpha = alpha;
       AddPolygon(p, &s);
     } else {

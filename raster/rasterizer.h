@@ -87,9 +87,12 @@ Bounds FlatBox(const Bounds& centres, const Bounds& cell, float spacing, const g
 // in one cell than its area does not lose the excess). Returns the coverage inside the
 // polygon (1 when the plane fills the cell), or 0 with p->n = 0 when there is no polygon.
 // `backs`: the receiver sees the content's backs (ShowsBacks); the plane never fills the cell.
+// `sheet` (optional): set when the plane fills its cell, with at least 70 % of its area, and
+// the cell is more than 36 surfels' areas wide: a piece of one sheet, not of foliage
+// (docs/design.md, "Porous layers").
 float FlatFootprint(const Bounds& centres, const Bounds& cell, float spacing,
                     const glm::vec3& normal, float offset, const glm::vec3& origin, double area,
-                    bool backs, Polygon* p);
+                    bool backs, Polygon* p, bool* sheet = nullptr);
 
 // A two-sided pair's footprint on the same plane: a rhombus along the pair of centres c1, c2
 // holding `area` (docs/design.md, "A leaf's pieces"). Returns its coverage, or -1 when the
@@ -204,6 +207,10 @@ class Rasterizer {
   static void Close(PixelState& px, bool behind, bool free_layer) {
     if (!(px.open > 0.0f)) return;
     float open = px.open;
+    // A porous layer whose pieces carry masks, behind closed masks (PorousMaskedShare).
+    const float porous_e = px.porous != 0.0f && px.open_mask != 0 && px.closed_mask != 0
+                               ? PorousMaskedShare(px)
+                               : -1.0f;
     if (px.porous == 0.0f) {
       if (const uint64_t hidden = px.open_mask & px.closed_mask; hidden != 0) {
         // Only the masked share: coverage that came without a mask (a translucent cluster's
@@ -213,11 +220,14 @@ class Rasterizer {
         open -= masked * (1.0f - static_cast<float>(std::popcount(px.open_mask & ~hidden)) /
                                      static_cast<float>(std::popcount(px.open_mask)));
       }
-      px.closed_mask |= px.open_mask;
     }
+    // A porous layer's masks are where its pieces lie as much as a solid one's: the layers
+    // behind find them hidden too (bug: porous_layers_forget_their_masks).
+    px.closed_mask |= px.open_mask;
     px.open_mask = 0;
     px.open_masked = 0.0f;
     const float e = free_layer && px.closed == 0.0f && !behind ? open
+                    : porous_e >= 0.0f                         ? porous_e
                     : px.porous != 0.0f ? std::min(open, 1.0f) * std::max(0.0f, 1.0f - px.closed)
                                         : std::min(open, std::max(0.0f, 1.0f - px.closed));
     const float closed = px.closed + e;
@@ -230,6 +240,48 @@ class Rasterizer {
     }
     px.closed = closed;  // exactly closed + e, not closed + (e / open) * open
     px.far = 0.0f;
+  }
+
+  // What a closing porous layer whose pieces carry coverage masks adds behind closed layers
+  // that have masks too. Its masked coverage lies on its samples: those the closed masks cover
+  // are hidden, and the rest are free but for the closed coverage that came without masks
+  // (FreeOfUnmasked). Its unmasked coverage (a leaf's disk, a translucent cluster's box) is a
+  // leaf's, at no known place, and fills (1 - closed) of itself. With no closed masks this is
+  // Close()'s independent layer, min(open, 1) (1 - closed). Composed that way, a fold of
+  // spider.obj's body behind another filled what the nearer fold's coverage left, over samples
+  // that the nearer fold's masks covered (docs/design.md, "Porous layers").
+  [[gnu::always_inline]] static float PorousMaskedShare(const PixelState& px) {
+    const float masked = std::min(px.open_masked, px.open);
+    const float seen = static_cast<float>(std::popcount(px.open_mask & ~px.closed_mask)) /
+                       static_cast<float>(std::popcount(px.open_mask));
+    const float left = std::max(0.0f, 1.0f - px.closed);
+    return std::min(left, masked * seen * FreeOfUnmasked(px.closed, px.closed_mask) +
+                              std::min(px.open - masked, 1.0f) * left);
+  }
+  // The share of each sample outside `mask` that coverage `coverage` leaves free, where
+  // `mask`'s samples hold `mask`'s share of it and the rest came without masks, spread evenly
+  // over the samples outside the mask.
+  [[gnu::always_inline]] static float FreeOfUnmasked(float coverage, uint64_t mask) {
+    const int m = std::popcount(mask);
+    if (m >= 64) return 0.0f;
+    const float fm = static_cast<float>(m) * (1.0f / 64.0f);
+    return std::max(0.0f, 1.0f - std::max(0.0f, coverage - fm) / (1.0f - fm));
+  }
+  // What a leaf (a porous fragment without a mask, coverage `cov`, its footprint touching the
+  // samples `touched`) adds beside an open layer: its coverage spread over the samples it
+  // touches, less those that the open and closed layers' masks cover, and the rest free but for
+  // their coverage without masks. With no masks, or touching every sample, it is
+  // min(cov, 1) (1 - closed - open). Counted at no known place, a crumpled curved cell of a
+  // cab's wall beside the wall's flat cells filled only what the wall left of its pixels,
+  // though it lies in none of the wall's samples (docs/design.md, "Porous layers").
+  [[gnu::always_inline]] static float LeafShare(const PixelState& px, float cov, uint64_t touched) {
+    const float plain = std::min(cov, 1.0f) * std::max(0.0f, 1.0f - px.closed - px.open);
+    const uint64_t known = px.open_mask | px.closed_mask;
+    const int nt = std::popcount(touched);
+    if (known == 0 || nt == 0 || touched == ~uint64_t{0} || !(plain > 0.0f)) return plain;
+    return std::min(cov, 1.0f) *
+           (static_cast<float>(std::popcount(touched & ~known)) / static_cast<float>(nt)) *
+           FreeOfUnmasked(px.closed + px.open, known);
   }
 
   // A flat fragment's depth range along pixel direction u: where the pixel's central ray meets
@@ -577,7 +629,12 @@ class Rasterizer {
         px.normal[0] = f.normal.x, px.normal[1] = f.normal.y, px.normal[2] = f.normal.z;
         px.porous = 1.0f;
       } else if (f.porous && mask == 0) {
-        const float e = std::min(cov, 1.0f) * std::max(0.0f, 1.0f - px.closed - px.open);
+        float e;
+        if constexpr (Samples::kAll) {
+          e = std::min(cov, 1.0f) * std::max(0.0f, 1.0f - px.closed - px.open);
+        } else {
+          e = LeafShare(px, cov, samples.touched());
+        }
         if constexpr (kRad) {
           Store4(&px.closed, Load4(&px.closed) + e * f.rgb1);
         } else {
