@@ -207,7 +207,8 @@ struct alignas(16) PixelState {
   float far;          // far end of the open layer's depth range
   float depth;        // nearest fragment's depth
   float normal[3];    // the open layer's first fragment's normal (0: none)
-  float porous;       // 1 when the open layer's first fragment is porous (kSplatPorous)
+  float porous;       // 1 when the open layer's first fragment is porous (kSplatPorous), 2
+                      // when it is also flat (a two-sided sheet's piece)
   float front;        // 1 once a fragment not flagged kSplatBack reached the pixel
   float open_masked;  // the share of `open` that came with coverage masks (open_mask)
   // Coverage masks (polygon footprints with clamp): which of the pixel's 8 x 8 sample points

@@ -1001,12 +1001,12 @@ TEST(FootprintTest, UnmaskedCoverageIsNotScaledByHiddenSamples) {
   EXPECT_FLOAT_EQ(q.closed, 0.75f + 0.25f / 16.0f);
 }
 
-// A porous layer (pieces of two-sided sheets) whose pieces carry masks, closing behind closed
-// layers with masks: its masked coverage on samples the closed masks cover is hidden, on the
-// others it is free but for the closed coverage that came without masks; and its masks join
-// the closed ones for the layers behind. It used to add min(open, 1) (1 - closed) whatever
-// its samples, and kept its masks to itself: a fold of spider.obj's body behind another
-// filled what the nearer fold's coverage left, over samples that the nearer one's masks
+// A porous layer of a two-sided sheet's pieces (its first fragment flat) whose pieces carry
+// masks, closing behind closed layers with masks: its masked coverage on samples the closed masks
+// cover is hidden, on the others it is free but for the closed coverage that came without masks;
+// and its masks join the closed ones for the layers behind. It used to add min(open, 1) (1 -
+// closed) whatever its samples, and kept its masks to itself: a fold of spider.obj's body behind
+// another filled what the nearer fold's coverage left, over samples that the nearer one's masks
 // covered (bug: porous_layers_forget_their_masks).
 TEST(FootprintTest, PorousLayersKeepTheirMasks) {
   auto layer = [](float closed, uint64_t closed_mask, uint64_t open_mask, float masked,
@@ -1017,7 +1017,7 @@ TEST(FootprintTest, PorousLayersKeepTheirMasks) {
     px.open_mask = open_mask;
     px.open_masked = masked;
     px.open = masked + unmasked;
-    px.porous = 1.0f;
+    px.porous = internal::kPorousSheet;
     px.far = 1.0f;
     internal::Rasterizer::Close<false>(px, /*behind=*/true, /*free_layer=*/false);
     return px;
@@ -1037,6 +1037,18 @@ TEST(FootprintTest, PorousLayersKeepTheirMasks) {
   internal::PixelState r = layer(0.5f, 0, next16, 0.25f, 0.0f);
   EXPECT_FLOAT_EQ(r.closed, 0.625f);
   EXPECT_EQ(r.closed_mask, next16);
+  // A porous cluster's layer (its mask a box's silhouette): the independent rule, masks dropped.
+  internal::PixelState c{};
+  c.closed = 0.5f;
+  c.closed_mask = low32;
+  c.open_mask = low16;
+  c.open_masked = 0.25f;
+  c.open = 0.25f;
+  c.porous = 1.0f;
+  c.far = 1.0f;
+  internal::Rasterizer::Close<false>(c, /*behind=*/true, /*free_layer=*/false);
+  EXPECT_FLOAT_EQ(c.closed, 0.625f);
+  EXPECT_EQ(c.closed_mask, low32);
 }
 
 // A leaf (a porous fragment without a mask) beside an open layer: its coverage lies on the
