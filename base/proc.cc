@@ -2,6 +2,9 @@
 #include "base/proc.h"
 
 #include <sys/sysmacros.h>
+#if defined(__GLIBC__)
+#include <malloc.h>
+#endif
 
 #include <cstdio>
 #include <cstdlib>
@@ -30,6 +33,12 @@ uint64_t StatusBytes(const char* name) {
 
 uint64_t PeakRssBytes() { return StatusBytes("VmHWM:"); }
 uint64_t CurrentRssBytes() { return StatusBytes("VmRSS:"); }
+
+void ReleaseFreeHeap() {
+#if defined(__GLIBC__)
+  malloc_trim(0);
+#endif
+}
 
 // Where LMDB mapped data.mdb. mdb_env_info's me_mapaddr is only filled in with MDB_FIXEDMAP,
 // so the map is found in /proc/self/maps: the mapping of this file (device and inode) that

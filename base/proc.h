@@ -18,6 +18,10 @@ namespace pbgi::internal {
 uint64_t PeakRssBytes();
 // VmRSS (resident set size now) of this process in bytes; 0 where /proc is not there.
 uint64_t CurrentRssBytes();
+// Returns the free pages of every malloc arena to the system (glibc's malloc_trim; nothing
+// elsewhere): memory that other threads freed stays in their arenas and in the RSS otherwise,
+// and a thread that allocates next does not reuse it.
+void ReleaseFreeHeap();
 
 // The mapping of `file` (at file offset 0) that holds `inside` (or, with nullptr, the first such
 // mapping), from /proc/self/maps. `file_name` is what error messages call it.

@@ -1,11 +1,13 @@
 #include "tools/args.h"
 
+#include <cctype>
 #include <cmath>
 #include <ctime>
 #include <thread>
 
 #include "absl/strings/numbers.h"
 #include "absl/strings/str_format.h"
+#include "tools/command.h"
 
 namespace pbgi::tools {
 
@@ -73,6 +75,86 @@ std::string NowIso8601() {
   char buf[64];
   std::strftime(buf, sizeof(buf), "%Y-%m-%dT%H:%M:%S%z", &tm);
   return buf;
+}
+
+absl::StatusOr<uint64_t> ParseBytes(const std::string& text) {
+  std::string s = text;
+  while (!s.empty() && (s.back() == 'B' || s.back() == 'b' || s.back() == 'i')) s.pop_back();
+  double mult = 1;
+  if (!s.empty()) {
+    switch (s.back()) {
+      case 'k':
+      case 'K':
+        mult = 1024.0;
+        break;
+      case 'm':
+      case 'M':
+        mult = 1024.0 * 1024;
+        break;
+      case 'g':
+      case 'G':
+        mult = 1024.0 * 1024 * 1024;
+        break;
+      case 't':
+      case 'T':
+        mult = 1024.0 * 1024 * 1024 * 1024;
+        break;
+      default:
+        break;
+    }
+    if (mult != 1) s.pop_back();
+  }
+  double v = 0;
+  if (s.empty() || !absl::SimpleAtod(s, &v) || !(v >= 0) || !std::isfinite(v)) {
+    return absl::InvalidArgumentError(
+        absl::StrFormat("'%s' is not a size (examples: 4096, 512M, 1G)", text));
+  }
+  // 2^64 and more do not fit (the conversion would be undefined, and came out as 0).
+  if (v * mult >= 18446744073709551616.0) {
+    return absl::InvalidArgumentError(
+        absl::StrFormat("'%s' is too large a size (at most 16 EiB)", text));
+  }
+  return static_cast<uint64_t>(v * mult);
+}
+
+CLI::Validator BytesValidator() {
+  return CLI::Validator(
+      [](std::string& s) -> std::string {
+        if (s == "auto") return std::string();  // budgets: see tools/budget.h
+        auto r = ParseBytes(s);
+        return r.ok() ? std::string() : std::string(r.status().message());
+      },
+      "SIZE");
+}
+
+absl::StatusOr<uint64_t> ParseBudget(const std::string& text, const std::string& what) {
+  if (!text.empty() && std::isdigit(static_cast<unsigned char>(text.back()))) {
+    return absl::InvalidArgumentError(
+        absl::StrFormat("%s %s has no unit: give one (%sM, %sG; %sB if you mean bytes)", what, text,
+                        text, text, text));
+  }
+  return ParseBytes(text);
+}
+
+CLI::Validator BudgetValidator() {
+  return CLI::Validator(
+      [](std::string& s) -> std::string {
+        if (s == "auto") return std::string();  // budgets: see tools/budget.h
+        auto r = ParseBudget(s, "the budget");
+        return r.ok() ? std::string() : std::string(r.status().message());
+      },
+      "SIZE");
+}
+
+std::string FormatBytes(uint64_t bytes) {
+  const char* units[] = {"B", "KiB", "MiB", "GiB", "TiB"};
+  double v = static_cast<double>(bytes);
+  int u = 0;
+  while (v >= 1024.0 && u < 4) {
+    v /= 1024.0;
+    ++u;
+  }
+  return u == 0 ? absl::StrFormat("%d B", bytes) : absl::StrFormat("%.1f %s", v, units[u]);
 }
 
 }  // namespace pbgi::tools

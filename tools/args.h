@@ -21,8 +21,7 @@ absl::StatusOr<int64_t> ParseCount(const std::string& text, const std::string& w
 // to the plain number, so that an integer option takes "50k".
 CLI::Validator CountValidator(int64_t lo = 0, int64_t hi = int64_t{1} << 62);
 
-// A memory budget: ParseBytes() with a unit required (512M, 1G, 4096B). In main.cc, beside
-// ParseBytes().
+// A memory budget: ParseBytes() with a unit required (512M, 1G, 4096B).
 absl::StatusOr<uint64_t> ParseBudget(const std::string& text, const std::string& what);
 CLI::Validator BudgetValidator();
 

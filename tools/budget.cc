@@ -56,4 +56,50 @@ absl::StatusOr<uint64_t> ResolveBudget(const char* command, const char* option,
   return bytes;
 }
 
+std::string ViewJobWhat(int width, int height) {
+  return absl::StrFormat("the view's %dx%d pixels (%d bytes each)", width, height,
+                         kViewBytesPerPixel);
+}
+
+uint64_t MinShadeCacheBytes(int threads, uint64_t page_size) {
+  return 4 * uint64_t(std::max(threads, 1)) * std::max<uint64_t>(page_size, 4096);
+}
+
+absl::StatusOr<ShadeBudget> SplitShadeBudget(const char* option, const std::string& text,
+                                             uint64_t total, uint64_t resident, uint64_t job,
+                                             const std::string& resident_what,
+                                             const std::string& job_what, int threads,
+                                             uint64_t page_size) {
+  const uint64_t min_cache = MinShadeCacheBytes(threads, page_size);
+  const uint64_t held = resident + job;
+  if (held >= total || total - held < min_cache) {
+    const std::string resident_part =
+        resident > 0
+            ? absl::StrFormat(" and the %s held by %s", FormatBytes(resident), resident_what)
+            : std::string();
+    return absl::InvalidArgumentError(absl::StrFormat(
+        "%s %s leaves %s for pages after the %s of %s%s, less than the %s that %d threads need "
+        "(4 pages of %d bytes each): give at least %s %dK",
+        option, text, FormatBytes(held >= total ? 0 : total - held), FormatBytes(job), job_what,
+        resident_part, FormatBytes(min_cache), std::max(threads, 1), page_size, option,
+        (held + min_cache + 1023) / 1024));
+  }
+  ShadeBudget b;
+  b.total = total;
+  b.resident = resident;
+  b.job = job;
+  b.cache = total - held;
+  return b;
+}
+
+std::string DescribeShadeBudget(const ShadeBudget& b, const std::string& resident_what,
+                                const std::string& job_what) {
+  std::string s = absl::StrFormat("%s: ", FormatBytes(b.total));
+  if (b.resident > 0) {
+    s += absl::StrFormat("%s held by %s, ", FormatBytes(b.resident), resident_what);
+  }
+  return s + absl::StrFormat("%s for %s, %s for the page cache", FormatBytes(b.job), job_what,
+                             FormatBytes(b.cache));
+}
+
 }  // namespace pbgi::tools

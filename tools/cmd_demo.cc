@@ -55,6 +55,8 @@ struct DemoRun {
   ViewImages view;
   double shade_seconds = 0;     // tracing the view and shading it
   uint64_t distinct_pages = 0;  // Database::DistinctPagesRead() once the view is shaded
+  ShadeBudget budget;           // --cache split for shading
+  uint64_t shaded_rss = 0;      // the RSS once the view is shaded, its cache full
 };
 
 struct DemoImage {
@@ -137,31 +139,61 @@ absl::Status BuildDemoDatabase(const DemoArgs& a, uint64_t memory, DemoRun* run)
   return absl::OkStatus();
 }
 
-// 3. A camera view shaded from the database.
-absl::Status ShadeDemoView(const DemoArgs& a, uint64_t cache, DemoRun* run) {
+// What the demo's process holds when shading starts, and what a view holds: the parts of
+// --cache besides the page cache (SplitShadeBudget).
+constexpr const char* kDemoResident = "the process (its code, the scene and its tracer)";
+// What --cache auto allows for that process: the city's demo holds about 20 MiB then, at 200 k
+// and at 128 M surfels alike (the build's buffers given back); a large mesh file more.
+constexpr uint64_t kDemoProcessBytes = uint64_t{64} << 20;
+
+// 3. A camera view shaded from the database, within --cache: the process as it stands once the
+// build is over and the tracer made (its code, the scene, Embree's BVH), the view's pixels and
+// the page cache share it (docs/design.md, "The shade step's budget").
+absl::Status ShadeDemoView(const DemoArgs& a, uint64_t budget, DemoRun* run) {
   const internal::Stopwatch t;
   const Scene& scene = *run->scene;
-  DatabaseOptions dbo;
-  dbo.cache_bytes = cache;
-  PBGI_ASSIGN_OR_RETURN(std::unique_ptr<Database> db, Database::Open(run->db_path, dbo));
   PBGI_ASSIGN_OR_RETURN(std::unique_ptr<Tracer> tracer, Tracer::Create(scene));
+  // The build's buffers are freed, but some stay in malloc's arenas, in the RSS, until trimmed.
+  internal::ReleaseFreeHeap();
+  const uint64_t resident = internal::CurrentRssBytes();
+  const uint64_t job = ViewJobBytes(a.width, a.height);
+  DatabaseOptions dbo;
+  // What is left for pages; SplitShadeBudget below refuses it once the page size is known.
+  dbo.cache_bytes = std::max(budget > resident + job ? budget - resident - job : 0, kMinCacheBytes);
+  PBGI_ASSIGN_OR_RETURN(std::unique_ptr<Database> db, Database::Open(run->db_path, dbo));
+  const int threads = ResolveThreads(a.threads);
+  absl::StatusOr<ShadeBudget> split =
+      SplitShadeBudget("--cache", a.cache, budget, resident, job, kDemoResident,
+                       ViewJobWhat(a.width, a.height), threads, db->meta().page_size);
+  if (!split.ok()) {
+    return absl::InvalidArgumentError(
+        absl::StrFormat("%s (the database %s is built: `pbgi shade` can shade it)",
+                        split.status().message(), run->db_path));
+  }
+  run->budget = *split;
+  std::fprintf(
+      stderr, "demo: shade: --cache %s\n",
+      DescribeShadeBudget(run->budget, kDemoResident, ViewJobWhat(a.width, a.height)).c_str());
   ShadeOptions so;
   so.cut.max_solid_angle = a.max_solid_angle;
   so.cut.cosine_weighted = a.cut == "cosine";
   so.raster.resolution = a.raster_res;
   ApplyFootprintFlags(a.footprint, &so);
   so.raster.compute_radiance = scene.has_radiance;
-  so.threads = ResolveThreads(a.threads);
+  so.threads = threads;
   ApplySharingFlags(a.sharing, &so);
   ApplyFarSharingFlags(a.sharing.far, db->meta().bounds, &so);
   Progress progress("demo: shade", "receivers");  // the total: the pixels whose rays hit
   so.progress = [&](const ShadeProgress& p) { progress.Update(p.done, int64_t(p.total)); };
   const Camera camera = DefaultCamera(scene, a.width, a.height);
   // The database closes once the view is shaded: its page cache (up to --cache) is not held
-  // beside the images while they are composed.
+  // beside the images while they are composed; the pages that the shading threads freed go
+  // back to the system, or they would stay in those threads' arenas, in the RSS.
   PBGI_ASSIGN_OR_RETURN(run->view, RenderView(*tracer, *db, camera, so, [&db, run]() {
                           run->distinct_pages = db->DistinctPagesRead();
+                          run->shaded_rss = internal::CurrentRssBytes();
                           db.reset();
+                          internal::ReleaseFreeHeap();
                         }));
   progress.Finish(run->view.receivers);
   run->shade_seconds = t.Seconds();
@@ -178,7 +210,7 @@ absl::Status WriteDemoImages(const std::string& base, const ViewImages& view) {
   return absl::OkStatus();
 }
 
-void PrintDemoSummary(const DemoArgs& a, const DemoRun& run, uint64_t memory, uint64_t cache,
+void PrintDemoSummary(const DemoArgs& a, const DemoRun& run, uint64_t memory,
                       const std::string& base, double total_seconds) {
   const BuildStats& bs = run.build;
   const ViewImages& view = run.view;
@@ -202,7 +234,11 @@ void PrintDemoSummary(const DemoArgs& a, const DemoRun& run, uint64_t memory, ui
       view.shade.seconds * 1e6 / receivers, ResolveThreads(a.threads), view.trace_seconds,
       view.shade.seconds, view.compose_seconds);
   std::printf("%s\n", SharingSummary(view.shade).c_str());
-  std::printf("  cache          %s cap, %s\n", FormatBytes(cache).c_str(),
+  std::printf(
+      "  budget         --cache %s; RSS %s once shaded\n",
+      DescribeShadeBudget(run.budget, kDemoResident, ViewJobWhat(a.width, a.height)).c_str(),
+      FormatBytes(run.shaded_rss).c_str());
+  std::printf("  cache          %s cap, %s\n", FormatBytes(run.budget.cache).c_str(),
               CacheSummary(view.shade.cache, run.distinct_pages, view.receivers).c_str());
   std::printf(
       "  cut            max_solid_angle %.3g (%s), raster %d^2 x 6, %.1f clusters + %.1f "
@@ -223,9 +259,15 @@ absl::Status RunDemo(const DemoArgs& a) {
                         ResolveBudget("demo", "--memory", a.memory, uint64_t{512} << 20,
                                       MinimumBuildMemory(BuildOptions{}),
                                       "fixed buffers, one write batch and the smallest sort run"));
-  PBGI_ASSIGN_OR_RETURN(
-      uint64_t cache, ResolveBudget("demo", "--cache", a.cache, uint64_t{256} << 20, kMinCacheBytes,
-                                    "a few pages per thread"));
+  // --cache bounds the shade step: the process, the view's pixels and the page cache. What the
+  // view needs is refused here, before the build; the rest once the process is measured.
+  const uint64_t view_bytes = ViewJobBytes(a.width, a.height);
+  const std::string why = absl::StrFormat("a few pages and %s", ViewJobWhat(a.width, a.height));
+  // auto: 256 MiB of pages beside the view and kDemoProcessBytes for the process.
+  PBGI_ASSIGN_OR_RETURN(uint64_t cache,
+                        ResolveBudget("demo", "--cache", a.cache,
+                                      (uint64_t{256} << 20) + view_bytes + kDemoProcessBytes,
+                                      kMinCacheBytes + view_bytes, why.c_str()));
   std::error_code ec;
   std::filesystem::create_directories(a.out_dir, ec);
   if (ec) {
@@ -237,7 +279,7 @@ absl::Status RunDemo(const DemoArgs& a) {
   PBGI_RETURN_IF_ERROR(ShadeDemoView(a, cache, &run));
   const std::string base = a.out_dir + "/" + run.scene->name;
   PBGI_RETURN_IF_ERROR(WriteDemoImages(base, run.view));
-  PrintDemoSummary(a, run, memory, cache, base, total.Seconds());
+  PrintDemoSummary(a, run, memory, base, total.Seconds());
   return absl::OkStatus();
 }
 
@@ -257,7 +299,9 @@ CommandSetup Setup() {
         ->capture_default_str();
     app->add_option(
            "--cache", a->cache,
-           "Page cache of shading, with a unit (256M), or auto (256 MiB, less in a small machine)")
+           "Memory cap of shading, with a unit (1G), or auto (256 MiB of pages beside the view "
+           "and the process, less in a small machine): the page cache gets what the process "
+           "and the view's pixels (256 bytes each) leave")
         ->check(BudgetValidator())
         ->capture_default_str();
     app->add_option("--width", a->width, "Image width, pixels")

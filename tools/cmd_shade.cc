@@ -330,38 +330,34 @@ absl::Status RunShade(const ShadeArgs& a) {
   }
   PBGI_ASSIGN_OR_RETURN(int64_t chunk, ParseCount(a.chunk, "--chunk"));
   // One budget, --cache, for the page cache and what the job holds besides: a chunk of
-  // receivers (at most a quarter of the budget, at least kMinChunk of them) or the view's pixels.
+  // receivers (at most a quarter of the budget, at least kMinChunk of them) or the view's pixels
+  // (the demo splits its --cache the same way, and counts what its process holds besides).
   constexpr uint64_t kMinChunk = 1024;
-  constexpr uint64_t kViewBytesPerPixel = 256;  // receivers, results, traced hits, images
   const uint64_t job_min =
       a.scene.empty() ? std::min<uint64_t>(kMinChunk, uint64_t(chunk)) * kShadeBytesPerReceiver
-                      : uint64_t(a.width) * uint64_t(a.height) * kViewBytesPerPixel;
+                      : ViewJobBytes(a.width, a.height);
   PBGI_ASSIGN_OR_RETURN(
       const uint64_t budget,
       ResolveBudget("shade", "--cache", a.cache, uint64_t{256} << 20, kMinCacheBytes + job_min,
                     a.scene.empty() ? "a few pages and 1024 receivers"
                                     : "a few pages and the view's pixels"));
   uint64_t chunk_receivers = 0, job = job_min;
+  std::string job_what = ViewJobWhat(a.width, a.height);
   if (a.scene.empty()) {
     chunk_receivers =
         std::clamp<uint64_t>(budget / 4 / kShadeBytesPerReceiver,
                              std::min<uint64_t>(kMinChunk, uint64_t(chunk)), uint64_t(chunk));
     job = chunk_receivers * kShadeBytesPerReceiver;
+    job_what = absl::StrFormat("a chunk of %d receivers", chunk_receivers);
   }
-  const uint64_t cache = budget - job;
   DatabaseOptions dbo;
-  dbo.cache_bytes = cache;
+  dbo.cache_bytes = budget > job ? budget - job : 0;
   PBGI_ASSIGN_OR_RETURN(std::unique_ptr<Database> db, Database::Open(a.db, dbo));
   // Every Reader (one per thread) pins two pages at least; below that the cache cannot hold.
-  const int threads = ResolveThreads(a.threads);
-  const uint64_t min_cache = 4 * uint64_t(threads) * std::max<uint64_t>(db->meta().page_size, 4096);
-  if (cache < min_cache) {
-    return absl::InvalidArgumentError(absl::StrFormat(
-        "--cache %s leaves %s for pages after the job's %s, less than the %s that %d threads "
-        "need (4 pages of %d bytes each): give at least --cache %dK",
-        a.cache, FormatBytes(cache), FormatBytes(job), FormatBytes(min_cache), threads,
-        db->meta().page_size, (min_cache + job + 1023) / 1024));
-  }
+  PBGI_ASSIGN_OR_RETURN(const ShadeBudget split,
+                        SplitShadeBudget("--cache", a.cache, budget, 0, job, "", job_what,
+                                         ResolveThreads(a.threads), db->meta().page_size));
+  const uint64_t cache = split.cache;
   if (mode != Mode::kOcclusion && !HasRadiance(db->meta().channels)) {
     return absl::FailedPreconditionError(absl::StrFormat(
         "%s stores occlusion only (built with --channels occlusion): --mode %s needs radiance",

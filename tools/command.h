@@ -22,7 +22,7 @@ bool RegisterCommand(const char* name, const char* help, CommandSetup setup);
 #define PBGI_REGISTER_COMMAND(ident, name, help, setup) \
   static const bool kPbgiCommand_##ident = ::pbgi::tools::RegisterCommand(name, help, setup)
 
-// "512M", "1G", "1.5GiB", "4096" -> bytes.
+// "512M", "1G", "1.5GiB", "4096" -> bytes. (These three live in tools/args.cc.)
 absl::StatusOr<uint64_t> ParseBytes(const std::string& text);
 // A CLI11 validator for byte sizes.
 CLI::Validator BytesValidator();

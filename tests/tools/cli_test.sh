@@ -36,8 +36,9 @@ count=$(grep -a -m1 '^element vertex' "$dir/shaded.ply" | awk '{print $3 + 0}')
 run shade_view "$pbgi" shade "$dir/c.pbgi" --scene cornell --seed 3 -o "$dir/view.exr" \
   --width 48 --height 32 --raster-res 8
 [ -s "$dir/view.exr" ] && [ -s "$dir/view.png" ] && ok || fail "shade --scene wrote no images"
+# --cache bounds the whole shade step: the process (about 17 MiB here), the view and the pages.
 run demo "$pbgi" demo -o "$dir/demo" --scene cornell --points 40000 --width 48 --height 32 \
-  --memory 64M --cache 16M
+  --memory 64M --cache 64M
 for f in occlusion indirect direct composite; do
   [ -s "$dir/demo/cornell_$f.png" ] && [ -s "$dir/demo/cornell_$f.exr" ] && ok || fail "demo wrote no $f image"
 done
@@ -116,7 +117,7 @@ refuse eval_view_bad_window "X,Y,WIDTH,HEIGHT" "$pbgi" eval --view cornell -o "$
   --points 30000 --width 48 --height 32 --rays 64 --exact --window 40,8,16,8
 # The reference mode: demo --exact shades every receiver on its own; the default shares.
 run demo_exact "$pbgi" demo -o "$dir/demo_exact" --scene cornell --points 40000 --width 48 \
-  --height 32 --memory 64M --cache 16M --exact
+  --height 32 --memory 64M --cache 64M --exact
 grep -q 'sharing        none' "$dir/demo_exact.out" && ok || fail "demo --exact shared work"
 grep -q 'interpolated' "$dir/demo.out" && ok || fail "demo prints no sharing line"
 grep -q '"worst_tile"' "$dir/eval_view/view.json" && grep -q '"p99"' "$dir/eval_view/view.json" &&
