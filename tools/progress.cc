@@ -89,7 +89,12 @@ std::string Progress::Line(uint64_t done, double now) const {
     if (style_ == Style::kBar) {
       constexpr int kWidth = 24;
       const int full = static_cast<int>(f * kWidth);
-      s += "[" + std::string(size_t(full), '#') + std::string(size_t(kWidth - full), '.') + "] ";
+      // Appended piece by piece: g++ 12's -O3 warned (-Wrestrict, a false positive) on
+      // "[" + std::string(...).
+      s += '[';
+      s.append(size_t(full), '#');
+      s.append(size_t(kWidth - full), '.');
+      s += "] ";
     }
     s += absl::StrFormat("%d / %d %s (%.1f%%), %s %s/s", done, total_, unit_, 100.0 * f,
                          ShortCount(rate), unit_);
