@@ -586,6 +586,14 @@ class Rasterizer {
   // closes, not for touched samples once all are touched, not for a porous fragment's mask
   // beside a layer without masks. The state is the same bit for bit as with both computed
   // first.
+  // `f` opens the pixel's layer, whose depth range ends at `hi`: the layer takes its facing,
+  // and is porous (a two-sided sheet's, kPorousSheet, when `f` is flat) when `f` is.
+  [[gnu::always_inline]] static void OpenLayer(PixelState& px, const Frag& f, float hi) {
+    px.far = hi;
+    px.normal[0] = f.normal.x, px.normal[1] = f.normal.y, px.normal[2] = f.normal.z;
+    px.porous = f.porous ? (f.flat ? kPorousSheet : 1.0f) : 0.0f;
+  }
+
   template <bool kRad, class Samples = AllSamples>
   [[gnu::always_inline]] void Layer(PixelState& px, float cov, const Frag& f, float lo, float hi,
                                     const Samples& samples = Samples{}) {
@@ -611,9 +619,7 @@ class Rasterizer {
     }
     uint64_t mask = 0;
     if (!(px.open > 0.0f)) {
-      px.far = hi;
-      px.normal[0] = f.normal.x, px.normal[1] = f.normal.y, px.normal[2] = f.normal.z;
-      px.porous = f.porous ? (f.flat ? kPorousSheet : 1.0f) : 0.0f;
+      OpenLayer(px, f, hi);
       mask = samples.mask();
     } else if (f.normal.x * px.normal[0] + f.normal.y * px.normal[1] + f.normal.z * px.normal[2] >
                kChainCos) {
@@ -631,16 +637,10 @@ class Rasterizer {
         Close<kRad>(px, /*behind=*/true, free_layer_);
         ++closes_;
         if (px.closed >= 1.0f) return;
-        px.far = hi;
-        px.normal[0] = f.normal.x, px.normal[1] = f.normal.y, px.normal[2] = f.normal.z;
-        px.porous = f.flat ? kPorousSheet : 1.0f;
+        OpenLayer(px, f, hi);
       } else if (f.porous && mask == 0) {
-        float e;
-        if constexpr (Samples::kAll) {
-          e = std::min(cov, 1.0f) * std::max(0.0f, 1.0f - px.closed - px.open);
-        } else {
-          e = LeafShare(px, cov, samples.touched());
-        }
+        // Every sample touched (a splat, a disk): min(cov, 1) (1 - closed - open).
+        const float e = LeafShare(px, cov, samples.touched());
         if constexpr (kRad) {
           Store4(&px.closed, Load4(&px.closed) + e * f.rgb1);
         } else {

@@ -10,32 +10,34 @@
 #include "tools/command.h"
 
 namespace pbgi::tools {
+namespace {
+
+// The power of a unit suffix, k 1, m 2, g 3, t 4 in either case (ParseCount counts in 1000s,
+// ParseBytes in 1024s); 0 for anything else.
+int SuffixPower(char c) {
+  switch (std::tolower(static_cast<unsigned char>(c))) {
+    case 'k':
+      return 1;
+    case 'm':
+      return 2;
+    case 'g':
+      return 3;
+    case 't':
+      return 4;
+    default:
+      return 0;
+  }
+}
+
+}  // namespace
 
 absl::StatusOr<int64_t> ParseCount(const std::string& text, const std::string& what) {
   std::string s = text;
   double mult = 1.0;
-  if (!s.empty()) {
-    switch (s.back()) {
-      case 'k':
-      case 'K':
-        mult = 1e3;
-        break;
-      case 'm':
-      case 'M':
-        mult = 1e6;
-        break;
-      case 'g':
-      case 'G':
-        mult = 1e9;
-        break;
-      case 't':
-      case 'T':
-        mult = 1e12;
-        break;
-      default:
-        break;
-    }
-    if (mult != 1.0) s.pop_back();
+  if (const int p = s.empty() ? 0 : SuffixPower(s.back()); p > 0) {
+    constexpr double kDecimal[] = {1.0, 1e3, 1e6, 1e9, 1e12};
+    mult = kDecimal[p];
+    s.pop_back();
   }
   double v = 0.0;
   const auto bad = [&](const char* why) {
@@ -81,28 +83,11 @@ absl::StatusOr<uint64_t> ParseBytes(const std::string& text) {
   std::string s = text;
   while (!s.empty() && (s.back() == 'B' || s.back() == 'b' || s.back() == 'i')) s.pop_back();
   double mult = 1;
-  if (!s.empty()) {
-    switch (s.back()) {
-      case 'k':
-      case 'K':
-        mult = 1024.0;
-        break;
-      case 'm':
-      case 'M':
-        mult = 1024.0 * 1024;
-        break;
-      case 'g':
-      case 'G':
-        mult = 1024.0 * 1024 * 1024;
-        break;
-      case 't':
-      case 'T':
-        mult = 1024.0 * 1024 * 1024 * 1024;
-        break;
-      default:
-        break;
-    }
-    if (mult != 1) s.pop_back();
+  if (const int p = s.empty() ? 0 : SuffixPower(s.back()); p > 0) {
+    constexpr double kBinary[] = {1.0, 1024.0, 1024.0 * 1024, 1024.0 * 1024 * 1024,
+                                  1024.0 * 1024 * 1024 * 1024};
+    mult = kBinary[p];
+    s.pop_back();
   }
   double v = 0;
   if (s.empty() || !absl::SimpleAtod(s, &v) || !(v >= 0) || !std::isfinite(v)) {
