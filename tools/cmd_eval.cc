@@ -33,6 +33,7 @@
 #include "tools/footprint_flags.h"
 #include "tools/mesh_flags.h"
 #include "tools/progress.h"
+#include "tools/reference_stats.h"
 #include "tools/report.h"
 #include "tools/scene_views.h"
 #include "tools/sharing_flags.h"
@@ -141,6 +142,7 @@ const char* MethodName(Method m) { return m == Method::kPbgi ? "pbgi" : "referen
 struct Row {
   Method method = Method::kReference;
   std::string setting;
+  int rays = 0;  // reference rows: rays per receiver
   double seconds_per_receiver = 0;
   Errors err;
   double clusters = 0, surfels = 0;
@@ -154,39 +156,15 @@ double Median(std::vector<double> v) {
   return v.empty() ? 0.0 : v[v.size() / 2];
 }
 
-// The time per receiver that the reference needs for a mean error `mae`: linear interpolation of
-// log(time) against log(MAE) between the two sweep rows around it; past either end of the sweep,
-// the Monte Carlo law time ~ MAE^-2 (error ~ rays^-1/2) from the nearest row, and *extrapolated
-// is set (such a ratio is a model, not a measurement: widen --ray-sweep until it is not). 0 when
-// no reference row has an error (an exact reference, e.g. inside a closed box).
-double ReferenceSecondsAt(const std::vector<Row>& rows, double mae, bool* extrapolated) {
-  *extrapolated = false;
-  std::vector<std::pair<double, double>> curve;  // (log MAE, log seconds), by MAE
+// The reference rows' rays, MAE and seconds per receiver, for ReferenceSecondsAt.
+std::vector<SweepPoint> ReferenceSweep(const std::vector<Row>& rows) {
+  std::vector<SweepPoint> sweep;
   for (const Row& r : rows) {
-    if (r.method == Method::kReference && r.err.mae > 0 && r.seconds_per_receiver > 0) {
-      curve.push_back({std::log(r.err.mae), std::log(r.seconds_per_receiver)});
+    if (r.method == Method::kReference) {
+      sweep.push_back({r.rays, r.err.mae, r.seconds_per_receiver});
     }
   }
-  if (curve.empty() || !(mae > 0)) return 0;
-  std::sort(curve.begin(), curve.end());
-  const double x = std::log(mae);
-  if (x < curve.front().first) {
-    *extrapolated = true;
-    return std::exp(curve.front().second - 2.0 * (x - curve.front().first));
-  }
-  if (x > curve.back().first) {
-    *extrapolated = true;
-    return std::exp(curve.back().second - 2.0 * (x - curve.back().first));
-  }
-  for (size_t i = 1; i < curve.size(); ++i) {
-    if (x <= curve[i].first) {
-      const auto& [x0, y0] = curve[i - 1];
-      const auto& [x1, y1] = curve[i];
-      const double f = x1 > x0 ? (x - x0) / (x1 - x0) : 0.0;
-      return std::exp(y0 + f * (y1 - y0));
-    }
-  }
-  return std::exp(curve.back().second);
+  return sweep;
 }
 
 // What one eval run works on: the scene, its database, the receivers and the converged truth.
@@ -201,6 +179,7 @@ struct EvalSetup {
   std::vector<ShadeReceiver> shade_receivers;
   std::vector<glm::dvec3> truth;  // the converged reference per receiver
   double truth_mean = 0;          // the mean over receivers of the truth's mean channel
+  double truth_noise = 0;         // the truth's own MAE (two halves: HalvesMae)
   int threads = 1;
   bool occlusion = true;
   bool glossy = false;
@@ -354,26 +333,12 @@ std::vector<Row> ReferenceRows(const EvalArgs& a, const EvalSetup& e,
     Row r;
     r.method = Method::kReference;
     r.setting = absl::StrFormat("%d rays", rays);
+    r.rays = rays;
     r.seconds_per_receiver = Median(times);
     r.err = Compare(v, e.truth);
     rows.push_back(r);
   }
   return rows;
-}
-
-// The truth's own error, from the largest sweep row below the truth's rays by the rays^-1/2
-// law: PBGI errors near it are not resolved (run with more --rays).
-double TruthNoise(const EvalArgs& a, const std::vector<Row>& reference_rows) {
-  double truth_noise = 0;
-  int noise_rays = 0;
-  for (size_t i = 0; i < reference_rows.size(); ++i) {
-    if (a.ray_sweep[i] > noise_rays && a.ray_sweep[i] < a.truth_rays) {
-      noise_rays = a.ray_sweep[i];
-      truth_noise =
-          reference_rows[i].err.mae * std::sqrt(double(noise_rays) / double(a.truth_rays));
-    }
-  }
-  return truth_noise;
 }
 
 // `cut`: a --cuts value (cosine, plain, lobe: ShadeOptions::lobe_cut, glossy only).
@@ -512,25 +477,41 @@ struct EvalSummary {
   double ratio = 0;             // the default row's speedup
   double ratio_with_build = 0;  // the same with the build shared by a frame of receivers
   double truth_noise = 0;
+  // The exponents k of time ~ MAE^-k where a row's ratio is extrapolated below the sweep's
+  // errors and above them (0: no row is).
+  double exponent_below = 0, exponent_above = 0;
+  bool below_from_sweep = false;  // exponent_below is the sweep's (SweepReading::from_sweep)
 };
 
-EvalSummary Summarize(const EvalArgs& a, const EvalSetup& e, size_t default_row, double truth_noise,
+EvalSummary Summarize(const EvalArgs& a, const EvalSetup& e, size_t default_row,
                       std::vector<Row>* rows) {
   EvalSummary s;
   s.default_row = s.best_row = default_row;
-  s.truth_noise = truth_noise;
+  s.truth_noise = e.truth_noise;
+  const std::vector<SweepPoint> sweep = ReferenceSweep(*rows);
+  double smallest = 0;  // the sweep's smallest error
+  for (const SweepPoint& p : sweep) {
+    if (p.mae > 0 && p.seconds > 0 && (smallest == 0 || p.mae < smallest)) smallest = p.mae;
+  }
   for (size_t i = 0; i < rows->size(); ++i) {
     Row& r = (*rows)[i];
     if (r.method != Method::kPbgi) continue;
-    r.speedup = ReferenceSecondsAt(*rows, r.err.mae, &r.extrapolated) /
-                std::max(1e-12, r.seconds_per_receiver);
+    SweepReading reading;
+    r.speedup =
+        ReferenceSecondsAt(sweep, r.err.mae, &reading) / std::max(1e-12, r.seconds_per_receiver);
+    r.extrapolated = reading.extrapolated;
+    if (reading.extrapolated && r.err.mae < smallest) {
+      s.exponent_below = reading.exponent;
+      s.below_from_sweep = reading.from_sweep;
+    } else if (reading.extrapolated) {
+      s.exponent_above = reading.exponent;
+    }
     if (r.speedup > (*rows)[s.best_row].speedup) s.best_row = i;
   }
   const Row& def = (*rows)[default_row];
   s.ratio = def.speedup;
   const double amortized = e.build_seconds / double(std::max<int64_t>(1, a.frame));
-  bool unused = false;
-  s.ratio_with_build = ReferenceSecondsAt(*rows, def.err.mae, &unused) /
+  s.ratio_with_build = ReferenceSecondsAt(sweep, def.err.mae) /
                        std::max(1e-12, def.seconds_per_receiver + amortized);
   return s;
 }
@@ -543,7 +524,7 @@ void PrintEval(const EvalArgs& a, const EvalSetup& e, const std::vector<Row>& ro
                const EvalSummary& s) {
   std::printf(
       "pbgi eval: scene %s, %s%s, %llu surfels, %zu receivers, %d threads, truth = %d "
-      "rays (its own MAE ~%.2g, mean %.5g), times = median of %d\n",
+      "rays (its own MAE %.2g, from two halves, mean %.5g), times = median of %d\n",
       e.scene->name.c_str(), a.mode.c_str(),
       e.glossy ? absl::StrFormat(" %s", LobeTag(e.lobe)).c_str() : "",
       static_cast<unsigned long long>(e.build.points), e.receivers.size(), e.threads, a.truth_rays,
@@ -567,13 +548,19 @@ void PrintEval(const EvalArgs& a, const EvalSetup& e, const std::vector<Row>& ro
       "(us/receiver: wall time over %d threads; gather_us, raster_us: thread time per receiver "
       "in Gather and Shade)\n",
       e.threads);
-  for (const Row& r : rows) {
-    if (r.method == Method::kPbgi && r.extrapolated) {
-      std::printf(
-          "* the MAE lies outside the reference sweep's: the reference's time there is "
-          "extrapolated by time ~ MAE^-2 (widen --ray-sweep to measure it)\n");
-      break;
-    }
+  if (s.exponent_below > 0) {
+    std::printf(
+        "* the MAE lies below the reference sweep's: the reference's time there is extrapolated "
+        "by time ~ MAE^-%.2f, %s (widen --ray-sweep to measure it)\n",
+        s.exponent_below,
+        s.below_from_sweep
+            ? "the error's fall with the rays over the sweep's last segment, kept within [1, 2]"
+            : "the Monte Carlo law (one sweep row gives no slope)");
+  }
+  if (s.exponent_above > 0) {
+    std::printf(
+        "* the MAE lies above the reference sweep's: the reference's time there is extrapolated "
+        "by the Monte Carlo law, time ~ MAE^-2 (widen --ray-sweep to measure it)\n");
   }
   for (const Row& r : rows) {
     if (r.method == Method::kPbgi && r.err.mae < 2.0 * s.truth_noise) {
@@ -748,13 +735,27 @@ absl::StatusOr<std::pair<uint64_t, uint64_t>> EvalBudgets(const EvalArgs& a) {
 absl::StatusOr<Json> EvalOneSetting(const EvalArgs& a, uint64_t cache, const std::string& stem,
                                     EvalSetup& e) {
   const internal::Stopwatch t;
-  e.truth = Reference(e, a.truth_rays, a.seed + 1);
+  // The truth: the mean of two independent halves of the rays, and its own error measured
+  // from their difference (tools/reference_stats.h HalvesMae).
+  const int half = std::max(1, (a.truth_rays + 1) / 2);
+  const std::vector<glm::dvec3> first = Reference(e, half, a.seed + 1);
+  const std::vector<glm::dvec3> second = Reference(e, half, a.seed + 3);
+  e.truth.resize(first.size());
+  std::vector<double> first_scalar(first.size()), second_scalar(first.size());
+  for (size_t i = 0; i < first.size(); ++i) {
+    e.truth[i] = 0.5 * (first[i] + second[i]);
+    first_scalar[i] = Scalar(first[i]);
+    second_scalar[i] = Scalar(second[i]);
+  }
+  e.truth_noise = HalvesMae(first_scalar, second_scalar);
   e.truth_mean = 0;
   for (const glm::dvec3& v : e.truth) e.truth_mean += Scalar(v);
   e.truth_mean /= double(std::max<size_t>(1, e.truth.size()));
-  std::fprintf(stderr, "eval: converged reference%s, %d rays x %zu receivers, %.1f s\n",
-               e.glossy ? absl::StrFormat(" (%s)", LobeTag(e.lobe)).c_str() : "", a.truth_rays,
-               e.receivers.size(), t.Seconds());
+  std::fprintf(stderr,
+               "eval: converged reference%s, 2 x %d rays x %zu receivers, its own MAE %.2g, "
+               "%.1f s\n",
+               e.glossy ? absl::StrFormat(" (%s)", LobeTag(e.lobe)).c_str() : "", half,
+               e.receivers.size(), e.truth_noise, t.Seconds());
 
   Progress sweeps(
       "eval: sweeps", "timed runs",
@@ -763,13 +764,12 @@ absl::StatusOr<Json> EvalOneSetting(const EvalArgs& a, uint64_t cache, const std
   uint64_t runs = 0;
   const std::function<void()> step = [&] { sweeps.Update(++runs); };
   std::vector<Row> rows = ReferenceRows(a, e, step);
-  const double truth_noise = TruthNoise(a, rows);
   DatabaseOptions dbo;
   dbo.cache_bytes = cache;
   PBGI_ASSIGN_OR_RETURN(std::unique_ptr<Database> db, Database::Open(e.db_path, dbo));
   PBGI_ASSIGN_OR_RETURN(size_t default_row, PbgiRows(a, e, *db, step, &rows));
   sweeps.Finish(runs);
-  const EvalSummary summary = Summarize(a, e, default_row, truth_noise, &rows);
+  const EvalSummary summary = Summarize(a, e, default_row, &rows);
   PrintEval(a, e, rows, summary);
 
   const Json j = EvalJson(a, e, rows, summary);

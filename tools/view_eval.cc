@@ -25,6 +25,7 @@
 #include "tools/footprint_flags.h"
 #include "tools/outputs.h"
 #include "tools/progress.h"
+#include "tools/reference_stats.h"
 #include "tools/scene_views.h"
 
 namespace pbgi::tools {
@@ -384,7 +385,7 @@ absl::Status RunViewEval(const ViewEvalArgs& a) {
   };
   // The reference at fewer rays: its time and error against the converged one, the curve that
   // PBGI's rows are compared on at equal MAE.
-  std::vector<std::pair<double, double>> ref_curve;  // (log MAE, log seconds per receiver)
+  std::vector<SweepPoint> ref_sweep;  // rays, MAE, us per receiver
   for (int rays : a.ray_sweep) {
     std::vector<double> got(pixels, 0.0);
     std::vector<double> times;
@@ -399,7 +400,7 @@ absl::Status RunViewEval(const ViewEvalArgs& a) {
     const ImageErrors e = CompareImages(a.width, a.height, got, ref, covered);
     PrintErrors(absl::StrFormat("reference %d rays:", rays).c_str(), e, !occlusion);
     std::printf("%-26s %.3f us/receiver (%d threads)\n", "", us, threads);
-    if (e.mae > 0) ref_curve.push_back({std::log(e.mae), std::log(us)});
+    if (e.mae > 0) ref_sweep.push_back({rays, e.mae, us});
     const std::string tag = absl::StrFormat("reference_%d", rays);
     PBGI_RETURN_IF_ERROR(WritePng(a.out_dir + "/error_" + tag + ".png",
                                   ErrorHeatMap(a.width, a.height, got, ref, covered, scale), 1.0f,
@@ -409,20 +410,13 @@ absl::Status RunViewEval(const ViewEvalArgs& a) {
                         "\"us_per_receiver\": %.4g, \"errors\": %s}",
                         tag, rays, us, ErrorsJson(e)));
   }
-  std::sort(ref_curve.begin(), ref_curve.end());
-  // The reference's time at `mae`, interpolated in log-log on its sweep (0 outside it).
+  // The reference's time at `mae`, interpolated in log-log on its sweep (0 outside it:
+  // tools/reference_stats.h).
   auto reference_us_at = [&](double mae) {
-    if (ref_curve.size() < 2 || !(mae > 0)) return 0.0;
-    const double x = std::log(mae);
-    if (x < ref_curve.front().first || x > ref_curve.back().first) return 0.0;
-    for (size_t i = 1; i < ref_curve.size(); ++i) {
-      if (x <= ref_curve[i].first) {
-        const auto& [x0, y0] = ref_curve[i - 1];
-        const auto& [x1, y1] = ref_curve[i];
-        return std::exp(y0 + (x1 > x0 ? (x - x0) / (x1 - x0) : 0.0) * (y1 - y0));
-      }
-    }
-    return 0.0;
+    if (ref_sweep.size() < 2) return 0.0;
+    SweepReading reading;
+    const double us = ReferenceSecondsAt(ref_sweep, mae, &reading);
+    return reading.extrapolated ? 0.0 : us;
   };
 
   struct ModeRow {
