@@ -6,7 +6,7 @@
 // receivers, and with --detail the elements that close the worst receiver's pixels (each
 // cluster and each leaf's surfels shaded alone) and what rays along its normal hit.
 // Usage: pixel_error SCENE|MESH DATABASE [--receivers N] [--msa A] [--res R] [--sub S]
-//        [--seed K] [--layout S] [--hitsides front|both] [--detail]
+//        [--seed K] [--layout S] [--hitsides front|both] [--curved C] [--detail] [--dump F]
 //        pixel_error SCENE|MESH DATABASE --at X,Y,Z --normal X,Y,Z [--msa A] [--res R] [--sub S]
 //        [--hitsides front|both] [--pixel-diff D] [--pixel P] [--keep-above H] [--keep-within D]
 //        [--detail] [--radiance] [--bands D1,D2,... [--band-rays N]] [--sheet S]
@@ -20,6 +20,9 @@
 // of its coverage, --pixel-diff then in units of 1e-3 of the pixel's cosine-weighted share;
 // --bands: occlusion and irradiance from what lies within each distance, rays against PBGI
 // (RunBands). --radiance shades with the tools' radiance contrast.
+// --curved C: the cut's curved_scale (the tools' 0.3). --dump F writes one CSV row per receiver
+// (position, normal, truth, error): two runs on the same receivers (another --msa, --res or
+// database of another density) compare receiver by receiver.
 // DATABASE: one built from the same scene (`pbgi eval ... -o DIR` leaves DIR/NAME.pbgi). Meshes
 // are read z-up as the file has them, or with --up y rotated as `pbgi eval --up y` does.
 // docs/eval.md ("Session 8") has what it showed.
@@ -68,6 +71,8 @@ struct Args {
   bool radiance = false;      // --radiance: compare the pixels' radiance (irradiance mode)
   std::vector<float> bands;   // --bands D1,D2,...: what lies within each distance (one receiver)
   int band_rays = 16384;      // --band-rays N: the reference's rays per band
+  float curved = 0.3f;        // --curved C: Cut::curved_scale
+  std::string dump;           // --dump F: per-receiver CSV
 };
 
 struct Worst {
@@ -188,7 +193,7 @@ Cut ToolCut(const Args& a) {
   Cut cut;
   cut.max_solid_angle = a.msa;
   cut.cosine_weighted = true;
-  cut.curved_scale = 0.3f;
+  cut.curved_scale = a.curved;
   cut.curved_box_scale = 1.0f;
   return cut;
 }
@@ -516,6 +521,22 @@ int Run(const Args& a) {
     sum_pbgi += got, sum_truth += want, sum_abs += std::fabs(got - want);
     worst.push_back({float(got - want), p, n, float(want), s.sheet});
   }
+  if (!a.dump.empty()) {
+    std::FILE* f = std::fopen(a.dump.c_str(), "w");
+    if (f == nullptr) {
+      std::fprintf(stderr, "pixel_error: cannot write %s\n", a.dump.c_str());
+      return 1;
+    }
+    std::fprintf(f, "x,y,z,nx,ny,nz,truth,error\n");
+    for (const Worst& w : worst) {
+      std::fprintf(f, "%.6f,%.6f,%.6f,%.5f,%.5f,%.5f,%.6f,%+.6f\n", w.p.x, w.p.y, w.p.z, w.n.x,
+                   w.n.y, w.n.z, w.truth, w.error);
+    }
+    if (std::fclose(f) != 0) {
+      std::fprintf(stderr, "pixel_error: cannot write %s\n", a.dump.c_str());
+      return 1;
+    }
+  }
   const double count = static_cast<double>(samples.size());
   std::printf(
       "%zu receivers, msa %g, res %d, %d x %d rays per pixel: PBGI %.5f, truth %.5f, "
@@ -611,6 +632,10 @@ int main(int argc, char** argv) {
       std::sort(a.bands.begin(), a.bands.end());
     } else if (arg == "--band-rays")
       a.band_rays = std::atoi(value());
+    else if (arg == "--curved")
+      a.curved = std::strtof(value(), nullptr);
+    else if (arg == "--dump")
+      a.dump = value();
     else if (positional == 0)
       a.scene = arg, ++positional;
     else if (positional == 1)
@@ -621,10 +646,11 @@ int main(int argc, char** argv) {
     }
   }
   if (positional != 2 || a.receivers < 1 || a.res < 4 || a.res > 64 || a.sub < 1 ||
-      !(a.msa > 0.0f)) {
+      !(a.msa > 0.0f) || !(a.curved > 0.0f && a.curved <= 1.0f)) {
     std::fprintf(stderr,
                  "usage: pixel_error SCENE|MESH DATABASE [--receivers N] [--msa A] [--res R] "
-                 "[--sub S] [--seed K] [--layout S] [--hitsides front|both] [--detail]\n");
+                 "[--sub S] [--seed K] [--layout S] [--hitsides front|both] [--curved C in (0, "
+                 "1]] [--detail] [--dump F]\n");
     return 2;
   }
   return pbgi::Run(a);
