@@ -180,6 +180,7 @@ struct EvalSetup {
   std::vector<glm::dvec3> truth;  // the converged reference per receiver
   double truth_mean = 0;          // the mean over receivers of the truth's mean channel
   double truth_noise = 0;         // the truth's own MAE (two halves: HalvesMae)
+  int truth_rays = 0;             // its rays: --rays, rounded up to an even count
   int threads = 1;
   bool occlusion = true;
   bool glossy = false;
@@ -527,7 +528,7 @@ void PrintEval(const EvalArgs& a, const EvalSetup& e, const std::vector<Row>& ro
       "rays (its own MAE %.2g, from two halves, mean %.5g), times = median of %d\n",
       e.scene->name.c_str(), a.mode.c_str(),
       e.glossy ? absl::StrFormat(" %s", LobeTag(e.lobe)).c_str() : "",
-      static_cast<unsigned long long>(e.build.points), e.receivers.size(), e.threads, a.truth_rays,
+      static_cast<unsigned long long>(e.build.points), e.receivers.size(), e.threads, e.truth_rays,
       s.truth_noise, e.truth_mean, a.repeat);
   // "rel" (MAE over the truth's mean) last: scripts read the columns before it by position.
   std::printf("%-10s %-20s %12s %10s %10s %10s %10s %9s %9s %9s %9s %9s %8s\n", "method", "setting",
@@ -606,7 +607,7 @@ Json EvalJson(const EvalArgs& a, const EvalSetup& e, const std::vector<Row>& row
   j["points"] = e.build.points;
   j["receivers"] = e.receivers.size();
   j["threads"] = e.threads;
-  j["truth_rays"] = a.truth_rays;
+  j["truth_rays"] = e.truth_rays;
   j["default_mae"] = def.err.mae;
   j["speedup_at_equal_error"] = s.ratio;
   j["default_setting"] = def.setting;
@@ -748,6 +749,7 @@ absl::StatusOr<Json> EvalOneSetting(const EvalArgs& a, uint64_t cache, const std
     second_scalar[i] = Scalar(second[i]);
   }
   e.truth_noise = HalvesMae(first_scalar, second_scalar);
+  e.truth_rays = 2 * half;
   e.truth_mean = 0;
   for (const glm::dvec3& v : e.truth) e.truth_mean += Scalar(v);
   e.truth_mean /= double(std::max<size_t>(1, e.truth.size()));
