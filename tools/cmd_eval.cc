@@ -709,7 +709,7 @@ absl::Status WriteEvalChart(const std::string& path, const EvalArgs& a, const Ev
                               e.occlusion ? "occlusion"
                               : e.glossy  ? "glossy radiance"
                                           : "irradiance",
-                              a.truth_rays);
+                              e.truth_rays);
   o.y_label = "wall time per receiver, seconds (log scale)";
   const Row& def = rows[summary.default_row];
   if (def.method == Method::kPbgi) {
