@@ -556,7 +556,7 @@ void PrintEval(const EvalArgs& a, const EvalSetup& e, const std::vector<Row>& ro
         s.exponent_below,
         s.below_from_sweep
             ? "the error's fall with the rays over the sweep's last segment, kept within [1, 2]"
-            : "the Monte Carlo law (one sweep row gives no slope)");
+            : "the Monte Carlo law (the sweep gives no slope)");
   }
   if (s.exponent_above > 0) {
     std::printf(
@@ -621,6 +621,8 @@ Json EvalJson(const EvalArgs& a, const EvalSetup& e, const std::vector<Row>& row
   j["triangles"] = e.scene->TriangleCount();
   j["repeat"] = a.repeat;
   j["truth_noise_mae"] = s.truth_noise;
+  // k of time ~ MAE^-k for rows below the sweep's errors (0: none is).
+  j["reference_exponent_below_sweep"] = s.exponent_below;
   j["default_extrapolated"] = def.extrapolated;
   j["truth_mean"] = e.truth_mean;
   j["default_relative_mae"] = def.err.relative;
