@@ -1516,8 +1516,10 @@ float FlatFootprint(const Bounds& centres, const Bounds& cell, float spacing,
   // cell is seen, the more the finer the raster (bug: sparse_full_cell_leak).
   const double m = poly / std::max(1e-30, double(spacing) * spacing);
   const double lacks = m <= kSmallCell ? 0.0 : 0.7;
-  if (sheet != nullptr) *sheet = full && !backs && area >= 0.7 * poly && m > kSheetCell;
-  if (full && !backs && area >= lacks * poly) return 1.0f;
+  const bool fills = full && !backs && area >= lacks * poly;
+  // (A cell wider than kSheetCell is wider than kSmallCell: `fills` asks for 70 % of its area.)
+  if (sheet != nullptr) *sheet = fills && m > kSheetCell;
+  if (fills) return 1.0f;
   const bool has_cell = CellHolds(cell, centres);
   for (int iter = 0; iter < 2 && area > poly * 1.0001; ++iter) {
     // Grow the free in-plane axes by the missing factor, shared among them.

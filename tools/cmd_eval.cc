@@ -478,10 +478,11 @@ struct EvalSummary {
   double ratio = 0;             // the default row's speedup
   double ratio_with_build = 0;  // the same with the build shared by a frame of receivers
   double truth_noise = 0;
-  // The exponents k of time ~ MAE^-k where a row's ratio is extrapolated below the sweep's
-  // errors and above them (0: no row is).
-  double exponent_below = 0, exponent_above = 0;
-  bool below_from_sweep = false;  // exponent_below is the sweep's (SweepReading::from_sweep)
+  // The exponent k of time ~ MAE^-k where a row's ratio is extrapolated below the sweep's
+  // errors (0: no row is), and whether it is the sweep's (SweepReading::from_sweep).
+  double exponent_below = 0;
+  bool below_from_sweep = false;
+  bool above = false;  // a row's ratio is extrapolated above them (the Monte Carlo law)
 };
 
 EvalSummary Summarize(const EvalArgs& a, const EvalSetup& e, size_t default_row,
@@ -490,10 +491,6 @@ EvalSummary Summarize(const EvalArgs& a, const EvalSetup& e, size_t default_row,
   s.default_row = s.best_row = default_row;
   s.truth_noise = e.truth_noise;
   const std::vector<SweepPoint> sweep = ReferenceSweep(*rows);
-  double smallest = 0;  // the sweep's smallest error
-  for (const SweepPoint& p : sweep) {
-    if (p.mae > 0 && p.seconds > 0 && (smallest == 0 || p.mae < smallest)) smallest = p.mae;
-  }
   for (size_t i = 0; i < rows->size(); ++i) {
     Row& r = (*rows)[i];
     if (r.method != Method::kPbgi) continue;
@@ -501,11 +498,11 @@ EvalSummary Summarize(const EvalArgs& a, const EvalSetup& e, size_t default_row,
     r.speedup =
         ReferenceSecondsAt(sweep, r.err.mae, &reading) / std::max(1e-12, r.seconds_per_receiver);
     r.extrapolated = reading.extrapolated;
-    if (reading.extrapolated && r.err.mae < smallest) {
+    if (reading.below) {
       s.exponent_below = reading.exponent;
       s.below_from_sweep = reading.from_sweep;
     } else if (reading.extrapolated) {
-      s.exponent_above = reading.exponent;
+      s.above = true;
     }
     if (r.speedup > (*rows)[s.best_row].speedup) s.best_row = i;
   }
@@ -558,7 +555,7 @@ void PrintEval(const EvalArgs& a, const EvalSetup& e, const std::vector<Row>& ro
             ? "the error's fall with the rays over the sweep's last segment, kept within [1, 2]"
             : "the Monte Carlo law (the sweep gives no slope)");
   }
-  if (s.exponent_above > 0) {
+  if (s.above) {
     std::printf(
         "* the MAE lies above the reference sweep's: the reference's time there is extrapolated "
         "by the Monte Carlo law, time ~ MAE^-2 (widen --ray-sweep to measure it)\n");

@@ -31,7 +31,7 @@ double ReferenceSecondsAt(absl::Span<const SweepPoint> sweep, double mae, SweepR
     std::sort(curve.begin(), curve.end());
     const double x = std::log(mae);
     if (x < curve.front().x) {
-      r.extrapolated = true;
+      r.extrapolated = r.below = true;
       r.exponent = 2.0;
       // p = -d log(MAE) / d log(rays) over the last segment, k = 1 / p.
       if (curve.size() >= 2 && curve[1].x > curve[0].x && curve[0].log_rays > curve[1].log_rays) {

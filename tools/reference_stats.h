@@ -29,6 +29,7 @@ struct SweepPoint {
 // How the reference's time at an error was found (ReferenceSecondsAt).
 struct SweepReading {
   bool extrapolated = false;  // outside the sweep's range of errors
+  bool below = false;         // below its smallest error (extrapolated too)
   double exponent = 0;        // k of time ~ MAE^-k where extrapolated
   bool from_sweep = false;    // k is the sweep's last segment's, not the Monte Carlo law
 };
