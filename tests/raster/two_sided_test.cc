@@ -920,6 +920,77 @@ TEST(TwoSidedTest, AThinCornersPiecesEndAtTheJunction) {
   RecordProperty("mean_abs_error", std::to_string(sum / n));
 }
 
+// A fold of a thin part (two two-sided sheets meeting at a ridge, as Wuson.ply's ears fold): a
+// panel 0.3 and 0.6 pitches over the receiver's plane ends at a crease a pitch past the
+// receiver, and a second sheet falls from it at 35 and 60 degrees, so that the receiver lies
+// behind both; leaf cells 3 pitches wide hold pieces of both. ClipAtSheetJunctions ends each
+// piece at the other's plane, but a piece so ended kept its count over its section as its
+// opacity (six surfels where 6.6 fit: 0.91), and a receiver within a spacing behind the panel
+// saw the sky through it (Wuson.ply: 0.909 for rays' 1; bug:
+// sheet_junction_pieces_translucent_by_sampling_noise). A piece ended at a junction is its
+// sheet's where it is: a section a few surfels' areas wide is opaque, as a convex solid's face
+// is. The receiver lies on a sheet of its own (another tag). Against rays at the two rectangles,
+// the part and the receiver cut by the cells twelve ways: mean |error| 0.0449 before, 0.0219
+// now. What is left (the worst, 0.23 short, unchanged): a cell that the panel enters by less
+// than a spacing before the crease holds one or two of its surfels, or none, and its piece
+// leaves most of that strip open.
+TEST(TwoSidedTest, AFoldsPiecesAreOpaque) {
+  const float pitch = 0.1f, cell = 3.0f * pitch;
+  const float length = 10.0f * pitch, fall = 6.0f * pitch, half = 6.0f * pitch;
+  const int across = static_cast<int>(2.0f * half / pitch + 0.5f);
+  double worst = 0.0, sum = 0.0;
+  int n = 0;
+  for (const float h : {0.3f * pitch, 0.6f * pitch}) {
+    for (const float degrees : {35.0f, 60.0f}) {
+      const float a = degrees * static_cast<float>(kPi) / 180.0f;
+      // The panel: z = h, x in [-length, 0], |y| <= half; the second sheet falls from the
+      // crease x = 0, z = h along du.
+      const glm::vec3 crease(0.0f, 0.0f, h), du(std::cos(a), 0.0f, -std::sin(a));
+      const glm::vec3 nb(std::sin(a), 0.0f, std::cos(a));
+      std::vector<Surfel> part = LatticeSheet(
+          glm::vec3(-length, -half, h), glm::vec3(1, 0, 0), glm::vec3(0, 1, 0),
+          static_cast<int>(length / pitch + 0.5f), across, pitch, glm::vec3(0, 0, 1), 0u);
+      const std::vector<Surfel> fold =
+          LatticeSheet(crease - glm::vec3(0.0f, half, 0.0f), du, glm::vec3(0, 1, 0),
+                       static_cast<int>(fall / pitch + 0.5f), across, pitch, nb, 7u);
+      part.insert(part.end(), fold.begin(), fold.end());
+      for (Surfel& s : part) s.sheet = 1;
+      const glm::dvec3 p(-pitch, 0.0, 0.0);
+      const double want = CosineRayFraction(300, [&](const glm::dvec3& w) {
+        if (w.z > 0.0) {  // the panel
+          const glm::dvec3 q = p + ((h - p.z) / w.z) * w;
+          if (q.x >= -length && q.x <= 0.0 && std::fabs(q.y) <= half) return true;
+        }
+        const double wn = glm::dot(w, glm::dvec3(nb));
+        if (wn != 0.0) {  // the second sheet
+          const double t = glm::dot(glm::dvec3(crease) - p, glm::dvec3(nb)) / wn;
+          const glm::dvec3 q = p + t * w - glm::dvec3(crease);
+          const double u = glm::dot(q, glm::dvec3(du));
+          if (t > 0.0 && u >= 0.0 && u <= fall && std::fabs(q.y) <= half) return true;
+        }
+        return false;
+      });
+      for (uint32_t k = 0; k < 12; ++k) {
+        // The part and the receiver move together: other cuts of them by the same cells.
+        const glm::vec3 move(testing_raster::Hash01(k * 977u + 1u) * 3.0f * pitch,
+                             testing_raster::Hash01(k * 331u + 7u) * 3.0f * pitch,
+                             testing_raster::Hash01(k * 613u + 3u) * 3.0f * pitch);
+        std::vector<Surfel> moved = part;
+        for (Surfel& s : moved) s.position += move;
+        const double got = MustShade(InLeafCells(moved, cell), glm::vec3(p) + move,
+                                     Options(Footprint::kPolygons, HitSides::kFront), 2)
+                               .occlusion;
+        worst = std::max(worst, std::fabs(got - want));
+        sum += std::fabs(got - want);
+        ++n;
+      }
+    }
+  }
+  EXPECT_LT(sum / n, 0.03);
+  RecordProperty("worst_abs_error", std::to_string(worst));
+  RecordProperty("mean_abs_error", std::to_string(sum / n));
+}
+
 // Something more in front of a sheet never shows less of it. A small crumpled two-sided bit (a
 // curved porous cluster, drawn as its box at an even opacity) just under a two-sided ceiling
 // came first in the pixels over it and opened their layer without a coverage mask; the
