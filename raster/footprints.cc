@@ -55,7 +55,7 @@ constexpr float kNoSide = 1e37f;
 // crease lies 0.17 spacings off). A smooth surface's sag within a group stays below it
 // (FootprintTest.ClosedSphereOfSurfelsOccludesNearlyFully leaks at 0.1).
 constexpr float kGroupThickness = 0.15f;
-// CrossLeafConvexClip: the largest |cos| between two faces that it ends at each other's planes.
+// CrossLeafConvexPair: the largest |cos| between two faces that end at each other's planes.
 constexpr float kCrossLeafCos = 0.1f;
 // RadiancePieces: the members' radiance differs when one is this far from the mean.
 constexpr float kPieceContrast = 0.1f;
@@ -1049,41 +1049,87 @@ struct CellRun {
   size_t g0, g1;
 };
 
+// Whether two-sided group a, in `cell`, ends at the plane of two-sided group b of a touching
+// cell where its footprint reaches past its cell: they meet at a junction (MeetsAtSheetJunction,
+// their centres' boxes grown by 1.5 spacings overlapping) and b's plane leaves a's cell on a's
+// side, so that ending a there takes off only what reaches past the cell. *sign as
+// MeetsAtSheetJunction's.
+bool CrossLeafSheetPair(const SurfelGroup& a, const Bounds& cell, const SurfelGroup& b,
+                        const Gathered& g, const uint32_t* order) {
+  // Most pairs are one sheet going on across its cells: the cheapest test first.
+  if (std::fabs(glm::dot(a.normal, b.normal)) > 0.906f) return false;
+  if (!GrownBoxesOverlap(a.centres, 1.5f * a.spacing, b.centres, 1.5f * b.spacing)) return false;
+  float sign;
+  if (!MeetsAtSheetJunction(a, b, g, order, &sign)) return false;
+  float lo, hi;
+  BoxDotRange(cell, sign * b.normal, b.centroid, &lo, &hi);
+  return lo >= -0.01f * b.spacing;
+}
+
 // Every pair (a, b) of `all`'s groups in two different cells that touch (octree cells share a
-// face, an edge or a corner) that meet so, both ways. The cells are swept along x: a receiver near
-// a sparse database gathers hundreds of groups, and testing every pair of groups cost 3 M
-// instructions per receiver (city 50 k surfels).
-void CrossLeafConvexPairs(absl::Span<const SurfelGroup> all, absl::Span<const CellRun> runs,
-                          std::vector<std::pair<uint32_t, uint32_t>>* pairs) {
-  static thread_local std::vector<uint32_t> order;
+// face, an edge or a corner) that meet so: one-sided faces at a convex edge (CrossLeafConvexPair),
+// both ways; two-sided sheets at a junction past a's cell (CrossLeafSheetPair), each way on its
+// own. The cells are swept along x: a receiver near a sparse database gathers hundreds of
+// groups, and testing every pair of groups cost 3 M instructions per receiver (city 50 k
+// surfels).
+void CrossLeafPairs(absl::Span<const SurfelGroup> all, absl::Span<const CellRun> runs,
+                    const Gathered& g, const uint32_t* order, bool sheets,
+                    std::vector<std::pair<uint32_t, uint32_t>>* pairs) {
+  static thread_local std::vector<uint32_t> order_x;
   pairs->clear();
-  auto candidate = [](const SurfelGroup& a) { return !a.two_sided && a.solid && a.on_axis; };
-  order.clear();
+  auto convex = [](const SurfelGroup& a) { return !a.two_sided && a.solid && a.on_axis; };
+  auto sheet = [&](const SurfelGroup& a) { return sheets && a.two_sided && a.solid; };
+  // A group whose centres all lie more than a spacing inside its cell's sides along its plane
+  // ends inside the cell (FlatFootprint grows at most a spacing past them): it ends at no
+  // other cell's sheet.
+  auto reaches_out = [](const SurfelGroup& a, const Bounds& cell) {
+    for (int k = 0; k < 3; ++k) {
+      if (!(std::fabs(a.normal[k]) < kInPlaneAxis)) continue;
+      if (a.centres.lo[k] - cell.lo[k] < a.spacing || cell.hi[k] - a.centres.hi[k] < a.spacing) {
+        return true;
+      }
+    }
+    return false;
+  };
+  order_x.clear();
   for (uint32_t r = 0; r < runs.size(); ++r) {
     bool any = false;
-    for (size_t i = runs[r].g0; i < runs[r].g1 && !any; ++i) any = candidate(all[i]);
-    if (any) order.push_back(r);
+    for (size_t i = runs[r].g0; i < runs[r].g1 && !any; ++i) {
+      any = convex(all[i]) || sheet(all[i]);
+    }
+    if (any) order_x.push_back(r);
   }
-  if (order.size() < 2) return;
-  std::sort(order.begin(), order.end(), [&](uint32_t x, uint32_t y) {
+  if (order_x.size() < 2) return;
+  std::sort(order_x.begin(), order_x.end(), [&](uint32_t x, uint32_t y) {
     return runs[x].cell.lo.x < runs[y].cell.lo.x ||
            (runs[x].cell.lo.x == runs[y].cell.lo.x && x < y);
   });
-  for (size_t i = 0; i < order.size(); ++i) {
-    const CellRun& ri = runs[order[i]];
+  for (size_t i = 0; i < order_x.size(); ++i) {
+    const CellRun& ri = runs[order_x[i]];
     const Bounds& ci = ri.cell;
-    for (size_t j = i + 1; j < order.size() && runs[order[j]].cell.lo.x <= ci.hi.x; ++j) {
-      const CellRun& rj = runs[order[j]];
+    for (size_t j = i + 1; j < order_x.size() && runs[order_x[j]].cell.lo.x <= ci.hi.x; ++j) {
+      const CellRun& rj = runs[order_x[j]];
       const Bounds& cj = rj.cell;
       if (cj.lo.y > ci.hi.y || ci.lo.y > cj.hi.y || cj.lo.z > ci.hi.z || ci.lo.z > cj.hi.z) {
         continue;
       }
       for (size_t a = ri.g0; a < ri.g1; ++a) {
-        if (!candidate(all[a])) continue;
+        const bool ca = convex(all[a]), sa = sheet(all[a]);
+        if (!ca && !sa) continue;
         for (size_t b = rj.g0; b < rj.g1; ++b) {
-          if (!candidate(all[b]) || !CrossLeafConvexPair(all[a], all[b])) continue;
-          pairs->push_back({static_cast<uint32_t>(a), static_cast<uint32_t>(b)});
-          pairs->push_back({static_cast<uint32_t>(b), static_cast<uint32_t>(a)});
+          const uint32_t a32 = static_cast<uint32_t>(a), b32 = static_cast<uint32_t>(b);
+          if (ca) {
+            if (!convex(all[b]) || !CrossLeafConvexPair(all[a], all[b])) continue;
+            pairs->push_back({a32, b32});
+            pairs->push_back({b32, a32});
+          } else if (sheet(all[b])) {
+            if (reaches_out(all[a], ci) && CrossLeafSheetPair(all[a], ci, all[b], g, order)) {
+              pairs->push_back({a32, b32});
+            }
+            if (reaches_out(all[b], cj) && CrossLeafSheetPair(all[b], cj, all[a], g, order)) {
+              pairs->push_back({b32, a32});
+            }
+          }
         }
       }
     }
@@ -1091,14 +1137,23 @@ void CrossLeafConvexPairs(absl::Span<const SurfelGroup> all, absl::Span<const Ce
 }
 
 // Clips a's footprint (group `ai` of `all`) at the planes of its partners, partners[first[ai],
-// first[ai + 1]).
-bool CrossLeafConvexClip(uint32_t ai, absl::Span<const SurfelGroup> all,
-                         absl::Span<const uint32_t> first, absl::Span<const uint32_t> partners,
-                         const glm::vec3& from, Polygon* p) {
+// first[ai + 1]) (CrossLeafPairs): a one-sided face keeps what lies behind a partner's plane,
+// a two-sided sheet its own side of it.
+bool CrossLeafClip(uint32_t ai, absl::Span<const SurfelGroup> all, absl::Span<const uint32_t> first,
+                   absl::Span<const uint32_t> partners, const glm::vec3& from, Polygon* p) {
   bool clipped = false;
+  const SurfelGroup& a = all[ai];
   for (uint32_t k = first[ai]; k < first[ai + 1] && p->n >= 3; ++k) {
     const SurfelGroup& b = all[partners[k]];
-    ClipHalfSpace(-b.normal, glm::dot(b.normal, from - b.centroid) - 0.01f * b.spacing, p);
+    if (a.two_sided) {
+      // Keep a's side of b's plane (CrossLeafSheetPair).
+      float lo, hi;
+      BoxDotRange(a.centres, b.normal, b.centroid, &lo, &hi);
+      const float sign = lo >= -0.25f * b.spacing ? 1.0f : -1.0f;
+      ClipHalfSpace(sign * b.normal, sign * glm::dot(b.normal, b.centroid - from), p);
+    } else {
+      ClipHalfSpace(-b.normal, glm::dot(b.normal, from - b.centroid) - 0.01f * b.spacing, p);
+    }
     clipped = true;
   }
   return clipped;
@@ -1962,7 +2017,7 @@ void Rasterizer::PrepareSurfelGroups(const Gathered& g, ShadeResult* out) {
     return run_index;
   };
   // Every cell's groups are found first, then drawn: a group's footprint stops at the plane of
-  // another that it meets, in its cell or a neighbouring one (CrossLeafConvexClip).
+  // another that it meets, in its cell or a neighbouring one (CrossLeafClip).
   static thread_local std::vector<SurfelGroup> all;
   static thread_local std::vector<CellRun> cell_runs;
   all.clear();
@@ -2031,7 +2086,7 @@ void Rasterizer::PrepareSurfelGroups(const Gathered& g, ShadeResult* out) {
     run0 = run1;
   }
   static thread_local std::vector<std::pair<uint32_t, uint32_t>> cross_pairs;
-  CrossLeafConvexPairs(all, cell_runs, &cross_pairs);
+  CrossLeafPairs(all, cell_runs, g, order.data(), leaves, &cross_pairs);
   // Each group's partners, in the order found (a counting sort by group).
   static thread_local std::vector<uint32_t> partner_first, partners;
   partner_first.assign(all.size() + 1, 0);
@@ -2241,11 +2296,9 @@ void Rasterizer::PrepareSurfelGroups(const Gathered& g, ShadeResult* out) {
             [&] { return junction = ClipAtSheetJunctions(gr, groups, g, order.data(), from, &p); });
         if (junction && alpha < 1.0f && few_surfels_wide()) alpha = 1.0f;
       }
-      if (p.n >= 3 && !cross_pairs.empty()) {
-        clip_past_edge([&] {
-          return CrossLeafConvexClip(static_cast<uint32_t>(&gr - all.data()), all, partner_first,
-                                     partners, from, &p);
-        });
+      if (const uint32_t ai = static_cast<uint32_t>(&gr - all.data());
+          p.n >= 3 && partner_first[ai] < partner_first[ai + 1]) {
+        clip_past_edge([&] { return CrossLeafClip(ai, all, partner_first, partners, from, &p); });
       }
       if (p.n < 3) {
         out->culled += count;

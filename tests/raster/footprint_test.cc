@@ -1936,7 +1936,7 @@ TEST(FootprintTest, ARoofEndsAtItsWallsPlane) {
 // leaf (as the city's 4 M surfels sample a building's edge): the wall's footprint snapped to
 // its cell's top, a spacing above the roof, in front of whatever lies beyond (bug:
 // wall_overhangs_its_roof). The faces meet at a convex edge, so the wall ends at the roof's
-// plane though the roof is not in its cell (CrossLeafConvexClip). A lit wall and a dark roof,
+// plane though the roof is not in its cell (CrossLeafClip). A lit wall and a dark roof,
 // receivers a little above the roof looking at the wall, against the wall's exact rectangle.
 TEST(FootprintTest, AWallEndsAtTheRoofOfTheNextLeaf) {
   const float r = 0.7959f, top = 54.73f, x_wall = 140.0f;

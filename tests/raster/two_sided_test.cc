@@ -869,8 +869,14 @@ TEST(TwoSidedTest, ATurnedSheetOverAReceiverIsOpaque) {
 // A two-sided group's footprint ends at the plane of another two-sided group of its cell that
 // it meets (ClipAtSheetJunctions). Receivers 0.5, 1 and 2 pitches outside the corner, the
 // sheets sampled one point per lattice square, cut by the cells twelve ways: against rays at
-// the two rectangles, mean |error| 0.040 before and 0.015 now, the worst 0.144 and 0.070 (what
-// is left: lone surfels' disks at the junction).
+// the two rectangles, mean |error| 0.040 before and 0.015 now, the worst 0.144 and 0.070.
+// Where the panel's last centres lie within a spacing of its cell's side and the lip stands in
+// the next cell, the panel's piece, grown to hold its area, reached past that side and past the
+// lip, over the receiver (2CylinderEngine: a flange over a receiver inside a cylinder, 0.263
+// for rays' 0.220; bug: sheet_pieces_reach_past_a_junction_in_the_next_cell). A piece also
+// ends at the plane of another cell's sheet that it meets when that plane lies outside its own
+// cell (CrossLeafSheetPair): 0.0147 -> 0.0103 (the fold rule, AFoldsPiecesAreOpaque, gave 0.0133
+// of it), the worst 0.062 (what is left: lone surfels' disks at the junction).
 TEST(TwoSidedTest, AThinCornersPiecesEndAtTheJunction) {
   const float pitch = 0.1f, cell = 2.1f * pitch;
   const float lip = 2.0f * pitch, length = 12.0f * pitch, half = 6.0f * pitch;
@@ -914,8 +920,8 @@ TEST(TwoSidedTest, AThinCornersPiecesEndAtTheJunction) {
       }
     }
   }
-  EXPECT_LT(sum / n, 0.022);
-  EXPECT_LT(worst, 0.08);
+  EXPECT_LT(sum / n, 0.012);
+  EXPECT_LT(worst, 0.07);
   RecordProperty("worst_abs_error", std::to_string(worst));
   RecordProperty("mean_abs_error", std::to_string(sum / n));
 }
