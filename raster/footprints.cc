@@ -976,23 +976,17 @@ bool ClipAtConvexEdges(const SurfelGroup& a, uint32_t edges, absl::Span<const Su
   return clipped;
 }
 
-// Whether two-sided group a of a cell meets two-sided group b of the same cell at a junction
-// (an L, a T, a ridge, a fold): their planes differ by more than a co-planar group's 25 degrees,
-// a's centres all lie on one side of b's plane (within a quarter of b's spacing) and reach
-// within 1.5 of b's spacings of it, and b's centres reach a's plane. *sign: the side of b's
-// plane that a lies on (+1: dot(nb, x - cb) >= 0).
-bool MeetsAtSheetJunction(const SurfelGroup& a, const SurfelGroup& b, const Gathered& g,
-                          const uint32_t* order, float* sign) {
-  if (&b == &a || !b.two_sided || !b.solid) return false;
-  // Another sheet (both tags known and different: two leaves of a crown) meets nothing.
-  const uint8_t ta = g.surfels[order[a.end - a.count]].sheet;
-  const uint8_t tb = g.surfels[order[b.end - b.count]].sheet;
-  if (ta != 0 && tb != 0 && ta != tb) return false;
-  const glm::vec3 na = a.normal, nb = b.normal;
-  if (std::fabs(glm::dot(na, nb)) > 0.906f) return false;
-  const float sa = a.spacing, sb = b.spacing;
+// Two two-sided groups whose normals are within this cosine (about 25 degrees, a co-planar
+// group's) are one sheet going on, not a junction.
+constexpr float kJunctionCos = 0.906f;
+
+// The side of two-sided group b's plane that all of a's centres lie on (to within a quarter of
+// b's spacing), reaching within 1.5 of b's spacings of it: *sign +1 where dot(nb, x - cb) >= 0,
+// -1 where <= 0. False when a's centres lie on both sides or farther.
+bool SheetSide(const SurfelGroup& a, const SurfelGroup& b, float* sign) {
+  const float sb = b.spacing;
   float lo, hi;
-  BoxDotRange(a.centres, nb, b.centroid, &lo, &hi);
+  BoxDotRange(a.centres, b.normal, b.centroid, &lo, &hi);
   if (lo >= -0.25f * sb && lo <= 1.5f * sb) {
     *sign = 1.0f;
   } else if (hi <= 0.25f * sb && hi >= -1.5f * sb) {
@@ -1000,26 +994,43 @@ bool MeetsAtSheetJunction(const SurfelGroup& a, const SurfelGroup& b, const Gath
   } else {
     return false;
   }
-  BoxDotRange(b.centres, na, a.centroid, &lo, &hi);
-  return !(lo > 1.5f * sa || hi < -1.5f * sa);
+  return true;
+}
+
+// Whether two-sided group a meets two-sided group b at a junction (an L, a T, a ridge, a fold):
+// their planes differ by more than a co-planar group's 25 degrees, a lies on one side of b's
+// plane (SheetSide, *sign), and b's centres reach a's plane (within 1.5 of a's spacings).
+// Sheets of different known tags (two leaves of a crown) meet nothing.
+bool MeetsAtSheetJunction(const SurfelGroup& a, const SurfelGroup& b, const Gathered& g,
+                          const uint32_t* order, float* sign) {
+  if (&b == &a || !b.two_sided || !b.solid) return false;
+  const uint8_t ta = g.surfels[order[a.end - a.count]].sheet;
+  const uint8_t tb = g.surfels[order[b.end - b.count]].sheet;
+  if (ta != 0 && tb != 0 && ta != tb) return false;
+  if (std::fabs(glm::dot(a.normal, b.normal)) > kJunctionCos) return false;
+  if (!SheetSide(a, b, sign)) return false;
+  float lo, hi;
+  BoxDotRange(b.centres, a.normal, a.centroid, &lo, &hi);
+  return !(lo > 1.5f * a.spacing || hi < -1.5f * a.spacing);
 }
 
 // A two-sided group's footprint ends at the plane of another two-sided group of its cell that
-// it meets at a junction (MeetsAtSheetJunction). Past that plane the section holds no part of
-// its sheet. Returns whether it clipped.
+// it meets at a junction (MeetsAtSheetJunction), on its own centres' side. Past that plane the
+// section holds no part of its sheet. Returns whether it met one (its polygon then ends at
+// that plane, cut here or not).
 bool ClipAtSheetJunctions(const SurfelGroup& a, absl::Span<const SurfelGroup> groups,
                           const Gathered& g, const uint32_t* order, const glm::vec3& from,
                           Polygon* p) {
-  bool clipped = false;
+  bool met = false;
   for (const SurfelGroup& b : groups) {
     float sign;
     if (!MeetsAtSheetJunction(a, b, g, order, &sign)) continue;
     // Keep sign * dot(nb, x - cb) >= 0, x = from + v.
     ClipHalfSpace(sign * b.normal, sign * glm::dot(b.normal, b.centroid - from), p);
-    clipped = true;
+    met = true;
     if (p->n < 3) break;
   }
-  return clipped;
+  return met;
 }
 
 // A one-sided group's footprint ends at the plane of a one-sided group of another leaf that it
@@ -1050,14 +1061,14 @@ struct CellRun {
 };
 
 // Whether two-sided group a, in `cell`, ends at the plane of two-sided group b of a touching
-// cell where its footprint reaches past its cell: they meet at a junction (MeetsAtSheetJunction,
-// their centres' boxes grown by 1.5 spacings overlapping) and b's plane leaves a's cell on a's
-// side, so that ending a there takes off only what reaches past the cell. *sign as
-// MeetsAtSheetJunction's.
+// cell: they meet at a junction (MeetsAtSheetJunction, their centres' boxes grown by 1.5
+// spacings overlapping) and b's plane leaves a's cell on a's side (to within a hundredth of b's
+// spacing), so that ending a there takes off only what reaches past the cell. The caller asks
+// only for groups that may reach past it.
 bool CrossLeafSheetPair(const SurfelGroup& a, const Bounds& cell, const SurfelGroup& b,
                         const Gathered& g, const uint32_t* order) {
   // Most pairs are one sheet going on across its cells: the cheapest test first.
-  if (std::fabs(glm::dot(a.normal, b.normal)) > 0.906f) return false;
+  if (std::fabs(glm::dot(a.normal, b.normal)) > kJunctionCos) return false;
   if (!GrownBoxesOverlap(a.centres, 1.5f * a.spacing, b.centres, 1.5f * b.spacing)) return false;
   float sign;
   if (!MeetsAtSheetJunction(a, b, g, order, &sign)) return false;
@@ -1068,10 +1079,10 @@ bool CrossLeafSheetPair(const SurfelGroup& a, const Bounds& cell, const SurfelGr
 
 // Every pair (a, b) of `all`'s groups in two different cells that touch (octree cells share a
 // face, an edge or a corner) that meet so: one-sided faces at a convex edge (CrossLeafConvexPair),
-// both ways; two-sided sheets at a junction past a's cell (CrossLeafSheetPair), each way on its
-// own. The cells are swept along x: a receiver near a sparse database gathers hundreds of
-// groups, and testing every pair of groups cost 3 M instructions per receiver (city 50 k
-// surfels).
+// both ways; with `sheets`, two-sided sheets at a junction past a's cell (CrossLeafSheetPair),
+// each way on its own. `sheets` needs leaf cells (the gather's, which do not overlap). The cells
+// are swept along x: a receiver near a sparse database gathers hundreds of groups, and testing
+// every pair of groups cost 3 M instructions per receiver (city 50 k surfels).
 void CrossLeafPairs(absl::Span<const SurfelGroup> all, absl::Span<const CellRun> runs,
                     const Gathered& g, const uint32_t* order, bool sheets,
                     std::vector<std::pair<uint32_t, uint32_t>>* pairs) {
@@ -1079,23 +1090,25 @@ void CrossLeafPairs(absl::Span<const SurfelGroup> all, absl::Span<const CellRun>
   pairs->clear();
   auto convex = [](const SurfelGroup& a) { return !a.two_sided && a.solid && a.on_axis; };
   auto sheet = [&](const SurfelGroup& a) { return sheets && a.two_sided && a.solid; };
-  // A group whose centres all lie more than a spacing inside its cell's sides along its plane
-  // ends inside the cell (FlatFootprint grows at most a spacing past them): it ends at no
-  // other cell's sheet.
-  auto reaches_out = [](const SurfelGroup& a, const Bounds& cell) {
-    for (int k = 0; k < 3; ++k) {
-      if (!(std::fabs(a.normal[k]) < kInPlaneAxis)) continue;
-      if (a.centres.lo[k] - cell.lo[k] < a.spacing || cell.hi[k] - a.centres.hi[k] < a.spacing) {
-        return true;
-      }
-    }
-    return false;
-  };
+  // A group whose centres all lie more than 1.5 spacings inside its cell's sides along its
+  // plane ends inside the cell (FlatFootprint grows at most a spacing past them, a pair's
+  // rhombus 1.5 across): it ends at no other cell's sheet. By group, for the sheets.
+  static thread_local std::vector<uint8_t> reaches_out;
+  reaches_out.assign(all.size(), 0);
   order_x.clear();
   for (uint32_t r = 0; r < runs.size(); ++r) {
     bool any = false;
-    for (size_t i = runs[r].g0; i < runs[r].g1 && !any; ++i) {
-      any = convex(all[i]) || sheet(all[i]);
+    for (size_t i = runs[r].g0; i < runs[r].g1; ++i) {
+      const SurfelGroup& a = all[i];
+      if (sheet(a)) {
+        const Bounds& cell = runs[r].cell;
+        for (int k = 0; k < 3 && !reaches_out[i]; ++k) {
+          if (!(std::fabs(a.normal[k]) < kInPlaneAxis)) continue;
+          reaches_out[i] = a.centres.lo[k] - cell.lo[k] < 1.5f * a.spacing ||
+                           cell.hi[k] - a.centres.hi[k] < 1.5f * a.spacing;
+        }
+      }
+      any = any || convex(a) || sheet(a);
     }
     if (any) order_x.push_back(r);
   }
@@ -1123,10 +1136,10 @@ void CrossLeafPairs(absl::Span<const SurfelGroup> all, absl::Span<const CellRun>
             pairs->push_back({a32, b32});
             pairs->push_back({b32, a32});
           } else if (sheet(all[b])) {
-            if (reaches_out(all[a], ci) && CrossLeafSheetPair(all[a], ci, all[b], g, order)) {
+            if (reaches_out[a] && CrossLeafSheetPair(all[a], ci, all[b], g, order)) {
               pairs->push_back({a32, b32});
             }
-            if (reaches_out(all[b], cj) && CrossLeafSheetPair(all[b], cj, all[a], g, order)) {
+            if (reaches_out[b] && CrossLeafSheetPair(all[b], cj, all[a], g, order)) {
               pairs->push_back({b32, a32});
             }
           }
@@ -1146,11 +1159,12 @@ bool CrossLeafClip(uint32_t ai, absl::Span<const SurfelGroup> all, absl::Span<co
   for (uint32_t k = first[ai]; k < first[ai + 1] && p->n >= 3; ++k) {
     const SurfelGroup& b = all[partners[k]];
     if (a.two_sided) {
-      // Keep a's side of b's plane (CrossLeafSheetPair).
-      float lo, hi;
-      BoxDotRange(a.centres, b.normal, b.centroid, &lo, &hi);
-      const float sign = lo >= -0.25f * b.spacing ? 1.0f : -1.0f;
-      ClipHalfSpace(sign * b.normal, sign * glm::dot(b.normal, b.centroid - from), p);
+      // Keep a's side of b's plane (CrossLeafSheetPair), to within the hundredth of b's spacing
+      // that the pair allowed b's plane inside a's cell.
+      float sign;
+      if (!SheetSide(a, b, &sign)) continue;
+      ClipHalfSpace(sign * b.normal,
+                    sign * glm::dot(b.normal, b.centroid - from) - 0.01f * b.spacing, p);
     } else {
       ClipHalfSpace(-b.normal, glm::dot(b.normal, from - b.centroid) - 0.01f * b.spacing, p);
     }
@@ -2284,12 +2298,13 @@ void Rasterizer::PrepareSurfelGroups(const Gathered& g, ShadeResult* out) {
         // expected three was drawn at 0.62 (bug: convex_faces_translucent_by_sampling_noise).
         if (edged && alpha < 1.0f && few_surfels_wide()) alpha = 1.0f;
       }
-      // A thin-walled part's pieces end where they meet another sheet in their cell. So ended,
-      // a piece is its sheet's where it is, as a convex solid's face is: a section that holds a
-      // few surfels' areas is opaque whatever their count. At a fold of a thin part each piece
-      // was drawn at its count over its section (six surfels where 6.6 fit: 0.91), and a
-      // receiver within a spacing behind one of them saw the sky through both (Wuson.ply: 0.909
-      // for rays' 1; bug: sheet_junction_pieces_translucent_by_sampling_noise).
+      // A thin-walled part's pieces end where they meet another sheet in their cell. Ending at
+      // a junction (cut there or not), a piece is its sheet's where it is, as a convex solid's
+      // face is: a section that holds a few surfels' areas is opaque whatever their count. At a
+      // fold of a thin part each piece was drawn at its count over its section (six surfels
+      // where 6.6 fit: 0.91), and a receiver within a spacing behind one of them saw the sky
+      // through both (Wuson.ply: 0.909 for rays' 1; bug:
+      // sheet_junction_pieces_translucent_by_sampling_noise).
       if (first.two_sided && groups.size() > 1 && p.n >= 3) {
         bool junction = false;
         clip_past_edge(

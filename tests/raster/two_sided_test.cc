@@ -875,7 +875,7 @@ TEST(TwoSidedTest, ATurnedSheetOverAReceiverIsOpaque) {
 // lip, over the receiver (2CylinderEngine: a flange over a receiver inside a cylinder, 0.263
 // for rays' 0.220; bug: sheet_pieces_reach_past_a_junction_in_the_next_cell). A piece also
 // ends at the plane of another cell's sheet that it meets when that plane lies outside its own
-// cell (CrossLeafSheetPair): 0.0147 -> 0.0103 (the fold rule, AFoldsPiecesAreOpaque, gave 0.0133
+// cell (CrossLeafSheetPair): 0.0147 -> 0.0105 (the fold rule, AFoldsPiecesAreOpaque, gave 0.0133
 // of it), the worst 0.062 (what is left: lone surfels' disks at the junction).
 TEST(TwoSidedTest, AThinCornersPiecesEndAtTheJunction) {
   const float pitch = 0.1f, cell = 2.1f * pitch;
@@ -921,7 +921,7 @@ TEST(TwoSidedTest, AThinCornersPiecesEndAtTheJunction) {
     }
   }
   EXPECT_LT(sum / n, 0.012);
-  EXPECT_LT(worst, 0.07);
+  EXPECT_LT(worst, 0.066);
   RecordProperty("worst_abs_error", std::to_string(worst));
   RecordProperty("mean_abs_error", std::to_string(sum / n));
 }
@@ -937,7 +937,7 @@ TEST(TwoSidedTest, AThinCornersPiecesEndAtTheJunction) {
 // sheet's where it is: a section a few surfels' areas wide is opaque, as a convex solid's face
 // is. The receiver lies on a sheet of its own (another tag). Against rays at the two rectangles,
 // the part and the receiver cut by the cells twelve ways: mean |error| 0.0449 before, 0.0219
-// now. What is left (the worst, 0.23 short, unchanged): a cell that the panel enters by less
+// now. What is left (the worst, 0.24 short before, 0.23 now): a cell that the panel enters by less
 // than a spacing before the crease holds one or two of its surfels, or none, and its piece
 // leaves most of that strip open.
 TEST(TwoSidedTest, AFoldsPiecesAreOpaque) {
