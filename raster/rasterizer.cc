@@ -679,7 +679,61 @@ absl::Status Rasterizer::Run(const Gathered& g, const ShadeReceiver& r, ShadeRes
       FinishOn<false, false>(g, r, out);
     }
   }
+  mb_.prepared_ = count_;
+  mb_.prepared_clusters_ = cluster_count_;
   return absl::OkStatus();
+}
+
+void Rasterizer::FootprintsOver(const MicroBuffer& mb, int pixel, std::vector<FootprintOver>* out) {
+  out->clear();
+  if (pixel < 0 || pixel >= mb.pixel_count()) return;
+  const glm::vec3 d = glm::normalize(mb.PixelDirection(pixel));
+  std::vector<float> acc;
+  std::vector<PixelCoverage> cov;
+  for (uint32_t i = 0; i < mb.prepared_ && i < mb.splats_.size(); ++i) {
+    const PreparedSplat& s = mb.splats_[i];
+    FootprintOver f;
+    f.depth = s.depth;
+    f.flags = s.flags;
+    f.cluster = i < mb.prepared_clusters_ ? static_cast<int32_t>(s.source) : -1;
+    f.normal = s.normal;
+    f.alpha = 1.0f;
+    f.coverage = -1.0f;
+    if (s.near == 1) {  // an exact disk, centre s.dir, radius s.omega: does the centre ray cross it
+      const float dn = glm::dot(d, s.normal);
+      if (!(std::fabs(dn) > 0.0f)) continue;
+      const float t = glm::dot(s.dir, s.normal) / dn;
+      const glm::vec3 q = t * d - s.dir;
+      if (!(t > 0.0f) || !(glm::dot(q, q) <= s.omega * s.omega)) continue;
+      f.kind = FootprintOver::kDisk;
+      out->push_back(f);
+    } else if (s.near == 0) {  // a cone of solid angle s.omega about s.dir: the same
+      if (!(glm::dot(d, s.dir) >= 1.0f - s.omega / (2.0f * kPiFloat))) continue;
+      f.kind = FootprintOver::kCone;
+      out->push_back(f);
+    } else if (s.near == 2) {  // polygons: their exact share of the pixel
+      float share = 0.0f;
+      glm::vec3 n(0.0f);
+      for (uint32_t k = 0; k < s.poly_count; ++k) {
+        const Polygon& p = mb.polygons_[s.poly_first + k];
+        cov.clear();
+        RasterizePolygon(p, mb.resolution(), &acc, &cov);
+        for (const PixelCoverage& c : cov) {
+          if (static_cast<int>(c.pixel) != pixel) continue;
+          share += c.coverage;
+          for (int j = 1; j + 1 < p.n; ++j) n += glm::cross(p.v[j] - p.v[0], p.v[j + 1] - p.v[0]);
+        }
+      }
+      if (!(share > 0.0f)) continue;
+      f.kind = FootprintOver::kPolygon;
+      f.alpha = s.alpha;
+      f.coverage = std::min(share, 1.0f);
+      if (glm::dot(n, n) > 0.0f) f.normal = glm::normalize(n);
+      out->push_back(f);
+    }
+  }
+  std::sort(out->begin(), out->end(),
+            [](const FootprintOver& a, const FootprintOver& b) { return a.depth < b.depth; });
 }
 
 }  // namespace pbgi::internal

@@ -138,6 +138,22 @@ class Rasterizer {
   }
 
   absl::Status Run(const Gathered& g, const ShadeReceiver& r, ShadeResult* out);
+  // A diagnostic: the elements of the last Shade() into `mb` that draw on `pixel`, nearest
+  // first, with their footprints as the whole gather shaped them (a footprint can depend on its
+  // neighbours: SheetCell, the junction clips): polygons with their exact share of the pixel,
+  // and exact disks and far clusters' cones whose disk or cone the pixel's central ray crosses.
+  // A cluster found hidden behind closed pixels before its footprint was built is not listed.
+  struct FootprintOver {
+    enum Kind : uint8_t { kPolygon, kDisk, kCone };
+    float depth;     // the element's depth (PreparedSplat::depth)
+    float alpha;     // coverage inside a polygon (1 for a disk or a cone)
+    float coverage;  // a polygon's share of the pixel, before alpha; -1 for the others
+    uint8_t flags;   // kSplatPorous, kSplatBack
+    Kind kind;
+    int32_t cluster;   // its index in Gathered::clusters, or -1 for surfels and their groups
+    glm::vec3 normal;  // a polygon's unit normal; a disk's or a cone's element normal (local)
+  };
+  static void FootprintsOver(const MicroBuffer& mb, int pixel, std::vector<FootprintOver>* out);
   // The next Run() composites `far` behind its elements (ShadeWithFar() in pbgi/raster.h).
   void set_far(const FarBuffer* far) { far_ = far; }
   // What the last Run() left in the hemisphere's pixels, as a far buffer (ShadeFar()).

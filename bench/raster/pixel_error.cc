@@ -12,8 +12,10 @@
 //        [--detail] [--radiance] [--bands D1,D2,... [--band-rays N]] [--sheet S]
 // The second form is one receiver pixel by pixel (a `pbgi eval --dump-receivers` row): the
 // pixels whose coverage differs from the rays' by more than D, with what the rays hit there;
-// --pixel P lists each cluster and each leaf that covers P when drawn alone, and the gathered
-// surfels on P's central ray; --detail the parts that occlude most alone (with their cells);
+// --pixel P lists every element that draws on P in the whole gather, its footprint as the
+// gather shaped it (Rasterizer::FootprintsOver: a footprint can depend on its neighbours), then
+// each cluster and each leaf that covers P when drawn alone, and the gathered surfels on P's
+// central ray; --detail the parts that occlude most alone (with their cells);
 // --keep-above/--keep-within shade only the surfels that high above the receiver's plane and
 // that near (no clusters); --radiance compares each pixel's radiance (the mean of the channels,
 // PBGI's coverage-weighted pixel against the lighting function at the rays' front hits) instead
@@ -46,6 +48,7 @@
 #include "pbgi/shade.h"
 #include "pbgi/status.h"
 #include "raster/cube.h"
+#include "raster/rasterizer.h"
 #include "tools/scene_views.h"
 
 namespace pbgi {
@@ -378,6 +381,36 @@ int RunOne(const Args& a, Reader& reader, const Tracer& tracer) {
     const glm::vec3 l = glm::normalize(mb.PixelDirection(a.pixel));
     const glm::vec3 d = l.x * t + l.y * b + l.z * n;
     std::printf("pixel %d: direction %.4f,%.4f,%.4f (world)\n", a.pixel, d.x, d.y, d.z);
+    // The elements that draw on the pixel as the whole gather shaped their footprints (a
+    // footprint can depend on its neighbours: SheetCell, the junction clips), nearest first.
+    MicroBuffer trace_mb;
+    ShadeResult trace_r;
+    std::vector<internal::Rasterizer::FootprintOver> over;
+    if (trace_mb.Prepare(a.res).ok() &&
+        Shade(g, {p, n, n, a.sheet}, ro, &trace_mb, &trace_r).ok()) {
+      internal::Rasterizer::FootprintsOver(trace_mb, a.pixel, &over);
+    }
+    std::printf("  %zu elements draw on it in the whole gather (PBGI %.3f)%s\n", over.size(),
+                trace_mb.PixelCoverage(a.pixel), over.size() > 32 ? ", the nearest 32:" : ":");
+    for (size_t i = 0; i < over.size() && i < 32; ++i) {
+      const internal::Rasterizer::FootprintOver& f = over[i];
+      using Kind = internal::Rasterizer::FootprintOver::Kind;
+      const glm::vec3 fn = f.normal.x * t + f.normal.y * b + f.normal.z * n;
+      std::printf("    depth %.5f %s", f.depth,
+                  f.kind == Kind::kDisk   ? "disk"
+                  : f.kind == Kind::kCone ? "cone"
+                                          : "polygon");
+      if (f.kind == Kind::kPolygon)
+        std::printf(" covering %.3f at alpha %.3f", f.coverage, f.alpha);
+      std::printf("%s%s, normal %.3f,%.3f,%.3f",
+                  (f.flags & internal::kSplatPorous) ? " porous" : "",
+                  (f.flags & internal::kSplatBack) ? " back" : "", fn.x, fn.y, fn.z);
+      if (f.cluster >= 0) {
+        std::printf(", cluster %d\n", f.cluster);
+      } else {
+        std::printf(", surfels\n");
+      }
+    }
     // Each cluster and each leaf alone: its coverage of the pixel.
     MicroBuffer one_mb;
     if (one_mb.Prepare(a.res).ok()) {

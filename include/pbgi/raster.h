@@ -295,6 +295,9 @@ class MicroBuffer {
   std::vector<uint64_t> group_keys_;                   // their grid cells
   std::vector<uint32_t> leaf_runs_;  // where each run of one leaf's surfels starts (SheetCell)
   bool free_layer_ = true;           // the last Shade()'s first layer summed freely (kSplats)
+  // The last Shade()'s prepared elements: splats_[0, prepared_), the clusters' first
+  // (internal::Rasterizer::FootprintsAlong, a diagnostic).
+  uint32_t prepared_ = 0, prepared_clusters_ = 0;
 };
 
 // The far field of a group of receivers that share it (pbgi/query.h, FarCut; docs/shade.md,

@@ -324,6 +324,57 @@ TEST(FootprintTest, NearerSurfaceHidesFartherOne) {
   EXPECT_NEAR(rc.irradiance.x, kPi * 0.5, 0.03 * kPi * 0.5);
 }
 
+// Rasterizer::FootprintsOver, the diagnostic behind `pixel_error --pixel`: what draws on a pixel
+// in the whole gather. A square of clusters 1 over the receiver and a larger one 2 over it:
+// the zenith pixel lists the near square's clusters first, nearest first, their polygons'
+// shares of the pixel (at their opacity) making up what the pixel holds; a pixel at the
+// horizon lists nothing; a lone near surfel is its exact disk.
+TEST(FootprintTest, FootprintsOverAPixelListWhatDrawsThere) {
+  MicroBuffer mb;
+  Gathered g;
+  g.clusters = ClustersInCells(SquareSurfels(1.0f, 1.0f, 0.02f), 0.25f);
+  const size_t near_clusters = g.clusters.size();
+  const std::vector<Cluster> back = ClustersInCells(SquareSurfels(3.0f, 2.0f, 0.05f), 0.5f);
+  g.clusters.insert(g.clusters.end(), back.begin(), back.end());
+  MustShade(g, At(glm::vec3(0.0f)), Polygons(), &mb);
+  const int res = mb.resolution();
+  const int zenith = 4 * res * res + (res / 2) * res + res / 2;  // face +z, by its centre
+  ASSERT_GT(mb.PixelDirection(zenith).z, 0.95f);
+  std::vector<internal::Rasterizer::FootprintOver> over;
+  internal::Rasterizer::FootprintsOver(mb, zenith, &over);
+  ASSERT_FALSE(over.empty());
+  double front = 0.0;
+  for (size_t i = 0; i < over.size(); ++i) {
+    const internal::Rasterizer::FootprintOver& f = over[i];
+    if (i > 0) {
+      EXPECT_LE(over[i - 1].depth, f.depth);
+    }
+    EXPECT_EQ(f.kind, internal::Rasterizer::FootprintOver::kPolygon);
+    ASSERT_GE(f.cluster, 0);
+    if (static_cast<size_t>(f.cluster) < near_clusters) {
+      EXPECT_NEAR(f.depth, 1.0f, 0.2f);
+      front += f.coverage * f.alpha;
+    }
+  }
+  EXPECT_LT(static_cast<size_t>(over[0].cluster), near_clusters);
+  EXPECT_NEAR(front, mb.PixelCoverage(zenith), 0.01);
+  EXPECT_NEAR(mb.PixelCoverage(zenith), 1.0f, 0.01f);
+  const int horizon = 0 * res * res + (res / 2) * res + res / 2;  // face +x, by its centre
+  internal::Rasterizer::FootprintsOver(mb, horizon, &over);
+  EXPECT_TRUE(over.empty());
+  Gathered one;
+  Surfel s;
+  s.position = glm::vec3(0.0f, 0.0f, 0.05f);
+  s.normal = glm::vec3(0.0f, 0.0f, -1.0f);
+  s.radius = 0.02f;
+  one.surfels.push_back(s);
+  MustShade(one, At(glm::vec3(0.0f)), Polygons(), &mb);
+  internal::Rasterizer::FootprintsOver(mb, zenith, &over);
+  ASSERT_EQ(over.size(), 1u);
+  EXPECT_EQ(over[0].kind, internal::Rasterizer::FootprintOver::kDisk);
+  EXPECT_EQ(over[0].cluster, -1);
+}
+
 // The grouping grid moves and scales with the scene: the answer does not depend on where the
 // scene sits or on its units.
 TEST(FootprintTest, InvariantUnderTranslationAndScale) {
