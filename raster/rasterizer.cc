@@ -708,6 +708,9 @@ void Rasterizer::FootprintsOver(const MicroBuffer& mb, int pixel, std::vector<Fo
       f.kind = FootprintOver::kDisk;
       out->push_back(f);
     } else if (s.near == 0) {  // a cone of solid angle s.omega about s.dir: the same
+      // With polygon footprints a cluster still a cone was never drawn (hidden behind closed
+      // pixels, or no footprint: Draw()); a far surfel's cone was.
+      if (!mb.free_layer_ && f.cluster >= 0) continue;
       if (!(glm::dot(d, s.dir) >= 1.0f - s.omega / (2.0f * kPiFloat))) continue;
       f.kind = FootprintOver::kCone;
       out->push_back(f);

@@ -477,7 +477,6 @@ struct EvalSummary {
   size_t default_row = 0, best_row = 0;
   double ratio = 0;             // the default row's speedup
   double ratio_with_build = 0;  // the same with the build shared by a frame of receivers
-  double truth_noise = 0;
   // The exponent k of time ~ MAE^-k where a row's ratio is extrapolated below the sweep's
   // errors (0: no row is), and whether it is the sweep's (SweepReading::from_sweep).
   double exponent_below = 0;
@@ -489,7 +488,6 @@ EvalSummary Summarize(const EvalArgs& a, const EvalSetup& e, size_t default_row,
                       std::vector<Row>* rows) {
   EvalSummary s;
   s.default_row = s.best_row = default_row;
-  s.truth_noise = e.truth_noise;
   const std::vector<SweepPoint> sweep = ReferenceSweep(*rows);
   for (size_t i = 0; i < rows->size(); ++i) {
     Row& r = (*rows)[i];
@@ -526,7 +524,7 @@ void PrintEval(const EvalArgs& a, const EvalSetup& e, const std::vector<Row>& ro
       e.scene->name.c_str(), a.mode.c_str(),
       e.glossy ? absl::StrFormat(" %s", LobeTag(e.lobe)).c_str() : "",
       static_cast<unsigned long long>(e.build.points), e.receivers.size(), e.threads, e.truth_rays,
-      s.truth_noise, e.truth_mean, a.repeat);
+      e.truth_noise, e.truth_mean, a.repeat);
   // "rel" (MAE over the truth's mean) last: scripts read the columns before it by position.
   std::printf("%-10s %-20s %12s %10s %10s %10s %10s %9s %9s %9s %9s %9s %8s\n", "method", "setting",
               "us/receiver", "MAE", "bias", "RMSE", "max", "clusters", "surfels", "gather_us",
@@ -561,10 +559,10 @@ void PrintEval(const EvalArgs& a, const EvalSetup& e, const std::vector<Row>& ro
         "by the Monte Carlo law, time ~ MAE^-2 (widen --ray-sweep to measure it)\n");
   }
   for (const Row& r : rows) {
-    if (r.method == Method::kPbgi && r.err.mae < 2.0 * s.truth_noise) {
+    if (r.method == Method::kPbgi && r.err.mae < 2.0 * e.truth_noise) {
       std::printf(
           "note: PBGI MAE %.3g (%s) is within 2x of the truth's own error ~%.2g: raise --rays\n",
-          r.err.mae, r.setting.c_str(), s.truth_noise);
+          r.err.mae, r.setting.c_str(), e.truth_noise);
     }
   }
   const Row& def = rows[s.default_row];
@@ -617,7 +615,7 @@ Json EvalJson(const EvalArgs& a, const EvalSetup& e, const std::vector<Row>& row
   j["size"] = a.size;
   j["triangles"] = e.scene->TriangleCount();
   j["repeat"] = a.repeat;
-  j["truth_noise_mae"] = s.truth_noise;
+  j["truth_noise_mae"] = e.truth_noise;
   // k of time ~ MAE^-k for rows below the sweep's errors (0: none is).
   j["reference_exponent_below_sweep"] = s.exponent_below;
   j["default_extrapolated"] = def.extrapolated;

@@ -296,7 +296,7 @@ class MicroBuffer {
   std::vector<uint32_t> leaf_runs_;  // where each run of one leaf's surfels starts (SheetCell)
   bool free_layer_ = true;           // the last Shade()'s first layer summed freely (kSplats)
   // The last Shade()'s prepared elements: splats_[0, prepared_), the clusters' first
-  // (internal::Rasterizer::FootprintsAlong, a diagnostic).
+  // (internal::Rasterizer::FootprintsOver, a diagnostic).
   uint32_t prepared_ = 0, prepared_clusters_ = 0;
 };
 
