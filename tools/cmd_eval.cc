@@ -96,7 +96,17 @@ struct EvalArgs {
   std::vector<std::string> lobes = {"phong", "ggx"};
   std::vector<float> phong_exponents = {32.0f};
   std::vector<float> ggx_roughnesses = {0.3f};
+  // --convergence: the finer setting on a denser database, against the default row (issue 14's
+  // goal: at most half the default's error; docs/eval.md, "Convergence").
+  bool convergence = false;
+  int density_factor = 4;
+  float fine_solid_angle = 0.005f;
+  std::vector<int> fine_resolutions = {12, 16, 24};
+  float fine_curved_scale = 0.0f;  // 0: --curved-scale
 };
+
+// --convergence: issue 14's goal, the finer setting's MAE over the default's.
+constexpr double kConvergenceGoal = 0.5;
 
 struct Errors {
   double mae = 0, rmse = 0, max = 0;
@@ -181,6 +191,7 @@ struct EvalSetup {
   double truth_mean = 0;          // the mean over receivers of the truth's mean channel
   double truth_noise = 0;         // the truth's own MAE (two halves: HalvesMae)
   int truth_rays = 0;             // its rays: --rays, rounded up to an even count
+  bool truth_ready = false;       // truth, truth_mean and truth_noise hold these receivers'
   int threads = 1;
   bool occlusion = true;
   bool glossy = false;
@@ -371,7 +382,7 @@ ShadeOptions EvalShadeOptions(const EvalArgs& a, const EvalSetup& e, float msa, 
 // Writes one CSV line per receiver: position, normal, the converged reference, `pbgi` (the
 // mean of the three channels), and the receiver's sheet tag (0: none; pixel_error --sheet).
 absl::Status DumpReceivers(const std::string& path, const EvalSetup& e,
-                           const std::vector<glm::dvec3>& pbgi) {
+                           const std::vector<glm::dvec3>& pbgi, const std::string& setting) {
   std::FILE* f = std::fopen(path.c_str(), "w");
   if (f == nullptr) return absl::InternalError(absl::StrFormat("cannot write %s", path));
   std::fprintf(f, "i,x,y,z,nx,ny,nz,reference,pbgi,error,sheet\n");
@@ -385,7 +396,7 @@ absl::Status DumpReceivers(const std::string& path, const EvalSetup& e,
   }
   const bool ok = std::fclose(f) == 0;
   if (!ok) return absl::InternalError(absl::StrFormat("cannot write %s", path));
-  std::fprintf(stderr, "eval: wrote %s (every receiver at the default setting)\n", path.c_str());
+  std::fprintf(stderr, "eval: wrote %s (every receiver at %s)\n", path.c_str(), setting.c_str());
   return absl::OkStatus();
 }
 
@@ -457,7 +468,7 @@ absl::StatusOr<size_t> PbgiRows(const EvalArgs& a, const EvalSetup& e, Database&
         rows->push_back(r);
         if (!a.dump_receivers.empty() && res == dump_res && std::abs(msa - dump_msa) < 1e-6f &&
             cut == dump_cut) {
-          PBGI_RETURN_IF_ERROR(DumpReceivers(a.dump_receivers, e, v));
+          PBGI_RETURN_IF_ERROR(DumpReceivers(a.dump_receivers, e, v, r.setting));
         }
         // Glossy's default cut is the lobe-aware one (as `pbgi shade`'s: ShadeOptions::lobe_cut).
         const bool is_default =
@@ -728,13 +739,10 @@ absl::StatusOr<std::pair<uint64_t, uint64_t>> EvalBudgets(const EvalArgs& a) {
   return std::make_pair(memory, cache);
 }
 
-// The truth, both sweeps and the outputs for the setup's current mode (and lobe); returns the
-// JSON it wrote to `stem`.json (beside `stem`.png).
-absl::StatusOr<Json> EvalOneSetting(const EvalArgs& a, uint64_t cache, const std::string& stem,
-                                    EvalSetup& e) {
+// The truth of EvalOneSetting: the mean of two independent halves of the rays, and its own error
+// measured from their difference (tools/reference_stats.h HalvesMae).
+absl::Status ComputeTruth(const EvalArgs& a, EvalSetup& e) {
   const internal::Stopwatch t;
-  // The truth: the mean of two independent halves of the rays, and its own error measured
-  // from their difference (tools/reference_stats.h HalvesMae).
   const int half = std::max(1, (a.truth_rays + 1) / 2);
   const std::vector<glm::dvec3> first = Reference(e, half, a.seed + 1);
   const std::vector<glm::dvec3> second = Reference(e, half, a.seed + 3);
@@ -755,6 +763,16 @@ absl::StatusOr<Json> EvalOneSetting(const EvalArgs& a, uint64_t cache, const std
                "%.1f s\n",
                e.glossy ? absl::StrFormat(" (%s)", LobeTag(e.lobe)).c_str() : "", half,
                e.receivers.size(), e.truth_noise, t.Seconds());
+  e.truth_ready = true;
+  return absl::OkStatus();
+}
+
+// The truth, both sweeps and the outputs for the setup's current mode (and lobe); returns the
+// JSON it wrote to `stem`.json (beside `stem`.png). A truth already computed for these receivers
+// is kept: --convergence's finer setting is measured against the same one.
+absl::StatusOr<Json> EvalOneSetting(const EvalArgs& a, uint64_t cache, const std::string& stem,
+                                    EvalSetup& e) {
+  if (!e.truth_ready) PBGI_RETURN_IF_ERROR(ComputeTruth(a, e));
 
   Progress sweeps(
       "eval: sweeps", "timed runs",
@@ -795,6 +813,94 @@ std::vector<GlossyParams> GlossySettings(const EvalArgs& a) {
     }
   }
   return out;
+}
+
+// --convergence: a database of density_factor x --points, shaded at the finer setting (one
+// row per fine resolution) against the same receivers and truth; each row's MAE over the
+// default row's (`base`). Prints the ratios and writes convergence.json beside eval.json.
+absl::Status EvalConvergence(const EvalArgs& a, uint64_t memory, uint64_t cache, const Json& base,
+                             EvalSetup& e) {
+  EvalArgs f = a;
+  f.points = a.points * a.density_factor;
+  f.solid_angles = {a.fine_solid_angle};
+  f.resolutions = a.fine_resolutions;
+  f.cuts = {"cosine"};
+  if (a.fine_curved_scale > 0.0f) f.curved_scale = a.fine_curved_scale;
+  f.out_dir = a.out_dir + "/finer";
+  if (!a.dump_receivers.empty()) {
+    const std::string& d = a.dump_receivers;
+    f.dump_receivers =
+        (absl::EndsWithIgnoreCase(d, ".csv") ? d.substr(0, d.size() - 4) : d) + ".finer.csv";
+  }
+  std::error_code ec;
+  std::filesystem::create_directories(f.out_dir, ec);
+  if (ec) return absl::UnavailableError(absl::StrFormat("cannot create %s", f.out_dir));
+  std::fprintf(stderr, "eval --convergence: the finer setting, %lld surfels, msa %g, res %s\n",
+               static_cast<long long>(f.points), f.fine_solid_angle,
+               absl::StrJoin(f.resolutions, " ").c_str());
+  PBGI_RETURN_IF_ERROR(BuildEvalDatabase(f, memory, &e));
+  PBGI_ASSIGN_OR_RETURN(const Json fine, EvalOneSetting(f, cache, f.out_dir + "/eval", e));
+
+  const double def_mae = base["default_mae"].get<double>();
+  const std::string def_setting = base["default_setting"].get<std::string>();
+  Json j;
+  j["scene"] = e.scene->name;
+  j["mode"] = a.mode;
+  j["receivers"] = e.receivers.size();
+  j["truth_rays"] = e.truth_rays;
+  j["truth_noise_mae"] = e.truth_noise;
+  j["default_points"] = base["points"];
+  j["default_setting"] = def_setting;
+  j["default_curved_scale"] = std::stod(absl::StrFormat("%g", a.curved_scale));
+  j["default_mae"] = def_mae;
+  j["finer_points"] = fine["points"];
+  // As typed (a float's nearest double prints 0.004999999888).
+  j["finer_solid_angle"] = std::stod(absl::StrFormat("%g", f.fine_solid_angle));
+  j["finer_curved_scale"] = std::stod(absl::StrFormat("%g", f.curved_scale));
+  j["goal_ratio"] = kConvergenceGoal;
+  j["rows"] = Json::array();
+  std::printf("convergence (%s, %zu receivers, truth %d rays, its own MAE %.2g):\n",
+              e.scene->name.c_str(), e.receivers.size(), e.truth_rays, e.truth_noise);
+  std::printf("  default  %10lld surfels, %-32s MAE %.5f\n",
+              static_cast<long long>(base["points"].get<uint64_t>()), def_setting.c_str(), def_mae);
+  double best = std::numeric_limits<double>::infinity();
+  std::string best_setting;
+  for (const Json& r : fine["rows"]) {
+    if (r["method"].get<std::string>() != "pbgi") continue;
+    const double mae = r["mae"].get<double>();
+    const double ratio = def_mae > 0.0 ? mae / def_mae : std::numeric_limits<double>::infinity();
+    const std::string setting =
+        absl::StrFormat("%s curved %g", r["setting"].get<std::string>(), f.curved_scale);
+    std::printf("  finer    %10lld surfels, %-32s MAE %.5f (bias %+.5f)  x%.3f  %.1f us/receiver\n",
+                static_cast<long long>(fine["points"].get<uint64_t>()), setting.c_str(), mae,
+                r["bias"].get<double>(), ratio, 1e6 * r["seconds_per_receiver"].get<double>());
+    Json row;
+    row["setting"] = setting;
+    row["mae"] = mae;
+    row["bias"] = r["bias"];
+    row["ratio"] = ratio;
+    row["seconds_per_receiver"] = r["seconds_per_receiver"];
+    row["clusters"] = r["clusters"];
+    row["surfels"] = r["surfels"];
+    j["rows"].push_back(row);
+    if (ratio < best) best = ratio, best_setting = setting;
+  }
+  const bool met = best <= kConvergenceGoal;
+  j["best_ratio"] = best;
+  j["best_setting"] = best_setting;
+  j["met"] = met;
+  std::printf("  best: x%.3f (%s): the goal, at most x%.1f, is %s\n", best, best_setting.c_str(),
+              kConvergenceGoal, met ? "met" : "not met");
+  if (def_setting != "msa 0.03 res 12 cos") {
+    std::printf(
+        "  (the default row is %s: --solid-angles and --raster-res did not sweep msa 0.03 "
+        "res 12)\n",
+        def_setting.c_str());
+  }
+  const std::string path = a.out_dir + "/convergence.json";
+  PBGI_RETURN_IF_ERROR(WriteJsonFile(path, j));
+  std::printf("wrote %s\n", path.c_str());
+  return absl::OkStatus();
 }
 
 absl::Status RunEval(const EvalArgs& a) {
@@ -845,7 +951,9 @@ absl::Status RunEval(const EvalArgs& a) {
   e.shade_receivers =
       e.glossy ? GlossyReceivers(*e.scene, e.receivers) : ShadeReceiversOf(e.receivers);
   if (!e.glossy) {
-    return EvalOneSetting(a, cache, a.out_dir + "/eval", e).status();
+    PBGI_ASSIGN_OR_RETURN(const Json base, EvalOneSetting(a, cache, a.out_dir + "/eval", e));
+    if (!a.convergence) return absl::OkStatus();
+    return EvalConvergence(a, memory, cache, base, e);
   }
   // One eval per lobe setting (eval-<lobe>.json, .png), and eval.json with all of them.
   Json all;
@@ -855,6 +963,7 @@ absl::Status RunEval(const EvalArgs& a) {
   std::vector<std::string> lines;
   for (const GlossyParams& l : lobes) {
     e.lobe = l;
+    e.truth_ready = false;  // each lobe has its own truth
     PBGI_ASSIGN_OR_RETURN(Json j, EvalOneSetting(a, cache, a.out_dir + "/eval-" + LobeTag(l), e));
     lines.push_back(absl::StrFormat(
         "  %-10s default %s: MAE %.5f = %.2f%% of the mean %.5g", LobeTag(l),
@@ -967,7 +1076,8 @@ CommandSetup Setup() {
     app->add_option("--dump-receivers", a->dump_receivers,
                     "A CSV of every receiver at the default setting (msa 0.03, res 12), or at the "
                     "first msa and resolution swept when those are not: position, normal, "
-                    "reference, PBGI, error (and for receiver sets, the sheet tag)");
+                    "reference, PBGI, error (and for receiver sets, the sheet tag); with "
+                    "--convergence also NAME.finer.csv, at the finer setting's first resolution");
     app->add_flag("--keep-hidden", a->keep_hidden,
                   "Keep database surfels inside solid geometry (receivers never are)");
     app->add_flag("--view", a->view,
@@ -1013,6 +1123,27 @@ CommandSetup Setup() {
                     "--view --far-sharing: the distance factors of the far-sharing rows")
         ->capture_default_str();
     app->add_flag("--far-only", a->far_only, "--view --far-sharing: only the far-sharing rows");
+    app->add_flag("--convergence", a->convergence,
+                  "Also build a database of --density-factor times --points and shade the same "
+                  "receivers at the finer setting (--fine-solid-angle, each --fine-raster-res); "
+                  "report each one's MAE over the default setting's (the goal: at most half) "
+                  "and write convergence.json (occlusion and irradiance)");
+    app->add_option("--density-factor", a->density_factor,
+                    "--convergence: surfels of the finer setting's database over --points")
+        ->check(CLI::Range(1, 64))
+        ->capture_default_str();
+    app->add_option("--fine-solid-angle", a->fine_solid_angle,
+                    "--convergence: the finer setting's max_solid_angle")
+        ->check(CLI::Range(1e-5, 10.0))
+        ->capture_default_str();
+    app->add_option("--fine-raster-res", a->fine_resolutions,
+                    "--convergence: the finer setting's raster resolutions, one row each")
+        ->check(CLI::Range(4, 64))
+        ->capture_default_str();
+    app->add_option("--fine-curved-scale", a->fine_curved_scale,
+                    "--convergence: the finer setting's Cut::curved_scale (0: --curved-scale)")
+        ->check(CLI::Range(0.0, 1.0))
+        ->capture_default_str();
     app->add_option("--sharing-layout", a->sharing_layout,
                     "--view: the shared rows see the receivers as an image or as a point set")
         ->check(CLI::IsMember({"image", "points"}))
@@ -1028,6 +1159,40 @@ CommandSetup Setup() {
       }
       if (!a->view && !a->db.empty()) {
         return absl::InvalidArgumentError("--db is for --view (a camera view of a built database)");
+      }
+      if (a->convergence && (a->view || a->mode == "glossy")) {
+        return absl::InvalidArgumentError(
+            "--convergence compares receiver sets in occlusion or irradiance: not with --view or "
+            "--mode glossy");
+      }
+      if (!a->convergence) {
+        for (const char* flag : {"--density-factor", "--fine-solid-angle", "--fine-raster-res",
+                                 "--fine-curved-scale"}) {
+          if (app->count(flag)) {
+            return absl::InvalidArgumentError(absl::StrFormat("%s is for --convergence", flag));
+          }
+        }
+      }
+      // The ratio is against the default setting: a coarser row in its place would flatter it.
+      const auto has = [](const auto& v, auto x) {
+        return std::find(v.begin(), v.end(), x) != v.end();
+      };
+      if (a->convergence &&
+          !(has(a->solid_angles, 0.03f) && has(a->resolutions, 12) && has(a->cuts, "cosine"))) {
+        return absl::InvalidArgumentError(
+            "--convergence compares with the default setting (msa 0.03, res 12, the cosine cut): "
+            "--solid-angles, --raster-res and --cuts must include it");
+      }
+      if (a->convergence && a->points > (int64_t{1} << 36) / a->density_factor) {
+        return absl::InvalidArgumentError(absl::StrFormat(
+            "--convergence: --points %d x --density-factor %d exceeds the %d surfels --points "
+            "takes",
+            a->points, a->density_factor, int64_t{1} << 36));
+      }
+      if (a->convergence && a->fine_curved_scale > 0.0f && a->fine_curved_scale < 0.001f) {
+        return absl::InvalidArgumentError(
+            absl::StrFormat("--fine-curved-scale %g: must be 0 (--curved-scale) or in [0.001, 1]",
+                            a->fine_curved_scale));
       }
       if (!a->view) return RunEval(*a);
       ViewEvalArgs v;

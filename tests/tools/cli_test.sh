@@ -46,6 +46,38 @@ run eval "$pbgi" eval cornell -o "$dir/eval" --points 30000 --receivers 40 --ray
   --ray-sweep 16 64 --solid-angles 0.1 0.03 --raster-res 8 12
 [ -s "$dir/eval/eval.json" ] && [ -s "$dir/eval/eval.png" ] && ok || fail "eval wrote no json/chart"
 grep -q '"speedup_at_equal_error"' "$dir/eval/eval.json" && ok || fail "eval.json lacks the speed ratio"
+# --convergence: the finer setting (4x the surfels, msa 0.005) on the same receivers and truth,
+# each row's MAE over the default row's, as its own eval.json gives them.
+run eval_conv "$pbgi" eval cornell -o "$dir/eval_conv" --points 20000 --receivers 40 --rays 256 \
+  --ray-sweep 16 --solid-angles 0.03 --raster-res 12 --convergence --fine-raster-res 12 16 \
+  --dump-receivers "$dir/conv.csv"
+python3 - "$dir" <<'PY' && ok || fail "eval --convergence: convergence.json does not match the evals"
+import json, sys
+d = sys.argv[1]
+c = json.load(open(d + "/eval_conv/convergence.json"))
+base = json.load(open(d + "/eval_conv/eval.json"))
+fine = json.load(open(d + "/eval_conv/finer/eval.json"))
+pbgi = [r for r in fine["rows"] if r["method"] == "pbgi"]
+assert c["default_mae"] == base["default_mae"] and c["default_setting"] == "msa 0.03 res 12 cos"
+assert c["default_points"] == base["points"] and c["finer_points"] == fine["points"]
+assert 3.9 * base["points"] < fine["points"] < 4.1 * base["points"]
+assert len(c["rows"]) == len(pbgi) == 2 and c["receivers"] == fine["receivers"] == 40
+for r, f in zip(c["rows"], pbgi):
+    assert f["setting"].startswith("msa 0.005 res ") and r["setting"].startswith(f["setting"])
+    assert abs(r["ratio"] - f["mae"] / base["default_mae"]) < 1e-12
+best = min(r["ratio"] for r in c["rows"])
+assert c["best_ratio"] == best and c["met"] == (best <= 0.5)
+# Both settings against one truth: the same receivers and reference values, row by row.
+rows = [open(d + f).read().splitlines() for f in ("/conv.csv", "/conv.finer.csv")]
+assert len(rows[0]) == len(rows[1]) == 41
+assert all(a.split(",")[:8] == b.split(",")[:8] for a, b in zip(*rows))
+assert base["truth_mean"] == fine["truth_mean"] and base["truth_noise_mae"] == fine["truth_noise_mae"]
+PY
+refuse eval_conv_view "not with --view" "$pbgi" eval --view cornell --convergence -o "$dir/ecv"
+refuse eval_conv_glossy "or .-mode glossy" "$pbgi" eval cornell --mode glossy --convergence -o "$dir/ecv"
+refuse eval_conv_default "must include it" "$pbgi" eval cornell --convergence --raster-res 8 \
+  -o "$dir/ecv"
+refuse eval_conv_flag "is for --convergence" "$pbgi" eval cornell --fine-raster-res 16 -o "$dir/ecv"
 # --dump-receivers on a receiver set: one row per receiver, its error its PBGI value less its
 # reference, and its sheet tag last: 0 on the forest's one-sided ground and trunks, 1-255 on
 # its two-sided leaves (pixel_error --sheet takes it).
