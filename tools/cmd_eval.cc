@@ -871,7 +871,7 @@ absl::Status EvalConvergence(const EvalArgs& a, uint64_t memory, uint64_t cache,
     const double ratio = def_mae > 0.0 ? mae / def_mae : std::numeric_limits<double>::infinity();
     const std::string setting =
         absl::StrFormat("%s curved %g", r["setting"].get<std::string>(), f.curved_scale);
-    std::printf("  finer    %10lld surfels, %-32s MAE %.5f (bias %+.5f)  x%.3f  %.1f us/receiver\n",
+    std::printf("  finer    %10lld surfels, %-32s MAE %.5f (bias %+.5f)  x%.4f  %.1f us/receiver\n",
                 static_cast<long long>(fine["points"].get<uint64_t>()), setting.c_str(), mae,
                 r["bias"].get<double>(), ratio, 1e6 * r["seconds_per_receiver"].get<double>());
     Json row;
@@ -889,7 +889,7 @@ absl::Status EvalConvergence(const EvalArgs& a, uint64_t memory, uint64_t cache,
   j["best_ratio"] = best;
   j["best_setting"] = best_setting;
   j["met"] = met;
-  std::printf("  best: x%.3f (%s): the goal, at most x%.1f, is %s\n", best, best_setting.c_str(),
+  std::printf("  best: x%.4f (%s): the goal, at most x%.1f, is %s\n", best, best_setting.c_str(),
               kConvergenceGoal, met ? "met" : "not met");
   if (def_setting != "msa 0.03 res 12 cos") {
     std::printf(
