@@ -107,6 +107,15 @@ struct EvalArgs {
 
 // --convergence: issue 14's goal, the finer setting's MAE over the default's.
 constexpr double kConvergenceGoal = 0.5;
+// The most surfels --points takes (and --convergence's denser database).
+constexpr int64_t kMaxPoints = int64_t{1} << 36;
+
+// Whether a swept setting list (--solid-angles, --raster-res) holds x, as the rows name it.
+template <class T>
+bool SweepHas(const std::vector<T>& v, T x) {
+  return std::any_of(v.begin(), v.end(),
+                     [x](T y) { return static_cast<float>(std::abs(y - x)) < 1e-6f; });
+}
 
 struct Errors {
   double mae = 0, rmse = 0, max = 0;
@@ -431,11 +440,8 @@ absl::StatusOr<size_t> PbgiRows(const EvalArgs& a, const EvalSetup& e, Database&
                                    ? default_cut
                                    : a.cuts.front();
   // ... at the default msa and resolution, or the first ones swept when the default is not.
-  const auto has = [](const auto& v, auto x) {
-    return std::any_of(v.begin(), v.end(), [x](auto y) { return std::abs(y - x) < 1e-6f; });
-  };
-  const float dump_msa = has(a.solid_angles, 0.03f) ? 0.03f : a.solid_angles.front();
-  const int dump_res = has(a.resolutions, 12) ? 12 : a.resolutions.front();
+  const float dump_msa = SweepHas(a.solid_angles, 0.03f) ? 0.03f : a.solid_angles.front();
+  const int dump_res = SweepHas(a.resolutions, 12) ? 12 : a.resolutions.front();
   for (const std::string& cut : a.cuts) {
     for (int res : a.resolutions) {
       for (float msa : a.solid_angles) {
@@ -891,12 +897,6 @@ absl::Status EvalConvergence(const EvalArgs& a, uint64_t memory, uint64_t cache,
   j["met"] = met;
   std::printf("  best: x%.4f (%s): the goal, at most x%.1f, is %s\n", best, best_setting.c_str(),
               kConvergenceGoal, met ? "met" : "not met");
-  if (def_setting != "msa 0.03 res 12 cos") {
-    std::printf(
-        "  (the default row is %s: --solid-angles and --raster-res did not sweep msa 0.03 "
-        "res 12)\n",
-        def_setting.c_str());
-  }
   const std::string path = a.out_dir + "/convergence.json";
   PBGI_RETURN_IF_ERROR(WriteJsonFile(path, j));
   std::printf("wrote %s\n", path.c_str());
@@ -1004,7 +1004,7 @@ CommandSetup Setup() {
                     "--mode glossy: GGX roughnesses (alpha), one eval each")
         ->capture_default_str();
     app->add_option("--points", a->points, "Surfels in the database (e.g. 500k, 1M)")
-        ->transform(CountValidator(1, int64_t{1} << 36))
+        ->transform(CountValidator(1, kMaxPoints))
         ->capture_default_str();
     app->add_option("--receivers", a->receivers, "Receivers compared with the reference (e.g. 1k)")
         ->transform(CountValidator(1, int64_t{1} << 24))
@@ -1174,20 +1174,18 @@ CommandSetup Setup() {
         }
       }
       // The ratio is against the default setting: a coarser row in its place would flatter it.
-      const auto has = [](const auto& v, auto x) {
-        return std::find(v.begin(), v.end(), x) != v.end();
-      };
       if (a->convergence &&
-          !(has(a->solid_angles, 0.03f) && has(a->resolutions, 12) && has(a->cuts, "cosine"))) {
+          !(SweepHas(a->solid_angles, 0.03f) && SweepHas(a->resolutions, 12) &&
+            std::find(a->cuts.begin(), a->cuts.end(), "cosine") != a->cuts.end())) {
         return absl::InvalidArgumentError(
             "--convergence compares with the default setting (msa 0.03, res 12, the cosine cut): "
             "--solid-angles, --raster-res and --cuts must include it");
       }
-      if (a->convergence && a->points > (int64_t{1} << 36) / a->density_factor) {
+      if (a->convergence && a->points > kMaxPoints / a->density_factor) {
         return absl::InvalidArgumentError(absl::StrFormat(
             "--convergence: --points %d x --density-factor %d exceeds the %d surfels --points "
             "takes",
-            a->points, a->density_factor, int64_t{1} << 36));
+            a->points, a->density_factor, kMaxPoints));
       }
       if (a->convergence && a->fine_curved_scale > 0.0f && a->fine_curved_scale < 0.001f) {
         return absl::InvalidArgumentError(
