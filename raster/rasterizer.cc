@@ -654,7 +654,9 @@ absl::Status Rasterizer::Run(const Gathered& g, const ShadeReceiver& r, ShadeRes
                    std::max({std::fabs(origin_.x), std::fabs(origin_.y), std::fabs(origin_.z)}));
   auto& splats = mb_.splats_;
   // Written by index: a vector's push_back costs more than the rest of a small splat's setup.
-  if (splats.size() < g.size()) splats.resize(g.size());
+  // A group of surfels draws at most two splats a member (its pieces and their cores).
+  const size_t most = g.clusters.size() + 2 * g.surfels.size();
+  if (splats.size() < most) splats.resize(most);
   count_ = 0;
   if (radiance_) {
     PrepareClusters<true>(g.clusters);
