@@ -1819,7 +1819,7 @@ double SheetCore(const Surfel* surfels, const uint32_t* members, int count, cons
     if (!(l0 > 0.0f) || !(l1 > 0.0f)) return 0.0;
     const glm::vec2 n0(e0.y / l0, -e0.x / l0), n1(e1.y / l1, -e1.x / l1);  // outward
     const glm::vec2 m = n0 + n1;
-    // 1 + the cosine of the turn: below 0.2 the mitre would reach over 2.2 times `grow`.
+    // 1 + the cosine of the turn: below 0.2 the mitre would reach over 3.2 times `grow`.
     const float dm = glm::dot(m, n0);
     if (!(dm > 0.2f)) return 0.0;
     const glm::vec2 v = hull[i] + (grow / dm) * m;
