@@ -1754,7 +1754,8 @@ float InPlaneFootprint(const Surfel* surfels, const uint32_t* members, int count
 // by `grow` (a mitred offset), inside `clip` (in the same plane). Each centre stands for a piece of
 // its sheet about a spacing wide, so the sheet holds its centres' hull and goes on about half a
 // spacing past it. Returns the core's area, 0 when it has none (fewer than three centres off one
-// line, a corner too sharp to mitre, a hull of more than kMaxPolygonVertices).
+// line, more than kMaxMembers of them, a corner too sharp to mitre, a hull of more than
+// kMaxPolygonVertices).
 double SheetCore(const Surfel* surfels, const uint32_t* members, int count, const glm::vec3& normal,
                  float offset, const glm::vec3& origin, float grow, const Bounds& goes_on,
                  float carry, const Polygon& clip, Polygon* core) {
@@ -1781,19 +1782,19 @@ double SheetCore(const Surfel* surfels, const uint32_t* members, int count, cons
     glm::vec3 u(0.0f);
     u[k] = 1.0f;
     u -= normal[k] * normal;
+    const float u_length = std::sqrt(across);
     for (const float side : {goes_on.lo[k], goes_on.hi[k]}) {
       if (!(std::fabs(side) < kNoSide)) continue;
       const float rel = side - origin[k];
       for (int i = 0; i < count; ++i) {
-        const float t = (rel - on[i][k]) / across;  // |u| is sqrt(across)
-        if (std::fabs(t) * std::sqrt(across) <= carry) on[total++] = on[i] + t * u;
+        const float t = (rel - on[i][k]) / across;
+        if (std::fabs(t) * u_length <= carry) on[total++] = on[i] + t * u;
       }
     }
   }
   glm::vec2 pts[kMaxPoints];
   for (int i = 0; i < total; ++i) pts[i] = {glm::dot(on[i] - mid, a), glm::dot(on[i] - mid, b)};
-  count = total;
-  std::sort(pts, pts + count, [](const glm::vec2& x, const glm::vec2& y) {
+  std::sort(pts, pts + total, [](const glm::vec2& x, const glm::vec2& y) {
     return x.x < y.x || (x.x == y.x && x.y < y.y);
   });
   // Andrew's monotone chain, counter-clockwise in (a, b).
@@ -1802,11 +1803,11 @@ double SheetCore(const Surfel* surfels, const uint32_t* members, int count, cons
   };
   glm::vec2 hull[2 * kMaxPoints];
   int k = 0;
-  for (int i = 0; i < count; ++i) {
+  for (int i = 0; i < total; ++i) {
     while (k >= 2 && turn(hull[k - 2], hull[k - 1], pts[i]) <= 0.0f) --k;
     hull[k++] = pts[i];
   }
-  for (int i = count - 2, lower = k + 1; i >= 0; --i) {
+  for (int i = total - 2, lower = k + 1; i >= 0; --i) {
     while (k >= lower && turn(hull[k - 2], hull[k - 1], pts[i]) <= 0.0f) --k;
     hull[k++] = pts[i];
   }
