@@ -40,6 +40,9 @@ constexpr double kSmallCell = 9.0;
 constexpr float kCoreGrow = 0.5f;
 constexpr float kCoreNear = 3.0f;
 constexpr float kCoreFar = 6.0f;
+// kCoreNear and kCoreFar hold at this raster resolution and scale with it: a piece's hedge is
+// seen where the piece spans more than about a pixel, as far away as the pixels are fine.
+constexpr float kCoreRes = 12.0f;
 // A centre is carried to a side where the sheet goes on only from within this many spacings of
 // it in the plane (FootprintBox snaps a side within 1.5 spacings of the centres along its axis).
 constexpr float kCoreCarry = 1.5f;
@@ -1753,15 +1756,15 @@ float InPlaneFootprint(const Surfel* surfels, const uint32_t* members, int count
 // SheetCell found the sheet going on past the cell) from within `carry` of it, each edge moved out
 // by `grow` (a mitred offset), inside `clip` (in the same plane). Each centre stands for a piece of
 // its sheet about a spacing wide, so the sheet holds its centres' hull and goes on about half a
-// spacing past it. Returns the core's area, 0 when it has none (fewer than three centres off one
-// line, more than kMaxMembers of them, a corner too sharp to mitre, a hull of more than
-// kMaxPolygonVertices).
+// spacing past it; centres on one line (a pair, a lone surfel) hold the rectangle `grow` past
+// their segment on every side. Returns the core's area, 0 when it has none (more than
+// kMaxMembers centres, a corner too sharp to mitre, a hull of more than kMaxPolygonVertices).
 double SheetCore(const Surfel* surfels, const uint32_t* members, int count, const glm::vec3& normal,
                  float offset, const glm::vec3& origin, float grow, const Bounds& goes_on,
                  float carry, const Polygon& clip, Polygon* core) {
   constexpr int kMaxMembers = 64;
   constexpr int kMaxPoints = 7 * kMaxMembers;  // each centre, and carried to up to six sides
-  if (count < 3 || count > kMaxMembers || clip.n < 3) return 0.0;
+  if (count < 1 || count > kMaxMembers || clip.n < 3) return 0.0;
   glm::vec3 a, unused;
   OrthonormalBasis(normal, &a, &unused);
   const glm::vec3 b = glm::cross(normal, a);  // (a, b) turns around the normal
@@ -1811,9 +1814,22 @@ double SheetCore(const Surfel* surfels, const uint32_t* members, int count, cons
     while (k >= lower && turn(hull[k - 2], hull[k - 1], pts[i]) <= 0.0f) --k;
     hull[k++] = pts[i];
   }
-  const int n = k - 1;
-  if (n < 3 || n > kMaxPolygonVertices) return 0.0;
-  core->n = n;
+  int n = k - 1;
+  if (n < 3) {
+    // The centres lie on a line (or are one point): the hull is that segment, and its offset the
+    // rectangle `grow` past it on every side.
+    const glm::vec2 p0 = pts[0], p1 = pts[total - 1];
+    const float len = glm::length(p1 - p0);
+    const glm::vec2 e = len > 0.0f ? (p1 - p0) / len : glm::vec2(1.0f, 0.0f);
+    const glm::vec2 q(-e.y, e.x);
+    const glm::vec2 v[4] = {p0 - grow * (e + q), p1 + grow * (e - q), p1 + grow * (e + q),
+                            p0 - grow * (e - q)};
+    core->n = 4;
+    for (int i = 0; i < 4; ++i) core->v[i] = mid + v[i].x * a + v[i].y * b;
+    n = 0;
+  }
+  if (n > kMaxPolygonVertices) return 0.0;
+  if (n > 0) core->n = n;
   for (int i = 0; i < n; ++i) {
     const glm::vec2 e0 = hull[i] - hull[(i + n - 1) % n], e1 = hull[(i + 1) % n] - hull[i];
     const float l0 = glm::length(e0), l1 = glm::length(e1);
@@ -2447,20 +2463,24 @@ void Rasterizer::PrepareSurfelGroups(const Gathered& g, ShadeResult* out) {
       // surfels' area (at least kCoreRingKeep of its opacity where the sheet goes on). Drawn at its
       // count over its section, a leaf a receiver lay 0.6 spacings under was 0.69 where rays see it
       // whole (the forest's worst receiver at 8 M surfels, 0.917 for rays' 0.996; bug:
-      // near_sheet_pieces_translucent_inside_their_centres). The core shrinks about its centre
-      // from kCoreNear to kCoreFar spacings away, to nothing, so that the occlusion stays
-      // continuous in the receiver's position and a piece farther away is drawn as before (the
-      // far field's pieces drawn as cores and rings over-occluded the forest's canopy: 0.00645
-      // -> 0.00989 at the finer setting).
+      // near_sheet_pieces_translucent_inside_their_centres). A pair or a lone surfel is a piece
+      // too (a leaf cut by the cells leaves them): drawn at its count over its section, it was a
+      // hedge a receiver 1.7 spacings away saw at 0.69 where rays see the leaf whole. The core
+      // shrinks about its centre from kCoreNear to kCoreFar spacings away (at res 12; farther
+      // at finer rasters, whose pixels see a hedge from farther), to nothing, so that the
+      // occlusion stays continuous in the receiver's position and a piece farther away is drawn
+      // as before (the far field's pieces drawn as cores and rings over-occluded the forest's
+      // canopy: 0.00645 -> 0.00989 at the finer setting).
       Polygon core;
       double core_area = 0.0;
-      if (first.two_sided && count >= kSheetMinCount && alpha < 1.0f && p.n >= 3 &&
-          d < kCoreFar * spacing) {
+      const float core_scale = static_cast<float>(res_) / kCoreRes;
+      if (first.two_sided && alpha < 1.0f && p.n >= 3 && d < kCoreFar * core_scale * spacing) {
         const double section = PolygonArea(p), held = double(alpha) * section;
         core_area =
             SheetCore(g.surfels.data(), &order[end - count], count, facing, -std::fabs(side), from,
                       kCoreGrow * spacing, snap_to, kCoreCarry * spacing, p, &core);
-        const float w = std::clamp((kCoreFar - d / spacing) / (kCoreFar - kCoreNear), 0.0f, 1.0f);
+        const float ds = d / (core_scale * spacing);
+        const float w = std::clamp((kCoreFar - ds) / (kCoreFar - kCoreNear), 0.0f, 1.0f);
         if (core_area > 0.0 && w < 1.0f) {
           glm::vec3 c(0.0f);
           for (int i = 0; i < core.n; ++i) c += core.v[i];
