@@ -942,6 +942,46 @@ TEST(TwoSidedTest, ANearLeafsPiecesAreOpaqueInside) {
   }
 }
 
+// The same for a one-sided panel facing the receiver (a wall, a ceiling, the ground beside a
+// trunk's foot): a piece that holds less than its footprint was drawn at its surfels' area over
+// its section, a hedge of where in its cell the panel is. Near the receiver its centres' hull grown
+// by half a spacing is drawn opaque, the rest holding what is left (from three members: a
+// pair's rectangle overshot a wall's open end in the city). The panel of the test above, its
+// surfels one-sided and facing the receiver, against rays at the rectangle: mean |error| 0.105
+// before, 0.059 now; the worst 0.421 and 0.249.
+TEST(TwoSidedTest, AOneSidedPanelsNearPiecesAreOpaqueInside) {
+  const float pitch = 0.06f, cell = 3.3f * pitch;
+  const float half_u = 3.0f * pitch, half_v = 2.0f * pitch;
+  double worst = 0.0, sum = 0.0;
+  int n = 0;
+  for (const float tilt : {0.0f, 0.35f, 0.7f}) {
+    const glm::vec3 normal(0.0f, -std::sin(tilt), std::cos(tilt));
+    const glm::vec3 du(1.0f, 0.0f, 0.0f), dv = glm::cross(normal, du);
+    for (const float h : {0.4f, 0.7f, 1.0f}) {
+      for (const glm::vec2 at : {glm::vec2(0.0f), glm::vec2(1.3f, 0.6f), glm::vec2(-2.1f, -0.9f),
+                                 glm::vec2(2.2f, -1.2f), glm::vec2(-0.7f, 1.3f)}) {
+        const glm::vec3 centre = h * pitch * normal - at.x * pitch * du - at.y * pitch * dv;
+        const double want =
+            ParallelogramRayFraction(centre, normal, du, dv, -half_u, half_u, -half_v, half_v);
+        std::vector<Surfel> part =
+            LatticeSheet(centre - half_u * du - half_v * dv, du, dv, 6, 4, pitch, -normal, 7u);
+        for (Surfel& sf : part) sf.two_sided = false;
+        for (const glm::vec3 shift :
+             {glm::vec3(0.37f, 0.61f, 0.29f), glm::vec3(1.82f, 2.47f, 0.55f)}) {
+          const double got = MovedSheetOcclusion(part, shift * pitch, cell);
+          worst = std::max(worst, std::fabs(got - want));
+          sum += std::fabs(got - want);
+          ++n;
+        }
+      }
+    }
+  }
+  RecordProperty("worst_abs_error", std::to_string(worst));
+  RecordProperty("mean_abs_error", std::to_string(sum / n));
+  EXPECT_LT(sum / n, 0.07);
+  EXPECT_LT(worst, 0.3);
+}
+
 // A thin-walled part's corner (an L of two two-sided sheets, as 2CylinderEngine's brackets and
 // CesiumMilkTruck's panels are): a panel 1 and 1.5 pitches above the receiver's plane ends
 // where a lip 2 pitches deep hangs from it, and leaf cells 2.1 pitches wide hold pieces of both.
