@@ -34,9 +34,10 @@ namespace {
 // A flat footprint whose polygon holds at most this many surfels' areas fills its cell whenever
 // it reaches the cell's sides (see FlatFootprint).
 constexpr double kSmallCell = 9.0;
-// A two-sided group's core (SheetCore): the hull of its centres grown by kCoreGrow spacings is
-// drawn opaque when the group's centre lies within kCoreNear spacings of the receiver, fading
-// to nothing at kCoreFar (docs/design.md, "A piece's core").
+// A group's core (SheetCore; two-sided groups, and one-sided ones from kOneSidedCoreMinCount
+// members): the hull of its centres grown by kCoreGrow spacings is drawn opaque when the group's
+// centre lies within kCoreNear spacings of the receiver, fading to nothing at kCoreFar
+// (docs/design.md, "A piece's core").
 constexpr float kCoreGrow = 0.5f;
 constexpr float kCoreNear = 3.0f;
 constexpr float kCoreFar = 6.0f;
@@ -1758,7 +1759,7 @@ float InPlaneFootprint(const Surfel* surfels, const uint32_t* members, int count
   return std::min(1.0f, static_cast<float>(area / (double(l) * w)));
 }
 
-// The part of a two-sided group's footprint `clip` that is surely its sheet: the convex hull of
+// The part of a group's footprint `clip` that is surely its surface: the convex hull of
 // its members' centres projected on its plane ({x : normal . x = offset} relative to `origin`),
 // and of the same centres carried in the plane to each side of `goes_on` that is a side (where
 // SheetCell found the sheet going on past the cell) from within `carry` of it, each edge moved out
@@ -1822,7 +1823,7 @@ double SheetCore(const Surfel* surfels, const uint32_t* members, int count, cons
     while (k >= lower && turn(hull[k - 2], hull[k - 1], pts[i]) <= 0.0f) --k;
     hull[k++] = pts[i];
   }
-  int n = k - 1;
+  const int n = k - 1;
   if (n < 3) {
     // The centres lie on a line (or are one point): the hull is that segment, and its offset the
     // rectangle `grow` past it on every side.
@@ -1834,21 +1835,21 @@ double SheetCore(const Surfel* surfels, const uint32_t* members, int count, cons
                             p0 - grow * (e - q)};
     core->n = 4;
     for (int i = 0; i < 4; ++i) core->v[i] = mid + v[i].x * a + v[i].y * b;
-    n = 0;
-  }
-  if (n > kMaxPolygonVertices) return 0.0;
-  if (n > 0) core->n = n;
-  for (int i = 0; i < n; ++i) {
-    const glm::vec2 e0 = hull[i] - hull[(i + n - 1) % n], e1 = hull[(i + 1) % n] - hull[i];
-    const float l0 = glm::length(e0), l1 = glm::length(e1);
-    if (!(l0 > 0.0f) || !(l1 > 0.0f)) return 0.0;
-    const glm::vec2 n0(e0.y / l0, -e0.x / l0), n1(e1.y / l1, -e1.x / l1);  // outward
-    const glm::vec2 m = n0 + n1;
-    // 1 + the cosine of the turn: below 0.2 the mitre would reach over 3.2 times `grow`.
-    const float dm = glm::dot(m, n0);
-    if (!(dm > 0.2f)) return 0.0;
-    const glm::vec2 v = hull[i] + (grow / dm) * m;
-    core->v[i] = mid + v.x * a + v.y * b;
+  } else {
+    if (n > kMaxPolygonVertices) return 0.0;
+    core->n = n;
+    for (int i = 0; i < n; ++i) {
+      const glm::vec2 e0 = hull[i] - hull[(i + n - 1) % n], e1 = hull[(i + 1) % n] - hull[i];
+      const float l0 = glm::length(e0), l1 = glm::length(e1);
+      if (!(l0 > 0.0f) || !(l1 > 0.0f)) return 0.0;
+      const glm::vec2 n0(e0.y / l0, -e0.x / l0), n1(e1.y / l1, -e1.x / l1);  // outward
+      const glm::vec2 m = n0 + n1;
+      // 1 + the cosine of the turn: below 0.2 the mitre would reach over 3.2 times `grow`.
+      const float dm = glm::dot(m, n0);
+      if (!(dm > 0.2f)) return 0.0;
+      const glm::vec2 v = hull[i] + (grow / dm) * m;
+      core->v[i] = mid + v.x * a + v.y * b;
+    }
   }
   glm::vec3 cc(0.0f);
   for (int j = 0; j < clip.n; ++j) cc += clip.v[j];
@@ -2510,21 +2511,23 @@ void Rasterizer::PrepareSurfelGroups(const Gathered& g, ShadeResult* out) {
       bool drawn = false;
       for (int piece = 0; piece < pieces; ++piece) {
         // The member's share of the footprint (and of its core): the points nearer its centre
-        // than any other member's (a Voronoi cell, by the bisecting planes).
-        auto share = [&](const Polygon& whole, Polygon* q) {
-          *q = whole;
-          if (pieces == 1) return;
+        // than any other member's (a Voronoi cell, by the bisecting planes); the whole of it
+        // when there is one piece.
+        auto share = [&](const Polygon& whole, Polygon* scratch) -> const Polygon& {
+          if (pieces == 1) return whole;
+          *scratch = whole;
           const glm::vec3 ci = g.surfels[order[end - count + piece]].position - from;
-          for (int j = 0; j < count && q->n >= 3; ++j) {
+          for (int j = 0; j < count && scratch->n >= 3; ++j) {
             if (j == piece) continue;
             const glm::vec3 cj = g.surfels[order[end - count + j]].position - from;
             const glm::vec3 dm = ci - cj;
             if (!(glm::dot(dm, dm) > 0.0f)) continue;
-            ClipHalfSpace(dm, glm::dot(dm, 0.5f * (ci + cj)), q);
+            ClipHalfSpace(dm, glm::dot(dm, 0.5f * (ci + cj)), scratch);
           }
+          return *scratch;
         };
-        Polygon q;
-        share(p, &q);
+        Polygon q_scratch;
+        const Polygon& q = share(p, &q_scratch);
         if (q.n < 3) continue;
         glm::vec3 piece_rad = rad;
         if (pieces > 1) {
@@ -2532,12 +2535,10 @@ void Rasterizer::PrepareSurfelGroups(const Gathered& g, ShadeResult* out) {
           piece_rad = back ? m.back_radiance : m.radiance;
         }
         for (int part = core_area > 0.0 ? 0 : 1; part < 2; ++part) {
-          Polygon cq;
           if (part == 1 && !(alpha > 0.0f)) continue;
-          if (part == 0) {
-            share(core, &cq);
-            if (cq.n < 3) continue;
-          }
+          Polygon core_scratch;
+          const Polygon& drawn_poly = part == 0 ? share(core, &core_scratch) : q;
+          if (drawn_poly.n < 3) continue;
           PreparedSplat& s = mb_.splats_[count_];
           s.depth = d;
           s.extent = 0.5f * glm::length(centres.hi - centres.lo) + spacing;
@@ -2557,7 +2558,7 @@ void Rasterizer::PrepareSurfelGroups(const Gathered& g, ShadeResult* out) {
           s.flags = SurfelFlags(first.two_sided, side);
           s.poly_first = poly_count_;
           s.poly_count = 0;
-          AddPolygon(part == 0 ? cq : q, &s);
+          AddPolygon(drawn_poly, &s);
           if (s.poly_count == 0) continue;
           ++count_;
           drawn = true;
