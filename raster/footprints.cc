@@ -61,6 +61,13 @@ constexpr float kCoreRingKeep = 0.5f;
 // ends a spacing (1.4 m in the city at 4 M surfels) wide, reached half a metre past a wall's
 // open end over sky that rays see.
 constexpr int kOneSidedCoreMinCount = 3;
+// A group's centres whose hull grown by kCoreGrow (its Minkowski sum with the disk) spans more
+// than this many times their surfels' area have a gap between them that the sampling would have
+// filled had there been surface: samples of separate parts (2CylinderEngine: three of a plate's
+// surfels 2.7 spacings apart, their hull over sky that rays see), or a surface's holes. Such a
+// group has no core. Jittered samples of one sheet span about their area (a lone surfel 0.79, a
+// lattice's piece 0.8 to 1.3, a pair two spacings apart 1.4).
+constexpr double kCoreMaxSpan = 1.5;
 // A flat cluster that fills a cell more than this many surfels' areas wide is a piece of one
 // sheet (a mesh's thin panel), not of foliage, whose leaves are not much wider than a cell of
 // their own size (FlatFootprint's `sheet`; docs/design.md, "Porous layers").
@@ -1759,6 +1766,27 @@ float InPlaneFootprint(const Surfel* surfels, const uint32_t* members, int count
   return std::min(1.0f, static_cast<float>(area / (double(l) * w)));
 }
 
+// The convex hull of pts[0, n) (sorted in place), counter-clockwise, into hull (room for 2 n
+// points): its vertex count, below 3 when the points lie on a line (Andrew's monotone chain).
+int ConvexHull2(glm::vec2* pts, int n, glm::vec2* hull) {
+  std::sort(pts, pts + n, [](const glm::vec2& x, const glm::vec2& y) {
+    return x.x < y.x || (x.x == y.x && x.y < y.y);
+  });
+  auto turn = [](const glm::vec2& o, const glm::vec2& u, const glm::vec2& v) {
+    return (u.x - o.x) * (v.y - o.y) - (u.y - o.y) * (v.x - o.x);
+  };
+  int k = 0;
+  for (int i = 0; i < n; ++i) {
+    while (k >= 2 && turn(hull[k - 2], hull[k - 1], pts[i]) <= 0.0f) --k;
+    hull[k++] = pts[i];
+  }
+  for (int i = n - 2, lower = k + 1; i >= 0; --i) {
+    while (k >= lower && turn(hull[k - 2], hull[k - 1], pts[i]) <= 0.0f) --k;
+    hull[k++] = pts[i];
+  }
+  return k - 1;
+}
+
 // The part of a group's footprint `clip` that is surely its surface: the convex hull of
 // its members' centres projected on its plane ({x : normal . x = offset} relative to `origin`),
 // and of the same centres carried in the plane to each side of `goes_on` that is a side (where
@@ -1766,11 +1794,13 @@ float InPlaneFootprint(const Surfel* surfels, const uint32_t* members, int count
 // by `grow` (a mitred offset), inside `clip` (in the same plane). Each centre stands for a piece of
 // its sheet about a spacing wide, so the sheet holds its centres' hull and goes on about half a
 // spacing past it; centres on one line (a pair, a lone surfel) hold the rectangle `grow` past
-// their segment on every side. Returns the core's area, 0 when it has none (more than
-// kMaxMembers centres, a corner too sharp to mitre, a hull of more than kMaxPolygonVertices).
+// their segment on every side. A corner too sharp to mitre (the mitre would reach over 3.2 times
+// `grow`) is bevelled when `bevel`, else the group has no core. Returns the core's area, 0 when
+// it has none (more than kMaxMembers centres, centres spread over more than kCoreMaxSpan times
+// their surfels' `area`, a sharp corner not bevelled, a hull of more than kMaxPolygonVertices).
 double SheetCore(const Surfel* surfels, const uint32_t* members, int count, const glm::vec3& normal,
-                 float offset, const glm::vec3& origin, float grow, const Bounds& goes_on,
-                 float carry, const Polygon& clip, Polygon* core) {
+                 float offset, const glm::vec3& origin, float grow, double area, bool bevel,
+                 const Bounds& goes_on, float carry, const Polygon& clip, Polygon* core) {
   constexpr int kMaxMembers = 64;
   constexpr int kMaxPoints = 7 * kMaxMembers;  // each centre, and carried to up to six sides
   if (count < 1 || count > kMaxMembers || clip.n < 3) return 0.0;
@@ -1785,6 +1815,25 @@ double SheetCore(const Surfel* surfels, const uint32_t* members, int count, cons
     mid += on[i];
   }
   mid /= static_cast<float>(count);
+  glm::vec2 pts[kMaxPoints];
+  glm::vec2 hull[2 * kMaxPoints];
+  auto plane = [&](const glm::vec3& x) {
+    return glm::vec2(glm::dot(x - mid, a), glm::dot(x - mid, b));
+  };
+  // The centres' own spread (before they are carried): their hull's Minkowski sum with the disk
+  // of radius `grow`, its area plus its perimeter times `grow` plus the disk's.
+  if (count >= 2) {
+    for (int i = 0; i < count; ++i) pts[i] = plane(on[i]);
+    const int m = std::max(1, ConvexHull2(pts, count, hull));
+    double hull_area = 0.0, perimeter = 0.0;
+    for (int i = 0; i < m; ++i) {
+      const glm::vec2 u = hull[i], v = hull[(i + 1) % m];
+      hull_area += 0.5 * (double(u.x) * v.y - double(v.x) * u.y);
+      perimeter += glm::length(v - u);
+    }
+    const double spread = std::fabs(hull_area) + perimeter * grow + sh::kPi * double(grow) * grow;
+    if (!(spread <= kCoreMaxSpan * area)) return 0.0;
+  }
   // Where the sheet goes on past a side of its cell, it spans the cell up to that side: each
   // centre moved in the plane, straight towards the side, to it.
   int total = count;
@@ -1804,26 +1853,8 @@ double SheetCore(const Surfel* surfels, const uint32_t* members, int count, cons
       }
     }
   }
-  glm::vec2 pts[kMaxPoints];
-  for (int i = 0; i < total; ++i) pts[i] = {glm::dot(on[i] - mid, a), glm::dot(on[i] - mid, b)};
-  std::sort(pts, pts + total, [](const glm::vec2& x, const glm::vec2& y) {
-    return x.x < y.x || (x.x == y.x && x.y < y.y);
-  });
-  // Andrew's monotone chain, counter-clockwise in (a, b).
-  auto turn = [](const glm::vec2& o, const glm::vec2& u, const glm::vec2& v) {
-    return (u.x - o.x) * (v.y - o.y) - (u.y - o.y) * (v.x - o.x);
-  };
-  glm::vec2 hull[2 * kMaxPoints];
-  int k = 0;
-  for (int i = 0; i < total; ++i) {
-    while (k >= 2 && turn(hull[k - 2], hull[k - 1], pts[i]) <= 0.0f) --k;
-    hull[k++] = pts[i];
-  }
-  for (int i = total - 2, lower = k + 1; i >= 0; --i) {
-    while (k >= lower && turn(hull[k - 2], hull[k - 1], pts[i]) <= 0.0f) --k;
-    hull[k++] = pts[i];
-  }
-  const int n = k - 1;
+  for (int i = 0; i < total; ++i) pts[i] = plane(on[i]);
+  const int n = ConvexHull2(pts, total, hull);  // counter-clockwise in (a, b)
   if (n < 3) {
     // The centres lie on a line (or are one point): the hull is that segment, and its offset the
     // rectangle `grow` past it on every side.
@@ -1836,8 +1867,12 @@ double SheetCore(const Surfel* surfels, const uint32_t* members, int count, cons
     core->n = 4;
     for (int i = 0; i < 4; ++i) core->v[i] = mid + v[i].x * a + v[i].y * b;
   } else {
-    if (n > kMaxPolygonVertices) return 0.0;
-    core->n = n;
+    int out = 0;
+    auto put = [&](const glm::vec2& v) {
+      if (out == kMaxPolygonVertices) return false;
+      core->v[out++] = mid + v.x * a + v.y * b;
+      return true;
+    };
     for (int i = 0; i < n; ++i) {
       const glm::vec2 e0 = hull[i] - hull[(i + n - 1) % n], e1 = hull[(i + 1) % n] - hull[i];
       const float l0 = glm::length(e0), l1 = glm::length(e1);
@@ -1846,10 +1881,13 @@ double SheetCore(const Surfel* surfels, const uint32_t* members, int count, cons
       const glm::vec2 m = n0 + n1;
       // 1 + the cosine of the turn: below 0.2 the mitre would reach over 3.2 times `grow`.
       const float dm = glm::dot(m, n0);
-      if (!(dm > 0.2f)) return 0.0;
-      const glm::vec2 v = hull[i] + (grow / dm) * m;
-      core->v[i] = mid + v.x * a + v.y * b;
+      if (dm > 0.2f) {
+        if (!put(hull[i] + (grow / dm) * m)) return 0.0;
+      } else if (!bevel || !put(hull[i] + grow * n0) || !put(hull[i] + grow * n1)) {
+        return 0.0;
+      }
     }
+    core->n = out;
   }
   glm::vec3 cc(0.0f);
   for (int j = 0; j < clip.n; ++j) cc += clip.v[j];
@@ -2479,7 +2517,10 @@ void Rasterizer::PrepareSurfelGroups(const Gathered& g, ShadeResult* out) {
       // at finer rasters, whose pixels see a hedge from farther), to nothing, so that the
       // occlusion stays continuous in the receiver's position and a piece farther away is drawn
       // as before (the far field's pieces drawn as cores and rings over-occluded the forest's
-      // canopy: 0.00645 -> 0.00989 at the finer setting).
+      // canopy: 0.00645 -> 0.00989 at the finer setting). A two-sided group's sharp hull corner
+      // is bevelled (a narrow leaf's thin triangle of centres); a one-sided group's is refused,
+      // its core not carried to where the panel goes on, so that a sliver of core would take
+      // the ring's opacity from the rest of the panel (docs/design.md, "A piece's core").
       Polygon core;
       double core_area = 0.0;
       const float core_scale = static_cast<float>(res_) / kCoreRes;
@@ -2487,7 +2528,7 @@ void Rasterizer::PrepareSurfelGroups(const Gathered& g, ShadeResult* out) {
           d < kCoreFar * core_scale * spacing) {
         const double section = PolygonArea(p), held = double(alpha) * section;
         core_area = SheetCore(g.surfels.data(), &order[end - count], count, facing,
-                              -std::fabs(side), from, kCoreGrow * spacing,
+                              -std::fabs(side), from, kCoreGrow * spacing, area, first.two_sided,
                               first.two_sided ? snap_to : Bounds{}, kCoreCarry * spacing, p, &core);
         const float ds = d / (core_scale * spacing);
         const float w = std::clamp((kCoreFar - ds) / (kCoreFar - kCoreNear), 0.0f, 1.0f);
