@@ -174,6 +174,18 @@ inline int InterleavedMask(const SpanV8i& keep, const SpanV8i& cross, bool high)
   return kSpreadBits[Movemask4(k)] | (kSpreadBits[Movemask4(c)] << 1);
 }
 
+// *out = v's lanes permuted by `index` (each 0 to 7): GCC's variable-index __builtin_shuffle;
+// clang has none (its __builtin_shufflevector takes constant indices), so there lane by lane,
+// which it lowers to one permute with AVX2. Written through a pointer: an eight-lane vector
+// returned by value changes the ABI without AVX.
+inline void Permute8(const SpanV8f& v, const SpanV8i& index, SpanV8f* out) {
+#if defined(__clang__)
+  for (int i = 0; i < 8; ++i) (*out)[i] = v[index[i] & 7];
+#else
+  *out = __builtin_shuffle(v, index);
+#endif
+}
+
 // Stores the lanes of v whose bits are set in `mask`, in order, at to[0 ..), and stale values
 // after them up to to[7]. The indices are unpacked by per-lane shifts (one instruction with
 // AVX2; unpacked from bytes, GCC moved them one at a time). An eight-lane vector is not
@@ -181,7 +193,8 @@ inline int InterleavedMask(const SpanV8i& keep, const SpanV8i& cross, bool high)
 inline void StoreCompact(float* to, const SpanV8f& v, int mask) {
   constexpr SpanV8i kShift = {0, 3, 6, 9, 12, 15, 18, 21};
   const SpanV8i index = ((SpanV8i{} + static_cast<int32_t>(kCompact.lanes[mask])) >> kShift) & 7;
-  const SpanV8f c = __builtin_shuffle(v, index);
+  SpanV8f c;
+  Permute8(v, index, &c);
   std::memcpy(to, &c, sizeof c);
 }
 
@@ -199,8 +212,8 @@ inline void SplitLanes(const Poly2& p, int coord, float at, Poly2* below, Poly2*
   const SpanV8i succ = kSpanLane + 1;
   const SpanV8i next = succ & (succ != n);
   const SpanV8f s = (coord == 0 ? x : y) - at;
-  const SpanV8f xj = __builtin_shuffle(x, next), yj = __builtin_shuffle(y, next);
-  const SpanV8f sj = __builtin_shuffle(s, next);
+  SpanV8f xj, yj, sj;
+  Permute8(x, next, &xj), Permute8(y, next, &yj), Permute8(s, next, &sj);
   const SpanV8i live = kSpanLane < n;
   const SpanV8i cross = live & (((s < 0.0f) & (sj > 0.0f)) | ((s > 0.0f) & (sj < 0.0f)));
   const SpanV8f t = s / (s - sj);
@@ -244,7 +257,8 @@ inline float AbsArea2Lanes(const Poly2& p) {
   std::memcpy(&x, p.x, sizeof x);
   std::memcpy(&y, p.y, sizeof y);
   const SpanV8i prev = (kSpanLane - 1) + ((kSpanLane == 0) & n);
-  const SpanV8f xp = __builtin_shuffle(x, prev), yp = __builtin_shuffle(y, prev);
+  SpanV8f xp, yp;
+  Permute8(x, prev, &xp), Permute8(y, prev, &yp);
   SpanV8f t = (xp + x) * (yp - y);
   t = (SpanV8f)((SpanV8i)t & (kSpanLane < n));
   float a = 0.0f;
@@ -272,9 +286,9 @@ inline int ClipLanes(const SpanV8f& la, const SpanV8f& lb, const SpanV8f& lw, co
                      int n, float* a, float* b, float* w) {
   const SpanV8i succ = kSpanLane + 1;
   const SpanV8i next = succ & (succ != n);
-  const SpanV8f sj = __builtin_shuffle(ls, next);
-  const SpanV8f aj = __builtin_shuffle(la, next), bj = __builtin_shuffle(lb, next),
-                wj = __builtin_shuffle(lw, next);
+  SpanV8f sj, aj, bj, wj;
+  Permute8(ls, next, &sj), Permute8(la, next, &aj), Permute8(lb, next, &bj);
+  Permute8(lw, next, &wj);
   const SpanV8i live = kSpanLane < n;
   const SpanV8i in = ls >= 0.0f;
   const SpanV8i cross = live & (in ^ (sj >= 0.0f));
@@ -418,8 +432,8 @@ inline void Spans(const Poly2& p, int y0, int y1, MaskSpans* s) {
       std::memcpy(&l, xl + (jb - row0), sizeof l);
       std::memcpy(&r, xr + (jb - row0), sizeof r);
       // std::min(l, x) and std::max(r, x), lane by lane.
-      l = in & (x < l) ? x : l;
-      r = in & (r < x) ? x : r;
+      l = (in & (x < l)) ? x : l;
+      r = (in & (r < x)) ? x : r;
       std::memcpy(xl + (jb - row0), &l, sizeof l);
       std::memcpy(xr + (jb - row0), &r, sizeof r);
     }

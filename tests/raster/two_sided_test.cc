@@ -398,8 +398,9 @@ TEST(TwoSidedTest, ACrossingLeafIsNotTheReceiversOwnFold) {
   // (A disk that passes over the receiver within a third of its radius is drawn up to a fifth
   // short of what rays find, with or without tags: docs/eval.md, "Session 19"; these leaves keep
   // their pieces farther.)
-  for (const auto& [d, theta] :
+  for (const auto& at :
        {std::pair{0.04f, 1.05f}, std::pair{-0.03f, 1.3f}, std::pair{-0.05f, 0.7f}}) {
+    const float d = at.first, theta = at.second;  // a lambda below captures d (not a binding)
     const glm::vec3 u(-std::cos(theta), 0.0f, std::sin(theta));
     const glm::vec3 n = glm::normalize(glm::cross(u, glm::vec3(0.0f, 1.0f, 0.0f)));
     const float pitch = 0.08f, half = 0.12f;
@@ -415,8 +416,6 @@ TEST(TwoSidedTest, ACrossingLeafIsNotTheReceiversOwnFold) {
         leaf.push_back(sf);
       }
     }
-    // Rays: cosine-weighted directions from the receiver at the disks (every point of a ray
-    // lies above z = 0, so only what is above the receiver's plane is hit).
     // Rays: cosine-weighted directions from the receiver at the leaf the lattice samples (every
     // point of a ray lies above z = 0, so only what is above the receiver's plane is hit).
     const double want = CosineRayFraction(400, [&](const glm::dvec3& w) {
