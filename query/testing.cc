@@ -245,13 +245,26 @@ absl::StatusOr<std::vector<Surfel>> ReadAllSurfels(Database& db) {
   return all;
 }
 
+namespace {
+
+// Three draws of `u` as a vector, z drawn first. A call's arguments are not sequenced, and GCC
+// and clang evaluate them in opposite orders; this is GCC's, so that a seed gives the scenes and
+// receivers it gave before, whichever compiler built the harness.
+template <class Dist, class Rng>
+glm::vec3 Draw3(Dist& u, Rng& rng) {
+  const float z = u(rng), y = u(rng), x = u(rng);
+  return glm::vec3(x, y, z);
+}
+
+}  // namespace
+
 std::vector<Surfel> RandomSceneSurfels(size_t count, uint64_t seed) {
   std::mt19937_64 rng(seed);
   std::uniform_real_distribution<float> u(0.0f, 1.0f);
   auto unit = [&]() {
     glm::vec3 v;
     do {
-      v = glm::vec3(u(rng), u(rng), u(rng)) * 2.0f - 1.0f;
+      v = Draw3(u, rng) * 2.0f - 1.0f;
     } while (glm::dot(v, v) > 1.0f || glm::dot(v, v) < 1e-4f);
     return glm::normalize(v);
   };
@@ -271,7 +284,7 @@ std::vector<Surfel> RandomSceneSurfels(size_t count, uint64_t seed) {
     const glm::vec3 lo = glm::min(glm::min(glm::vec3(0.0f), a), glm::min(c, a + c));
     const glm::vec3 hi = glm::max(glm::max(glm::vec3(0.0f), a), glm::max(c, a + c));
     const glm::vec3 room = glm::max(glm::vec3(1.0f) - (hi - lo), glm::vec3(0.0f));
-    const glm::vec3 o = -lo + glm::vec3(u(rng), u(rng), u(rng)) * room;
+    const glm::vec3 o = -lo + Draw3(u, rng) * room;
     patches.push_back({o, a, c, n});
   }
   const glm::vec3 centre(0.5f + 0.2f * (u(rng) - 0.5f), 0.5f, 0.5f);
@@ -287,11 +300,12 @@ std::vector<Surfel> RandomSceneSurfels(size_t count, uint64_t seed) {
       s.normal = d;
     } else {
       const Patch& p = patches[rng() % np];
-      s.position = p.origin + u(rng) * p.a + u(rng) * p.b;
+      const float tb = u(rng), ta = u(rng);  // the same order (Draw3)
+      s.position = p.origin + ta * p.a + tb * p.b;
       s.normal = p.n;
     }
     s.radius = spacing * (0.4f + 0.4f * u(rng));
-    s.radiance = glm::vec3(u(rng), u(rng), u(rng));
+    s.radiance = Draw3(u, rng);
     out.push_back(s);
   }
   return out;
@@ -302,10 +316,10 @@ std::vector<Receiver> RandomReceivers(size_t count, uint64_t seed) {
   std::uniform_real_distribution<float> u(0.0f, 1.0f);
   std::vector<Receiver> out(count);
   for (Receiver& r : out) {
-    r.position = glm::vec3(u(rng), u(rng), u(rng)) * 1.4f - 0.2f;
+    r.position = Draw3(u, rng) * 1.4f - 0.2f;
     glm::vec3 v;
     do {
-      v = glm::vec3(u(rng), u(rng), u(rng)) * 2.0f - 1.0f;
+      v = Draw3(u, rng) * 2.0f - 1.0f;
     } while (glm::dot(v, v) > 1.0f || glm::dot(v, v) < 1e-4f);
     r.normal = glm::normalize(v);
   }

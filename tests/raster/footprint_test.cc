@@ -2063,8 +2063,11 @@ TEST(FootprintTest, ATurnedBlocksEdgesAreDrawnAsTheirFaces) {
     for (int b = 0; b < nv; ++b) {
       for (int a = 0; a < nu; ++a) {
         Surfel s;
-        s.position = at + (static_cast<float>(a) + jitter(rng)) * pu * u +
-                     (static_cast<float>(b) + jitter(rng)) * pv * v;
+        // Drawn one at a time: the operands of + are unsequenced, and GCC and clang draw them
+        // in opposite orders (this order is GCC's, for which the figures below were measured).
+        const float jb = jitter(rng), ja = jitter(rng);
+        s.position =
+            at + (static_cast<float>(a) + ja) * pu * u + (static_cast<float>(b) + jb) * pv * v;
         s.normal = n;
         s.radius = std::sqrt(pu * pv / static_cast<float>(kPi));
         surfels.push_back(s);
