@@ -46,7 +46,7 @@ class TsanRegion {
     Task& operator=(const Task&) = delete;
 
    private:
-    const TsanRegion& region_;
+    [[maybe_unused]] const TsanRegion& region_;  // read only under PBGI_TSAN_REGION
   };
 
   // Constructed before the region's tasks are handed to TBB (Fork() again before a later
@@ -69,7 +69,7 @@ class TsanRegion {
   }
 
  private:
-  mutable char fork_ = 0, join_ = 0;
+  [[maybe_unused]] mutable char fork_ = 0, join_ = 0;  // read only under PBGI_TSAN_REGION
 };
 
 }  // namespace pbgi::internal

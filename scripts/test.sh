@@ -36,7 +36,9 @@ cmake --build "$build" -j "$jobs"
 (cd "$build" && ctest --output-on-failure -j "$jobs" "$@")
 
 # The fuzz targets under libFuzzer (clang, ASan + UBSan), a few seconds each
-# (PBGI_FUZZ_SECONDS; 0 skips them). Only the modules they link are built. Not with a
+# (PBGI_FUZZ_SECONDS; 0 skips them). Only the modules they link are built, and every library
+# module, so that the library is known to build with clang (-Werror) too (the C API's shared
+# library aside: the fuzzers' coverage hooks do not link into it). Not with a
 # sanitizer suite (the fuzzers bring their own) nor when ctest was given a test selection.
 fuzz_seconds="${PBGI_FUZZ_SECONDS:-5}"
 if [ -z "$san" ] && [ $# -eq 0 ] && [ "$fuzz_seconds" != 0 ]; then
@@ -49,6 +51,7 @@ if [ -z "$san" ] && [ $# -eq 0 ] && [ "$fuzz_seconds" != 0 ]; then
   else
     cmake -S . -B "$fuzz_build" -DPBGI_FUZZ_SECONDS="$fuzz_seconds" >/dev/null
   fi
-  cmake --build "$fuzz_build" -j "$jobs" --target pbgi_fuzzers
+  cmake --build "$fuzz_build" -j "$jobs" --target pbgi_fuzzers pbgi_base pbgi_store pbgi_store_mem \
+    pbgi_tree pbgi_build pbgi_scene pbgi_query pbgi_query_testing pbgi_raster pbgi_shade pbgi_capi
   (cd "$fuzz_build" && ctest --output-on-failure -L fuzz)
 fi
