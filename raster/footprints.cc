@@ -1820,11 +1820,12 @@ double SheetCore(const Surfel* surfels, const uint32_t* members, int count, cons
   auto plane = [&](const glm::vec3& x) {
     return glm::vec2(glm::dot(x - mid, a), glm::dot(x - mid, b));
   };
-  // The centres' own spread (before they are carried): their hull's Minkowski sum with the disk
-  // of radius `grow`, its area plus its perimeter times `grow` plus the disk's.
+  // The centres' own hull, and their spread (before they are carried): the hull's Minkowski sum
+  // with the disk of radius `grow`, its area plus its perimeter times `grow` plus the disk's.
+  for (int i = 0; i < count; ++i) pts[i] = plane(on[i]);
+  int n = ConvexHull2(pts, count, hull);  // counter-clockwise in (a, b)
   if (count >= 2) {
-    for (int i = 0; i < count; ++i) pts[i] = plane(on[i]);
-    const int m = std::max(1, ConvexHull2(pts, count, hull));
+    const int m = std::max(1, n);
     double hull_area = 0.0, perimeter = 0.0;
     for (int i = 0; i < m; ++i) {
       const glm::vec2 u = hull[i], v = hull[(i + 1) % m];
@@ -1853,8 +1854,10 @@ double SheetCore(const Surfel* surfels, const uint32_t* members, int count, cons
       }
     }
   }
-  for (int i = 0; i < total; ++i) pts[i] = plane(on[i]);
-  const int n = ConvexHull2(pts, total, hull);  // counter-clockwise in (a, b)
+  if (total > count) {  // the hull of the centres and their carried copies
+    for (int i = 0; i < total; ++i) pts[i] = plane(on[i]);
+    n = ConvexHull2(pts, total, hull);
+  }
   if (n < 3) {
     // The centres lie on a line (or are one point): the hull is that segment, and its offset the
     // rectangle `grow` past it on every side.

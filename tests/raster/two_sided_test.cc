@@ -861,15 +861,27 @@ TEST(TwoSidedTest, ATurnedSheetOverAReceiverIsOpaque) {
   RecordProperty("mean_abs_error", std::to_string(sum / n));
 }
 
+// The mean and the worst |error| of a test's cases, recorded as the test's properties.
+struct ErrorTally {
+  double sum = 0.0, worst = 0.0;
+  int n = 0;
+  void Add(double got, double want) {
+    sum += std::fabs(got - want), worst = std::max(worst, std::fabs(got - want)), ++n;
+  }
+  double Mean() const { return sum / n; }
+  void Record() const {
+    ::testing::Test::RecordProperty("worst_abs_error", std::to_string(worst));
+    ::testing::Test::RecordProperty("mean_abs_error", std::to_string(Mean()));
+  }
+};
+
 // A leaf of 6 x 4 lattice squares of `pitch` at three tilts, receivers 0.4 to 1 pitches under
 // five points of it, the cells (3.3 pitches) shifted across it two ways, against rays at the
-// rectangle: the mean and the worst |error|. One-sided, its surfels face the receiver.
-void NearLeafErrors(bool two_sided, double* mean, double* worst) {
+// rectangle. One-sided, its surfels face the receiver.
+ErrorTally NearLeafErrors(bool two_sided) {
   const float pitch = 0.06f, cell = 3.3f * pitch;
   const float half_u = 3.0f * pitch, half_v = 2.0f * pitch;
-  double sum = 0.0;
-  int n = 0;
-  *worst = 0.0;
+  ErrorTally errors;
   for (const float tilt : {0.0f, 0.35f, 0.7f}) {
     const glm::vec3 normal(0.0f, -std::sin(tilt), std::cos(tilt));
     const glm::vec3 du(1.0f, 0.0f, 0.0f), dv = glm::cross(normal, du);
@@ -885,18 +897,12 @@ void NearLeafErrors(bool two_sided, double* mean, double* worst) {
         for (Surfel& sf : part) sf.two_sided = two_sided;
         for (const glm::vec3 shift :
              {glm::vec3(0.37f, 0.61f, 0.29f), glm::vec3(1.82f, 2.47f, 0.55f)}) {
-          const double got = MovedSheetOcclusion(part, shift * pitch, cell);
-          *worst = std::max(*worst, std::fabs(got - want));
-          if (getenv("DBG") && std::fabs(got - want) > 0.15)
-            fprintf(stderr, "tilt %g h %g at %g,%g shift %g got %g want %g\n", tilt, h, at.x, at.y,
-                    shift.x, got, want);
-          sum += std::fabs(got - want);
-          ++n;
+          errors.Add(MovedSheetOcclusion(part, shift * pitch, cell), want);
         }
       }
     }
   }
-  *mean = sum / n;
+  return errors;
 }
 
 // A leaf a receiver lies just under (the forest's crowns at 8 M surfels: a leaf of 0.36 x 0.24
@@ -916,12 +922,10 @@ void NearLeafErrors(bool two_sided, double* mean, double* worst) {
 // fixed leaf steps by at most 0.002 more than the rays do (0.028 if the core ended at 6 spacings
 // without shrinking; 0.0006 at res 24).
 TEST(TwoSidedTest, ANearLeafsPiecesAreOpaqueInside) {
-  double mean = 0.0, worst = 0.0;
-  NearLeafErrors(/*two_sided=*/true, &mean, &worst);
-  RecordProperty("worst_abs_error", std::to_string(worst));
-  RecordProperty("mean_abs_error", std::to_string(mean));
-  EXPECT_LT(mean, 0.045);
-  EXPECT_LT(worst, 0.31);
+  const ErrorTally errors = NearLeafErrors(/*two_sided=*/true);
+  errors.Record();
+  EXPECT_LT(errors.Mean(), 0.045);
+  EXPECT_LT(errors.worst, 0.31);
 
   // Continuity through the core's fade: the leaf tilted 20 degrees and fixed in its cells, the
   // receiver moving down from 2 to 7 spacings under it, near its corner.
@@ -965,27 +969,11 @@ TEST(TwoSidedTest, ANearLeafsPiecesAreOpaqueInside) {
 // surfels one-sided and facing the receiver, against rays at the rectangle: mean |error| 0.105
 // before, 0.059 now; the worst 0.421 and 0.249.
 TEST(TwoSidedTest, AOneSidedPanelsNearPiecesAreOpaqueInside) {
-  double mean = 0.0, worst = 0.0;
-  NearLeafErrors(/*two_sided=*/false, &mean, &worst);
-  RecordProperty("worst_abs_error", std::to_string(worst));
-  RecordProperty("mean_abs_error", std::to_string(mean));
-  EXPECT_LT(mean, 0.07);
-  EXPECT_LT(worst, 0.3);
+  const ErrorTally errors = NearLeafErrors(/*two_sided=*/false);
+  errors.Record();
+  EXPECT_LT(errors.Mean(), 0.07);
+  EXPECT_LT(errors.worst, 0.3);
 }
-
-// The mean and the worst |error| of a test's cases, recorded as the test's properties.
-struct ErrorTally {
-  double sum = 0.0, worst = 0.0;
-  int n = 0;
-  void Add(double got, double want) {
-    sum += std::fabs(got - want), worst = std::max(worst, std::fabs(got - want)), ++n;
-  }
-  double Mean() const { return sum / n; }
-  void Record() const {
-    ::testing::Test::RecordProperty("worst_abs_error", std::to_string(worst));
-    ::testing::Test::RecordProperty("mean_abs_error", std::to_string(Mean()));
-  }
-};
 
 // Three small plates of a two-sided part, one surfel each, 2.7 spacings apart in one leaf cell
 // (2CylinderEngine: three of a plate's surfels in a cell, their hull over sky that rays see). A
